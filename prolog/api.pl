@@ -1,0 +1,217 @@
+/*  The one entry point the Python bridge calls: handle(+RequestJSON, -ReplyJSON).
+
+    The request is JSON text passed as a Prolog string, never parsed as
+    Prolog: {"op": Op, "args": {...}, "time_limit_s": T, "inference_limit": N}.
+    Op must be one of the operations below; every user-given name inside args
+    is checked by valid_id/1 before it becomes an atom.  Each operation runs
+    under call_with_time_limit/2 and call_with_inference_limit/3, and every
+    mutation runs in a transaction, so a limit or an error leaves the
+    knowledge base as it was.
+
+    Reply: {"ok": true, "result": R} or
+           {"ok": false, "error": {"type": T, "detail": D, "field": F?, "value": V?}}.
+*/
+:- module(api, [handle/2, operation/1]).
+:- use_module(library(http/json)).
+:- use_module(library(time)).
+:- use_module(library(apply)).
+:- use_module(library(pairs)).
+:- use_module(world).
+:- use_module(params).
+:- use_module(qualitative).
+:- use_module(drm).
+
+%!  handle(+Request:text, -Reply:string) is det.
+handle(In, Out) :-
+    catch(handle_(In, Reply), E, error_reply(E, Reply)),
+    !,
+    atom_json_dict(Out, Reply, [width(0)]).
+handle(_, Out) :-
+    atom_json_dict(Out, _{ok:false, error:_{type:"failed", detail:"operation failed"}},
+                   [width(0)]).
+
+handle_(In, _{ok:true, result:Result}) :-
+    atom_json_dict(In, Req, [value_string_as(string)]),
+    get_dict(op, Req, OpText),
+    get_dict(args, Req, Args),
+    get_dict(time_limit_s, Req, T),
+    get_dict(inference_limit, Req, N),
+    atom_string(Op, OpText),
+    (   operation(Op) -> true ; throw(chizu_error(unknown_op(OpText))) ),
+    call_with_time_limit(
+        T, call_with_inference_limit(once(run(Op, Args, Result)), N, Det)),
+    (   Det == inference_limit_exceeded
+    ->  throw(chizu_error(limit(inferences)))
+    ;   true
+    ).
+
+%!  operation(?Op) is nondet.
+operation(Op) :- clause(run(Op, _, _), _), atom(Op).
+
+error_reply(chizu_error(E), R) :- !, error_reply(chizu_error(E, null), R).
+error_reply(chizu_error(E, Field), _{ok:false, error:Err}) :- !,
+    E =.. [Type|Values],
+    format(string(Detail), "~q", [E]),
+    Err0 = _{type:Type, detail:Detail},
+    (   Values = [V|_], atomic(V) -> put_dict(value, Err0, V, Err1) ; Err1 = Err0 ),
+    (   Field == null -> Err = Err1 ; put_dict(field, Err1, Field, Err) ).
+error_reply(time_limit_exceeded, _{ok:false, error:_{type:limit, detail:"time limit exceeded", value:time}}) :- !.
+error_reply(E, _{ok:false, error:_{type:internal, detail:Detail}}) :-
+    message_to_codes(E, Detail).
+
+message_to_codes(E, S) :-
+    catch(message_to_codes_(E, S), _, format(string(S), "~q", [E])).
+message_to_codes_(E, S) :-
+    message_to_codes(E, [], Codes) -> string_codes(S, Codes) ; format(string(S), "~q", [E]).
+message_to_codes(E, _, Codes) :-
+    '$messages':translate_message(E, Lines, []),
+    with_output_to(codes(Codes), print_message_lines(current_output, '', Lines)).
+
+		 /*******************************
+		 *        ARGUMENT CHECKS       *
+		 *******************************/
+
+arg_(Key, Dict, V) :-
+    (   get_dict(Key, Dict, V0) -> V = V0 ; throw(chizu_error(missing(Key), Key)) ).
+
+id_field(Text, Field, Id) :-
+    (   valid_id(Text) -> atom_string(Id, Text) ; throw(chizu_error(invalid_id(Text), Field)) ).
+
+existing_world(Args, W) :-
+    arg_(world, Args, Text),
+    id_field(Text, world, W),
+    (   world_exists(W) -> true ; throw(chizu_error(unknown_world(W), world)) ).
+
+known_landmark(W, Text, Field, L) :-
+    id_field(Text, Field, L),
+    world_module(W, M),
+    (   M:landmark(L) -> true ; throw(chizu_error(unknown_landmark(L), Field)) ).
+
+field(Fmt, Args, Field) :- format(string(Field), Fmt, Args).
+
+probability(P, Field) :-
+    (   number(P), P >= 0, P =< 1 -> true ; throw(chizu_error(invalid_probability(P), Field)) ).
+
+		 /*******************************
+		 *          OPERATIONS          *
+		 *******************************/
+
+run(worlds, _, Ws) :-
+    findall(W, world_exists(W), Ws0), sort(Ws0, Ws).
+
+run(create_world, Args, _{world:W, landmarks:N}) :-
+    arg_(world, Args, Text), id_field(Text, world, W),
+    arg_(landmarks, Args, Ls0),
+    foldl([LT, L, I0, I]>>( field("landmarks[~d]", [I0], F), id_field(LT, F, L), I is I0+1 ),
+          Ls0, Ls, 0, _),
+    sort(Ls, Set), length(Set, N),
+    (   length(Ls, N) -> true ; throw(chizu_error(duplicate_landmark, landmarks)) ),
+    dict_pairs_or_empty(Args, rule_probabilities, RPs),
+    forall(member(R-P, RPs),
+           ( field("rule_probabilities.~w", [R], F),
+             ( rule_name(R) -> true ; throw(chizu_error(unknown_rule(R), F)) ),
+             probability(P, F) )),
+    dict_pairs_or_empty(Args, parameters, Ps),
+    forall(member(K-V, Ps),
+           ( field("parameters.~w", [K], F),
+             ( parameter_name(K) -> true ; throw(chizu_error(unknown_parameter(K), F)) ),
+             ( number(V), V >= 0 -> true ; throw(chizu_error(invalid_parameter(V), F)) ) )),
+    world_module(W, M),
+    transaction(( create_world(W),
+                  forall(member(L, Set), assertz(M:landmark(L))),
+                  forall(member(R-P, RPs), assertz(M:rule_probability(R, P))),
+                  forall(member(K-V, Ps), assertz(M:parameter(K, V))) )).
+
+run(drop_world, Args, _{world:W}) :-
+    existing_world(Args, W),
+    drop_world(W).
+
+run(landmarks, Args, Ls) :-
+    existing_world(Args, W), world_module(W, M),
+    findall(L, M:landmark(L), Ls).
+
+run(observe, Args, _{world:W, at:At, relations:N}) :-
+    existing_world(Args, W),
+    arg_(at, Args, AtText), known_landmark(W, AtText, at, At),
+    arg_(seen, Args, Seen0),
+    foldl(seen_item(W, At), Seen0, Seen, 0, _),
+    arg_(angles, Args, Angles0),
+    maplist(angle_item(W, At), Angles0, Angles),
+    arg_(distances, Args, Dists0),
+    maplist(distance_item(W, At), Dists0, Dists),
+    append(Angles, Dists, Quantities),
+    observe(W, At, Seen, Quantities),
+    world_module(W, M),
+    aggregate_all(count, ( M:lr(At, _, _) ; M:align(At, _, _, _) ), N).
+
+run(reached, Args, _{world:W, from:A, to:B}) :-
+    existing_world(Args, W),
+    arg_(from, Args, AT), known_landmark(W, AT, from, A),
+    arg_(to, Args, BT), known_landmark(W, BT, to, B),
+    transaction(record_reached(W, A, B)).
+
+run(relations, Args, Rs) :-
+    existing_world(Args, W),
+    arg_(kind, Args, KT), atom_string(K, KT),
+    (   relation_kind(K) -> true ; throw(chizu_error(unknown_kind(KT), kind)) ),
+    findall(R, relation(K, W, R), Rs).
+
+run(drm, Args, _{nodes:Ns, edges:Es}) :-
+    existing_world(Args, W), world_module(W, M),
+    findall(L, M:landmark(L), Ns),
+    drm_edges(W, Edges),
+    maplist([edge(A, B, P, Me, V), _{from:A, to:B, p:P, method:Me, via:V}]>>true, Edges, Es).
+
+run(check_landmarks, Args, _{world:W}) :-
+    existing_world(Args, W),
+    arg_(landmarks, Args, Ls),
+    forall(member(Field-Text, Ls), known_landmark(W, Text, Field, _)).
+
+run(params, Args, _{rule_probabilities:RPs, parameters:Ps}) :-
+    existing_world(Args, W), world_module(W, M),
+    findall(R-P, ( rule_name(R), rule_probability(M, R, P) ), RP0),
+    dict_pairs(RPs, _, RP0),
+    findall(K-V, ( parameter_name(K), parameter(M, K, V) ), P0),
+    dict_pairs(Ps, _, P0).
+
+run(facts, Args, Facts) :-
+    existing_world(Args, W), world_module(W, M),
+    findall(S, ( member(N/A, [landmark/1, rec/2, frec/3, lr/3, align/4, rea/2,
+                              rule_probability/2, parameter/2]),
+                 functor(H, N, A), M:H,
+                 format(string(S), "~k", [H]) ),
+            Facts).
+
+dict_pairs_or_empty(Args, Key, Pairs) :-
+    (   get_dict(Key, Args, D), is_dict(D) -> dict_pairs(D, _, Pairs) ; Pairs = [] ).
+
+seen_item(W, At, S, seen(L, Fs), I0, I) :-
+    I is I0 + 1,
+    field("seen[~d].landmark", [I0], F),
+    arg_(landmark, S, LT), known_landmark(W, LT, F, L),
+    (   L == At -> throw(chizu_error(self_observation(L), F)) ; true ),
+    (   get_dict(features, S, Fs0) -> true ; Fs0 = [] ),
+    field("seen[~d].features", [I0], FF),
+    maplist([T, A]>>id_field(T, FF, A), Fs0, Fs).
+
+angle_item(W, At, [T1, T2, D], angle(L1, At, L2, D)) :-
+    known_landmark(W, T1, angles, L1), known_landmark(W, T2, angles, L2),
+    (   number(D) -> true ; throw(chizu_error(invalid_angle(D), angles)) ).
+distance_item(W, At, [T, D], distance(At, L, D)) :-
+    known_landmark(W, T, distances, L),
+    (   number(D) -> true ; throw(chizu_error(invalid_distance(D), distances)) ).
+
+relation_kind(rec).
+relation_kind(frec).
+relation_kind(lr).
+relation_kind(align).
+relation_kind(rea).
+relation_kind(reachable).
+
+relation(rec, W, _{from:A, to:B, p:P}) :- rec(W, A, B, P).
+relation(frec, W, _{from:A, to:B, feature:F, p:1.0}) :- frec(W, A, B, F).
+relation(lr, W, _{at:A, left:B, right:C, p:P}) :- lr(W, A, B, C, P).
+relation(align, W, _{at:A, first:B, second:C, kind:K, p:P}) :- align(W, A, B, C, K, P).
+relation(rea, W, _{from:A, to:B, p:1.0}) :- world_module(W, M), M:rea(A, B).
+relation(reachable, W, _{from:A, to:B, p:P, method:Me, via:V}) :-
+    reachable(W, A, B, P, Me, V).

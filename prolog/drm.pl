@@ -1,0 +1,113 @@
+/*  Direct Reachability Map (paper §5).
+
+    reachable(From, To) is derived from the qualitative relations; each
+    derivation names the movement method written in its rule body:
+
+      move1    go to a landmark that was already reached (rea) or is
+               directly recognised (rec)                         [paper]
+      move2    pass between two recognised landmarks B and D that lie on
+               opposite sides of the line From-To, then head for To once
+               it is recognised (the paper's Fig. 1 rule)         [paper]
+      move3    go to a recognised landmark B from which From and To are
+               seen in opposite directions (B lies on the segment
+               From-To), keep straight on past B until To is recognised
+      retrace  drive back along a route that was driven before (rea in
+               the other direction)
+
+    move3 and retrace are geometrically sound: move3 follows a straight line
+    that provably contains To; retrace repeats a route known to be free.
+
+    P(reachable) = P(rule) * prod P(body_i) (paper, §5); the DRM keeps, for
+    each ordered pair, the derivation with the highest probability.
+*/
+:- module(drm,
+          [ reachable/5,            % +World, ?From, ?To, -P, -Method
+            reachable/6,            % +World, ?From, ?To, -P, -Method, -Via
+            drm_edge/6,             % +World, ?From, ?To, -P, -Method, -Via
+            drm_edges/2,            % +World, -Edges
+            record_reached/3        % +World, +From, +To
+          ]).
+:- use_module(world).
+:- use_module(params).
+:- use_module(qualitative).
+
+params:default_rule_probability(reach_rea, 0.99).
+params:default_rule_probability(reach_rec, 0.95).
+params:default_rule_probability(move2, 0.9).
+params:default_rule_probability(move3, 0.85).
+params:default_rule_probability(retrace, 0.9).
+
+%!  reachable(+World, ?From, ?To, -P, -Method) is nondet.
+%!  reachable(+World, ?From, ?To, -P, -Method, -Via) is nondet.
+%
+%   One derivation of reachable(From, To) with its probability and movement
+%   method; Via lists the landmarks the method steers by.
+reachable(W, A, B, P, Method) :-
+    reachable(W, A, B, P, Method, _).
+
+reachable(W, A, B, P, move1, []) :-        % reachable :- rea.   [move1]
+    world_module(W, M),
+    M:rea(A, B),
+    rp(M, reach_rea, [1.0], P).
+reachable(W, A, B, P, move1, []) :-        % reachable :- rec.   [move1]
+    rec(W, A, B, P0),
+    A \== B,
+    world_module(W, M),
+    rp(M, reach_rec, [P0], P).
+reachable(W, A, C, P, move2, [B, D]) :-    % Fig. 1              [move2]
+    lr(W, A, B, D, P1),
+    lr(W, B, C, A, P2),  C \== A, C \== D,
+    lr(W, D, A, C, P3),
+    rec(W, B, A, P4), rec(W, B, C, P5),
+    rec(W, D, A, P6), rec(W, D, C, P7),
+    world_module(W, M),
+    rp(M, move2, [P1, P2, P3, P4, P5, P6, P7], P).
+reachable(W, A, C, P, move3, [B]) :-       % straight on through B
+    rec(W, A, B, P1),
+    align(W, B, A, C, not_same, P2), C \== A,
+    rec(W, B, C, P3),
+    world_module(W, M),
+    rp(M, move3, [P1, P2, P3], P).
+reachable(W, B, A, P, retrace, []) :-      % back along a driven route
+    world_module(W, M),
+    M:rea(A, B), A \== B,
+    rp(M, retrace, [1.0], P).
+
+rp(M, Rule, Ps, P) :-
+    rule_probability(M, Rule, R),
+    foldl([X, Y0, Y]>>(Y is X*Y0), Ps, R, P).
+
+%!  drm_edge(+World, ?From, ?To, -P, -Method, -Via) is nondet.
+%
+%   The DRM's edge From->To: the derivation of highest probability (ties:
+%   the first in the order of the rules above).
+drm_edge(W, A, B, P, Method, Via) :-
+    drm_edges(W, Edges),
+    member(edge(A, B, P, Method, Via), Edges).
+
+%!  drm_edges(+World, -Edges) is det.
+%
+%   Edges is the list of edge(From, To, P, Method, Via), one per ordered
+%   pair, sorted by From and To.
+drm_edges(W, Edges) :-
+    qualitative:ensure_closed(W),
+    findall((A-B)-(P-Method-Via), reachable(W, A, B, P, Method, Via), Pairs),
+    keysort(Pairs, Sorted),                 % stable: rule order kept per pair
+    group_pairs_by_key(Sorted, Groups),
+    maplist(best_edge, Groups, Edges).
+
+best_edge((A-B)-[D|Ds], edge(A, B, P, Method, Via)) :-
+    foldl(better, Ds, D, P-Method-Via).
+
+better(P-M-V, P0-_-_, P-M-V) :- P > P0, !.
+better(_, Best, Best).
+
+%!  record_reached(+World, +From, +To) is det.
+%
+%   Bookkeeping of the paper's rea/2: the robot drove From -> To.
+record_reached(W, A, B) :-
+    world_module(W, M),
+    (   M:rea(A, B)
+    ->  true
+    ;   assertz(M:rea(A, B))
+    ).

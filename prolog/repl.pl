@@ -1,0 +1,70 @@
+/*  REPL conveniences: `chizu repl WORLD` loads a world's facts and makes the
+    world current, so that the paper's relations can be asked without the
+    world argument:  ?- reachable(a, c, P, M).
+*/
+:- module(repl,
+          [ use_world/1,            % +World
+            load_world_facts/2,     % +World, +File
+            reachable/4,            % ?From, ?To, -P, -Method
+            lr/4,                   % ?L1, ?L2, ?L3, -P
+            align/5,                % ?L1, ?L2, ?L3, ?Kind, -P
+            rec/3,                  % ?L1, ?L2, -P
+            drm_edge/4,             % ?From, ?To, -P, -Method
+            main/0
+          ]).
+:- use_module(library(main), [argv_options/3]).
+:- use_module(world).
+:- use_module(qualitative, []).
+:- use_module(drm, []).
+
+:- dynamic current_world/1.
+
+%!  use_world(+World) is det.
+use_world(World) :-
+    text_id(World, W),
+    (   world_exists(W) -> true ; throw(chizu_error(unknown_world(W))) ),
+    retractall(current_world(_)),
+    assertz(current_world(W)).
+
+%!  load_world_facts(+World, +File) is det.
+%
+%   Create World and assert the facts stored in File (one term per clause,
+%   as written by the service's `facts` operation).  Terms are read as data
+%   and only whitelisted fact shapes are asserted.
+load_world_facts(World, File) :-
+    create_world(World),
+    world_module(World, M),
+    setup_call_cleanup(open(File, read, In),
+                       load_terms(In, M),
+                       close(In)).
+
+load_terms(In, M) :-
+    read_term(In, T, []),
+    (   T == end_of_file
+    ->  true
+    ;   functor(T, N, A),
+        (   world_fact(N/A) -> assertz(M:T) ; throw(chizu_error(not_a_fact(T))) ),
+        load_terms(In, M)
+    ).
+
+w(W) :- ( current_world(W) -> true ; throw(chizu_error(no_current_world)) ).
+
+reachable(A, B, P, M) :- w(W), drm:reachable(W, A, B, P, M).
+lr(A, B, C, P) :- w(W), qualitative:lr(W, A, B, C, P).
+align(A, B, C, K, P) :- w(W), qualitative:align(W, A, B, C, K, P).
+rec(A, B, P) :- w(W), qualitative:rec(W, A, B, P).
+drm_edge(A, B, P, M) :- w(W), drm:drm_edge(W, A, B, P, M, _).
+
+%!  main is det.
+%
+%   Entry for `swipl prolog/load.pl -g repl:main -- --world W --facts F`.
+main :-
+    current_prolog_flag(argv, Argv),
+    argv_options(Argv, _, Opts),
+    (   memberchk(world(W0), Opts), memberchk(facts(F), Opts)
+    ->  atom_string(W0, WS),
+        load_world_facts(WS, F),
+        use_world(WS),
+        format("chizu: world ~w loaded; try  ?- reachable(From, To, P, Method).~n", [W0])
+    ;   true
+    ).
