@@ -45,31 +45,32 @@ params:default_rule_probability(retrace, 0.9).
 reachable(W, A, B, P, Method) :-
     reachable(W, A, B, P, Method, _).
 
-reachable(W, A, B, P, move1, []) :-        % reachable :- rea.   [move1]
+reachable(W, A, B, P, Method, Via) :-
+    ensure_closed(W),
     world_module(W, M),
+    reachable_(M, A, B, P, Method, Via).
+
+%   The closure is materialised in the world module (d_rec/3, d_lr/4,
+%   d_align/5); bodies are ordered so that every lookup is indexed.
+reachable_(M, A, B, P, move1, []) :-       % reachable :- rea.   [move1]
     M:rea(A, B),
     rp(M, reach_rea, [1.0], P).
-reachable(W, A, B, P, move1, []) :-        % reachable :- rec.   [move1]
-    rec(W, A, B, P0),
-    A \== B,
-    world_module(W, M),
+reachable_(M, A, B, P, move1, []) :-       % reachable :- rec.   [move1]
+    M:d_rec(A, B, P0), A \== B,
     rp(M, reach_rec, [P0], P).
-reachable(W, A, C, P, move2, [B, D]) :-    % Fig. 1              [move2]
-    lr(W, A, B, D, P1),
-    lr(W, B, C, A, P2),  C \== A, C \== D,
-    lr(W, D, A, C, P3),
-    rec(W, B, A, P4), rec(W, B, C, P5),
-    rec(W, D, A, P6), rec(W, D, C, P7),
-    world_module(W, M),
+reachable_(M, A, C, P, move2, [B, D]) :-   % Fig. 1              [move2]
+    M:d_rec(B, A, P4), M:d_rec(B, C, P5), C \== A,
+    M:d_lr(B, C, A, P2),
+    M:d_lr(A, B, D, P1), D \== C,
+    M:d_lr(D, A, C, P3),
+    M:d_rec(D, A, P6), M:d_rec(D, C, P7),
     rp(M, move2, [P1, P2, P3, P4, P5, P6, P7], P).
-reachable(W, A, C, P, move3, [B]) :-       % straight on through B
-    rec(W, A, B, P1),
-    align(W, B, A, C, not_same, P2), C \== A,
-    rec(W, B, C, P3),
-    world_module(W, M),
+reachable_(M, A, C, P, move3, [B]) :-      % straight on through B
+    M:d_rec(A, B, P1),
+    M:d_align(B, A, C, not_same, P2), C \== A,
+    M:d_rec(B, C, P3),
     rp(M, move3, [P1, P2, P3], P).
-reachable(W, B, A, P, retrace, []) :-      % back along a driven route
-    world_module(W, M),
+reachable_(M, B, A, P, retrace, []) :-     % back along a driven route
     M:rea(A, B), A \== B,
     rp(M, retrace, [1.0], P).
 

@@ -1,48 +1,10 @@
-/*  chizu knowledge base: `swipl prolog/load.pl` gives a REPL with every rule
-    module loaded.  load_checked/1 is what the service uses: it raises if any
-    file produced an error or warning while loading (a syntax error must stop
-    start-up, not be printed and skipped).
+/*  chizu knowledge base REPL entry: `swipl prolog/load.pl`.
+
+    Loads every rule module (refusing to carry on after a load error) and
+    puts the REPL shortcuts (repl.pl) into `user`.
 */
-:- module(load, [load_checked/1, chizu_modules/1]).
-
-:- dynamic load_problem/1.
-:- multifile user:message_hook/3.
-:- dynamic collecting/0.
-
-user:message_hook(Term, Kind, _) :-
-    collecting,
-    memberchk(Kind, [error, warning]),
-    assertz(load_problem(Term)),
-    fail.
-
-%!  chizu_modules(-Files) is det.
-chizu_modules([world, params, qualitative, drm, api, repl]).
-
-%!  load_checked(+Dir) is det.
-%
-%   Load every chizu module from Dir; throw chizu_load_error(Problems) if any
-%   error or warning was printed while loading.
-load_checked(Dir) :-
-    retractall(load_problem(_)),
-    chizu_modules(Ms),
-    setup_call_cleanup(assertz(collecting),
-                       forall(member(M, Ms),
-                              ( directory_file_path(Dir, M, F),
-                                load_files(F, [if(true)]) )),
-                       retractall(collecting)),
-    findall(P, load_problem(P), Ps),
-    (   Ps == []
-    ->  true
-    ;   maplist([P, S]>>message_to_string(P, S), Ps, Ss),
-        throw(chizu_load_error(Ss))
-    ).
-
-message_to_string(P, S) :-
-    (   catch(message_to_codes(P, S), _, fail) -> true ; format(string(S), "~q", [P]) ).
-
-message_to_codes(P, S) :-
-    '$messages':translate_message(P, Lines, []),
-    with_output_to(string(S), print_message_lines(current_output, '', Lines)).
-
-:- prolog_load_context(directory, D), load_checked(D).
+:- use_module(loader).
+:- prolog_load_context(directory, D),
+   catch(load_checked(D), chizu_load_error(Ps),
+         ( forall(member(P, Ps), format(user_error, "~s~n", [P])), halt(1) )).
 :- use_module(repl).

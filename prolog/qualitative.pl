@@ -22,16 +22,18 @@
     Probabilities.  Observed relations have P = 1.  A rule
     head :- b1, ..., bn with conditional probability r = P(head | body)
     gives P(head) = r * prod P(bi).  When a relation has several
-    derivations we keep the MAXIMUM (mode-directed tabling, answer
-    subsumption on the last argument).  Because every r =< 1, going round a
+    derivations we keep the MAXIMUM.  Because every r =< 1, going round a
     cycle of rules can never raise a probability, so the fixpoint exists and
-    tabling reaches it even on cyclic rule sets.  Derivations whose
+    is reached even on cyclic rule sets.  Derivations whose
     probability falls below min_probability are pruned; this bounds the
     closure on large maps and is the only approximation made.
 
-    The closure is materialised per world (d_lr/4, d_align/5, d_rec/3 in the
-    world module) the first time it is needed after a change, and the
-    tables are abolished afterwards.
+    The maximum is computed by an explicit fixpoint (generalised Dijkstra,
+    see DERIVATION below) rather than mode-directed tabling: tabling made a
+    separate table per call pattern of the transitive rules and took ~35 s
+    on the 22-landmark demo office; the fixpoint takes milliseconds.  The
+    closure is materialised per world (d_lr/4, d_align/5, d_rec/3 in the
+    world module) the first time it is needed after a change.
 */
 :- module(qualitative,
           [ observe/4,              % +World, +At, +Seen, +Angles
@@ -44,6 +46,9 @@
           ]).
 :- use_module(world).
 :- use_module(params).
+:- use_module(library(heaps)).
+:- use_module(library(yall)).
+:- use_module(library(apply)).
 
 %   Rule probabilities P(head | body), named after the rules below.
 params:default_rule_probability(lr_rot_right, 0.95).      % paper: lr(D,A,C) :- lr(A,C,D)
@@ -57,7 +62,7 @@ params:default_rule_probability(align_same_transitive, 0.85).
 params:default_rule_probability(rec_symmetry, 0.8).
 
 params:default_parameter(align_tolerance_rad, 0.0873).    % 5 degrees
-params:default_parameter(min_probability, 0.05).
+params:default_parameter(min_probability, 0.2).
 
 %!  observe(+World, +At, +Seen, +Angles) is det.
 %
@@ -121,10 +126,7 @@ ensure_closed(World) :-
     (   M:closed
     ->  true
     ;   invalidate(World),
-        forall(rec_t(M, A, B, P), assertz(M:d_rec(A, B, P))),
-        forall(lr_t(M, A, B, C, P), assertz(M:d_lr(A, B, C, P))),
-        forall(align_t(M, A, B, C, K, P), assertz(M:d_align(A, B, C, K, P))),
-        abolish_all_tables,
+        closure(M),
         assertz(M:closed)
     ).
 
@@ -150,43 +152,98 @@ frec(World, A, B, F) :-
 		 *          DERIVATION          *
 		 *******************************/
 
-:- table rec_t(_, _, _, max).
-:- table lr_t(_, _, _, _, max).
-:- table align_t(_, _, _, _, _, max).
+%   The rules, written as "when fact F becomes final, these heads follow".
+%   Each rule appears once per body position, joined with facts that are
+%   already final.  Rule names match the default_rule_probability/2 facts.
+%
+%   rec_symmetry      rec(B,A)        :- rec(A,B).               (observed rec only)
+%   lr_rot_right      lr(D,A,C)       :- lr(A,C,D).              paper
+%   lr_rot_left       lr(B,D,A)       :- lr(A,B,D).              paper
+%   lr_transitive     lr(A,B,D)       :- lr(A,B,C), lr(A,C,D).   not guaranteed (sum of angles may pass pi)
+%   lr_align_same     lr(A,B,D)       :- align(A,B,C,same), lr(A,C,D).
+%   lr_align_opposite lr(A,D,C)       :- align(A,B,C,not_same), lr(A,B,D).
+%   align_symmetry    align(A,C,B,K)  :- align(A,B,C,K).
+%   align_between     align(B,A,C,same) :- align(A,B,C,not_same).   A lies between B and C
+%   align_same_transitive align(A,B,D,same) :- align(A,B,C,same), align(A,C,D,same).
+%
+%   Closure by a generalised Dijkstra (Knuth 1977): facts leave a priority
+%   queue in order of decreasing probability; the first time a fact leaves
+%   it, its probability is the maximum over all derivations, because every
+%   rule multiplies by factors =< 1.  Each fact is expanded once, so cyclic
+%   rule sets terminate and the result is exact (up to the min_probability
+%   cut-off).
 
-derived(M, Rule, Ps, P) :-
-    rule_probability(M, Rule, R),
-    foldl([X, Y0, Y]>>(Y is X*Y0), Ps, R, P),
+closure(M) :-
     parameter(M, min_probability, Min),
-    P >= Min.
+    findall(NP-F, ( base_fact(M, F), NP = -1.0 ), Seeds),
+    list_to_heap(Seeds, H0),
+    drain(M, Min, H0).
 
-%   rec: observed, or by symmetry (range and line of sight are symmetric,
-%   but recognition from the other side is not guaranteed).
-rec_t(M, A, B, 1.0) :- M:rec(A, B).
-rec_t(M, B, A, P) :- M:rec(A, B), A \== B, derived(M, rec_symmetry, [1.0], P).
+base_fact(M, rec(A, B)) :- M:rec(A, B).
+base_fact(M, lr(A, B, C)) :- M:lr(A, B, C).
+base_fact(M, align(A, B, C, K)) :- M:align(A, B, C, K).
 
-%   lr
-lr_t(M, A, B, C, 1.0) :- M:lr(A, B, C).
-lr_t(M, D, A, C, P) :-                     % paper: lr(D,A,C) :- lr(A,C,D).
-    lr_t(M, A, C, D, P0), derived(M, lr_rot_right, [P0], P).
-lr_t(M, B, D, A, P) :-                     % paper: lr(B,D,A) :- lr(A,B,D).
-    lr_t(M, A, B, D, P0), derived(M, lr_rot_left, [P0], P).
-lr_t(M, A, B, D, P) :-                     % B left of C, C left of D => B left of D
-    lr_t(M, A, B, C, P1), lr_t(M, A, C, D, P2), B \== D,
-    derived(M, lr_transitive, [P1, P2], P).
-lr_t(M, A, B, D, P) :-                     % B in the direction of C, C left of D
-    align_t(M, A, B, C, same, P1), lr_t(M, A, C, D, P2), B \== D,
-    derived(M, lr_align_same, [P1, P2], P).
-lr_t(M, A, D, C, P) :-                     % C opposite B, B left of D => D left of C
-    align_t(M, A, B, C, not_same, P1), lr_t(M, A, B, D, P2), D \== C,
-    derived(M, lr_align_opposite, [P1, P2], P).
+drain(M, Min, H0) :-
+    (   get_from_heap(H0, NP, F, H1)
+    ->  P is -NP,
+        (   final(M, F, _)
+        ->  H = H1
+        ;   assert_final(M, F, P),
+            findall(NQ-G,
+                    ( consequence(M, F, P, G, Q), Q >= Min, \+ final(M, G, _), NQ is -Q ),
+                    New),
+            foldl([K-V, Hi, Ho]>>add_to_heap(Hi, K, V, Ho), New, H1, H)
+        ),
+        drain(M, Min, H)
+    ;   true
+    ).
 
-%   align
-align_t(M, A, B, C, K, 1.0) :- M:align(A, B, C, K).
-align_t(M, A, C, B, K, P) :-               % symmetric in the two seen landmarks
-    align_t(M, A, B, C, K, P0), derived(M, align_symmetry, [P0], P).
-align_t(M, B, A, C, same, P) :-            % A between B and C: from B, A and C coincide
-    align_t(M, A, B, C, not_same, P0), derived(M, align_between, [P0], P).
-align_t(M, A, B, D, same, P) :-            % same direction is transitive
-    align_t(M, A, B, C, same, P1), align_t(M, A, C, D, same, P2), B \== D,
-    derived(M, align_same_transitive, [P1, P2], P).
+final(M, rec(A, B), P) :- M:d_rec(A, B, P).
+final(M, lr(A, B, C), P) :- M:d_lr(A, B, C, P).
+final(M, align(A, B, C, K), P) :- M:d_align(A, B, C, K, P).
+
+assert_final(M, rec(A, B), P) :- assertz(M:d_rec(A, B, P)).
+assert_final(M, lr(A, B, C), P) :- assertz(M:d_lr(A, B, C, P)).
+assert_final(M, align(A, B, C, K), P) :- assertz(M:d_align(A, B, C, K, P)).
+
+%!  consequence(+M, +Fact, +P, -Head, -Q) is nondet.
+%
+%   Head follows with probability Q from the newly final Fact (probability P)
+%   and facts that are already final.
+consequence(M, rec(A, B), P, rec(B, A), Q) :-
+    M:rec(A, B), A \== B,
+    r(M, rec_symmetry, R), Q is R*P.
+consequence(M, lr(A, C, D), P, lr(D, A, C), Q) :-
+    r(M, lr_rot_right, R), Q is R*P.
+consequence(M, lr(A, B, D), P, lr(B, D, A), Q) :-
+    r(M, lr_rot_left, R), Q is R*P.
+consequence(M, lr(A, B, C), P, lr(A, B, D), Q) :-           % as first body
+    M:d_lr(A, C, D, P2), D \== B,
+    r(M, lr_transitive, R), Q is R*P*P2.
+consequence(M, lr(A, C, D), P, lr(A, B, D), Q) :-           % as second body
+    M:d_lr(A, B, C, P1), B \== D,
+    r(M, lr_transitive, R), Q is R*P1*P.
+consequence(M, lr(A, C, D), P, lr(A, B, D), Q) :-           % lr_align_same, second body
+    M:d_align(A, B, C, same, P1), B \== D,
+    r(M, lr_align_same, R), Q is R*P1*P.
+consequence(M, lr(A, B, D), P, lr(A, D, C), Q) :-           % lr_align_opposite, second body
+    M:d_align(A, B, C, not_same, P1), D \== C,
+    r(M, lr_align_opposite, R), Q is R*P1*P.
+consequence(M, align(A, B, C, K), P, align(A, C, B, K), Q) :-
+    r(M, align_symmetry, R), Q is R*P.
+consequence(M, align(A, B, C, not_same), P, align(B, A, C, same), Q) :-
+    r(M, align_between, R), Q is R*P.
+consequence(M, align(A, B, C, same), P, align(A, B, D, same), Q) :-   % first body
+    M:d_align(A, C, D, same, P2), B \== D,
+    r(M, align_same_transitive, R), Q is R*P*P2.
+consequence(M, align(A, C, D, same), P, align(A, B, D, same), Q) :-   % second body
+    M:d_align(A, B, C, same, P1), B \== D,
+    r(M, align_same_transitive, R), Q is R*P1*P.
+consequence(M, align(A, B, C, same), P, lr(A, B, D), Q) :-           % lr_align_same, first body
+    M:d_lr(A, C, D, P2), B \== D,
+    r(M, lr_align_same, R), Q is R*P*P2.
+consequence(M, align(A, B, C, not_same), P, lr(A, D, C), Q) :-       % lr_align_opposite, first
+    M:d_lr(A, B, D, P2), D \== C,
+    r(M, lr_align_opposite, R), Q is R*P*P2.
+
+r(M, Rule, R) :- rule_probability(M, Rule, R).

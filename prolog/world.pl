@@ -103,3 +103,7 @@ drop_world(World) :-
     clear_world(World),
     text_id(World, Id),
     retractall(known_world(Id)).
+
+:- multifile prolog:message//1.
+prolog:message(chizu_error(E)) --> [ 'chizu: ~q'-[E] ].
+prolog:message(chizu_error(E, Field)) --> [ 'chizu: ~q (field ~w)'-[E, Field] ].

@@ -1,0 +1,95 @@
+"""The one geometry module: angles, segments, line of sight and ray casting.
+
+Conventions: SI units, points as ``(N, 2)`` float arrays in the world frame,
+angles in radians wrapped to (-pi, pi].
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+FloatArray = NDArray[np.float64]
+_EPS = 1e-12
+
+
+def wrap_angle(a: ArrayLike) -> FloatArray:
+    """Wrap angles to (-pi, pi]."""
+    w = np.mod(np.asarray(a, dtype=float) + np.pi, 2.0 * np.pi) - np.pi
+    return np.where(w <= -np.pi, w + 2.0 * np.pi, w)
+
+
+def circular_mean(angles: ArrayLike, weights: ArrayLike | None = None) -> float:
+    """Mean direction of ``angles`` (handles wrap-around)."""
+    a = np.asarray(angles, dtype=float)
+    w = np.ones_like(a) if weights is None else np.asarray(weights, dtype=float)
+    return float(np.arctan2(np.sum(w * np.sin(a)), np.sum(w * np.cos(a))))
+
+
+def bearing(origin: ArrayLike, targets: ArrayLike) -> FloatArray:
+    """World-frame direction from ``origin`` (2,) to each of ``targets`` (N, 2)."""
+    d = np.atleast_2d(np.asarray(targets, dtype=float)) - np.asarray(origin, dtype=float)
+    return np.arctan2(d[:, 1], d[:, 0])
+
+
+def segments_cross(
+    p: ArrayLike, q: ArrayLike, wall_a: FloatArray, wall_b: FloatArray
+) -> NDArray[np.bool_]:
+    """Which of the segments p->q (N, 2) cross any wall a->b (W, 2).
+
+    Returns a bool array (N,). Touching at an endpoint counts as crossing
+    (a robot brushing a wall end collides).
+    """
+    p = np.atleast_2d(np.asarray(p, dtype=float))
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    if len(wall_a) == 0:
+        return np.zeros(max(len(p), len(q)), dtype=bool)
+    r = (q - p)[:, None, :]  # (N,1,2)
+    s = (wall_b - wall_a)[None, :, :]  # (1,W,2)
+    qp = wall_a[None, :, :] - p[:, None, :]  # (N,W,2)
+    denom = r[..., 0] * s[..., 1] - r[..., 1] * s[..., 0]
+    t_num = qp[..., 0] * s[..., 1] - qp[..., 1] * s[..., 0]
+    u_num = qp[..., 0] * r[..., 1] - qp[..., 1] * r[..., 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = t_num / denom
+        u = u_num / denom
+    hit = (np.abs(denom) > _EPS) & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)
+    return np.asarray(hit.any(axis=1))
+
+
+def line_of_sight(
+    origin: ArrayLike, targets: ArrayLike, wall_a: FloatArray, wall_b: FloatArray
+) -> NDArray[np.bool_]:
+    """True for each target (N, 2) visible from ``origin`` (2,) past the walls."""
+    t = np.atleast_2d(np.asarray(targets, dtype=float))
+    o = np.broadcast_to(np.asarray(origin, dtype=float), t.shape)
+    return ~segments_cross(o, t, wall_a, wall_b)
+
+
+def ray_cast(
+    origin: ArrayLike, angles: ArrayLike, wall_a: FloatArray, wall_b: FloatArray,
+    max_range: float = np.inf,
+) -> tuple[FloatArray, NDArray[np.intp]]:
+    """Distance along each ray to the nearest wall, and that wall's index.
+
+    ``angles`` (M,) are world-frame directions. Rays that hit nothing within
+    ``max_range`` return ``inf`` and index -1.
+    """
+    o = np.asarray(origin, dtype=float)
+    ang = np.atleast_1d(np.asarray(angles, dtype=float))
+    m = len(ang)
+    if len(wall_a) == 0:
+        return np.full(m, np.inf), np.full(m, -1, dtype=np.intp)
+    r = np.stack([np.cos(ang), np.sin(ang)], axis=1)[:, None, :]  # (M,1,2)
+    s = (wall_b - wall_a)[None, :, :]
+    qp = (wall_a - o)[None, :, :]
+    denom = r[..., 0] * s[..., 1] - r[..., 1] * s[..., 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (qp[..., 0] * s[..., 1] - qp[..., 1] * s[..., 0]) / denom
+        u = (qp[..., 0] * r[..., 1] - qp[..., 1] * r[..., 0]) / denom
+    ok = (np.abs(denom) > _EPS) & (t > 0) & (u >= 0) & (u <= 1) & (t <= max_range)
+    t = np.where(ok, t, np.inf)
+    idx = np.argmin(t, axis=1)
+    dist = t[np.arange(m), idx]
+    idx = np.where(np.isfinite(dist), idx, -1)
+    return dist, idx

@@ -1,0 +1,1 @@
+"""Qualitative navigation (Morizane, Yamada, Toyoda): observations -> relations -> DRM."""

@@ -1,0 +1,155 @@
+"""The one shared 2D world model (SPEC §2, §7).
+
+Walls are segments with a texture id (camera images) and a laser
+reflectivity; landmarks carry directional features; objects are cuboids.
+The JSON world description (the body of ``POST /worlds``) is exactly
+:class:`WorldDescription`.
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+from typing import Annotated
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, model_validator
+
+from numeric.errors import InvalidInput
+
+ID_PATTERN = r"^[a-z][a-zA-Z0-9_]{0,63}$"
+Id = Annotated[str, Field(pattern=ID_PATTERN, description="id: ^[a-z][a-zA-Z0-9_]{0,63}$")]
+Point = tuple[FiniteFloat, FiniteFloat]
+Probability = Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
+
+MAX_WALLS = 20_000
+MAX_LANDMARKS = 5_000
+MAX_OBJECTS = 2_000
+
+
+class Wall(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    a: Point
+    b: Point
+    texture: Annotated[str, Field(max_length=64)] = "brick"
+    reflectivity: Probability = 0.5
+
+    @model_validator(mode="after")
+    def _not_degenerate(self) -> Wall:
+        if self.a == self.b:
+            raise ValueError("wall endpoints a and b coincide")
+        return self
+
+
+class Feature(BaseModel):
+    """A directional feature: visible from directions within half_width of direction."""
+
+    model_config = ConfigDict(extra="forbid")
+    name: Id
+    direction_rad: FiniteFloat = 0.0
+    half_width_rad: Annotated[float, Field(gt=0.0, le=np.pi, allow_inf_nan=False)] = np.pi / 2
+
+
+class Landmark(BaseModel):
+    """A recognisable landmark; coordinates are optional for purely qualitative worlds."""
+
+    model_config = ConfigDict(extra="forbid")
+    id: Id
+    x: FiniteFloat | None = None
+    y: FiniteFloat | None = None
+    features: Annotated[list[Feature], Field(max_length=32)] = []
+
+    @model_validator(mode="after")
+    def _both_or_neither(self) -> Landmark:
+        if (self.x is None) != (self.y is None):
+            raise ValueError("give both x and y, or neither")
+        return self
+
+    @property
+    def position(self) -> np.ndarray | None:
+        return None if self.x is None else np.array([self.x, self.y])
+
+
+class WorldObject(BaseModel):
+    """A cuboid object with 4 side faces (used by the viewpoint planner)."""
+
+    model_config = ConfigDict(extra="forbid")
+    id: Id
+    type: Annotated[str, Field(max_length=64)] = "A"
+    x: FiniteFloat
+    y: FiniteFloat
+    theta: FiniteFloat = 0.0
+    size_m: tuple[
+        Annotated[float, Field(gt=0, allow_inf_nan=False)],
+        Annotated[float, Field(gt=0, allow_inf_nan=False)],
+        Annotated[float, Field(gt=0, allow_inf_nan=False)],
+    ] = (0.4, 0.3, 0.5)
+
+
+class WorldDescription(BaseModel):
+    """A world as clients describe it (SPEC §2)."""
+
+    model_config = ConfigDict(extra="forbid")
+    name: Id
+    walls: Annotated[list[Wall], Field(max_length=MAX_WALLS)] = []
+    landmarks: Annotated[list[Landmark], Field(max_length=MAX_LANDMARKS)] = []
+    objects: Annotated[list[WorldObject], Field(max_length=MAX_OBJECTS)] = []
+    template: Id | None = None
+    rule_probabilities: Annotated[dict[Id, Probability], Field(max_length=64)] = {}
+    parameters: Annotated[dict[Id, Annotated[float, Field(ge=0, allow_inf_nan=False)]],
+                          Field(max_length=64)] = {}
+
+    @model_validator(mode="after")
+    def _unique_ids(self) -> WorldDescription:
+        for kind, items in (("landmarks", self.landmarks), ("objects", self.objects)):
+            seen: set[str] = set()
+            for i, it in enumerate(items):
+                if it.id in seen:
+                    raise ValueError(f"{kind}[{i}].id {it.id!r} is not unique")
+                seen.add(it.id)
+        return self
+
+
+class World:
+    """A world description with numpy views for the simulators."""
+
+    def __init__(self, description: WorldDescription) -> None:
+        self.description = description
+
+    @property
+    def name(self) -> str:
+        return self.description.name
+
+    @cached_property
+    def wall_a(self) -> np.ndarray:
+        """Wall start points (W, 2)."""
+        return np.array([w.a for w in self.description.walls], dtype=float).reshape(-1, 2)
+
+    @cached_property
+    def wall_b(self) -> np.ndarray:
+        """Wall end points (W, 2)."""
+        return np.array([w.b for w in self.description.walls], dtype=float).reshape(-1, 2)
+
+    @cached_property
+    def placed_landmarks(self) -> list[Landmark]:
+        """Landmarks that have coordinates."""
+        return [lm for lm in self.description.landmarks if lm.x is not None]
+
+    @cached_property
+    def landmark_ids(self) -> list[str]:
+        return [lm.id for lm in self.placed_landmarks]
+
+    @cached_property
+    def landmark_xy(self) -> np.ndarray:
+        """Positions (L, 2) of :attr:`placed_landmarks`."""
+        return np.array([[lm.x, lm.y] for lm in self.placed_landmarks], dtype=float).reshape(-1, 2)
+
+    @cached_property
+    def landmark_index(self) -> dict[str, int]:
+        return {lid: i for i, lid in enumerate(self.landmark_ids)}
+
+    def landmark_position(self, landmark_id: str) -> np.ndarray:
+        try:
+            return self.landmark_xy[self.landmark_index[landmark_id]]
+        except KeyError:
+            raise InvalidInput(f"landmark {landmark_id!r} has no position in world "
+                               f"{self.name!r}", field="landmark") from None

@@ -1,0 +1,1 @@
+"""chizu service: FastAPI app, Prolog bridge, store and CLI."""

@@ -1,0 +1,69 @@
+"""Qualitative navigation: observations, reached landmarks, relations, DRM and paths."""
+
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Query, status
+
+from numeric.qualitative.observation import Observation
+from numeric.world import ID_PATTERN
+from service.api.routes.worlds import WorldName
+from service.deps import WorldsDep
+from service.schemas import (
+    DrmOut,
+    ObservationOut,
+    PathOut,
+    ReachedIn,
+    ReachedOut,
+    RelationKind,
+    StepOut,
+)
+
+router = APIRouter(prefix="/worlds/{world}", tags=["qualitative navigation"])
+LandmarkQ = Annotated[str, Query(pattern=ID_PATTERN)]
+
+
+@router.post("/observations", response_model=ObservationOut,
+             status_code=status.HTTP_201_CREATED)
+async def post_observation(world: WorldName, body: Observation, worlds: WorldsDep) -> Any:
+    """One panoramic observation at landmark ``at``: bearings (robot frame, rad) and
+    distances (m) become rec/frec facts and lr/align relations; the quantities are dropped."""
+    return await worlds.observe(world, body)
+
+
+@router.post("/reached", response_model=ReachedOut, status_code=status.HTTP_201_CREATED,
+             response_model_by_alias=True)
+async def post_reached(world: WorldName, body: ReachedIn, worlds: WorldsDep) -> Any:
+    """Record that the robot drove from ``from`` to ``to`` (the paper's rea/2)."""
+    r = await worlds.reached(world, body.from_, body.to)
+    return ReachedOut(world=r["world"], from_=r["from"], to=r["to"])
+
+
+@router.get("/relations")
+async def get_relations(world: WorldName, worlds: WorldsDep,
+                        kind: RelationKind = "lr") -> list[dict[str, Any]]:
+    """Relations with their probabilities (observed: 1; derived: P(rule)·ΠP(body))."""
+    return await worlds.relations(world, kind)
+
+
+@router.get("/drm", response_model=DrmOut, response_model_by_alias=True)
+async def get_drm(world: WorldName, worlds: WorldsDep) -> Any:
+    """The Direct Reachability Map: best derivation per ordered pair."""
+    d = await worlds.drm(world)
+    return DrmOut(nodes=d["nodes"], edges=[
+        {"from_": e["from"], "to": e["to"], "p": e["p"], "method": e["method"], "via": e["via"]}
+        for e in d["edges"]])
+
+
+@router.get("/path", response_model=PathOut, response_model_by_alias=True)
+async def get_path(world: WorldName, worlds: WorldsDep,
+                   from_: Annotated[str, Query(alias="from", pattern=ID_PATTERN)],
+                   to: LandmarkQ) -> Any:
+    """The path maximising the product of DRM edge probabilities."""
+    p = await worlds.path(world, from_, to)
+    if p is None:
+        return PathOut(found=False, detail=f"no path from {from_!r} to {to!r} in the DRM "
+                       "(observe more landmarks or record reached ones)",
+                       path=[], steps=[], probability=0.0)
+    return PathOut(found=True, path=p.nodes, probability=p.probability, steps=[
+        StepOut(from_=s.source, to=s.target, method=s.method, p=s.p, via=list(s.via))
+        for s in p.steps])

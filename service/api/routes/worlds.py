@@ -1,0 +1,31 @@
+from typing import Annotated
+
+from fastapi import APIRouter, Path, status
+
+from numeric.world import ID_PATTERN, WorldDescription
+from service.deps import WorldsDep
+from service.schemas import WorldSummary
+
+router = APIRouter(prefix="/worlds", tags=["worlds"])
+WorldName = Annotated[str, Path(pattern=ID_PATTERN, description="world id")]
+
+
+@router.get("", response_model=list[WorldSummary])
+async def list_worlds(worlds: WorldsDep) -> list[dict]:
+    return [worlds.summary(n) for n in worlds.names()]
+
+
+@router.post("", response_model=WorldSummary, status_code=status.HTTP_201_CREATED)
+async def create_world(body: WorldDescription, worlds: WorldsDep) -> dict:
+    """Create a world from a JSON description, a built-in ``template``, or both."""
+    return await worlds.create(body)
+
+
+@router.get("/{world}", response_model=WorldDescription)
+async def get_world(world: WorldName, worlds: WorldsDep) -> WorldDescription:
+    return worlds.model(world).description
+
+
+@router.delete("/{world}", status_code=status.HTTP_204_NO_CONTENT)
+async def delete_world(world: WorldName, worlds: WorldsDep) -> None:
+    await worlds.delete(world)

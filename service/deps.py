@@ -1,0 +1,24 @@
+"""Dependencies as Annotated aliases; heavy resources live on app.state (lifespan)."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import Depends, Request
+
+from service.kb import KnowledgeBase
+from service.settings import Settings, get_settings
+from service.worlds import WorldService
+
+
+def _worlds(request: Request) -> WorldService:
+    return request.app.state.worlds  # type: ignore[no-any-return]
+
+
+def _kb(request: Request) -> KnowledgeBase:
+    return request.app.state.kb  # type: ignore[no-any-return]
+
+
+SettingsDep = Annotated[Settings, Depends(get_settings)]
+WorldsDep = Annotated[WorldService, Depends(_worlds)]
+KbDep = Annotated[KnowledgeBase, Depends(_kb)]

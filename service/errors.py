@@ -1,0 +1,145 @@
+"""The one place that maps domain errors to RFC 9457 problem responses."""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from numeric.errors import InvalidInput
+from service.kb import KbError
+from service.worlds import Conflict, NotFound
+
+log = logging.getLogger(__name__)
+PROBLEM = "application/problem+json"
+
+# knowledge-base error type -> HTTP status
+KB_STATUS = {
+    "unknown_world": 404,
+    "limit": 503,
+    "unavailable": 503,
+    "internal": 500,
+    "failed": 500,
+}
+
+
+def problem(status: int, title: str, detail: str, instance: str | None = None,
+            field: str | None = None, errors: list[dict[str, Any]] | None = None,
+            type_: str | None = None) -> JSONResponse:
+    body: dict[str, Any] = {
+        "type": f"/problems/{type_ or title.lower().replace(' ', '-')}",
+        "title": title, "status": status, "detail": detail,
+    }
+    if instance:
+        body["instance"] = instance
+    if field:
+        body["field"] = field
+    if errors:
+        body["errors"] = errors
+    return JSONResponse(body, status_code=status, media_type=PROBLEM)
+
+
+def _loc(loc: tuple[Any, ...]) -> str:
+    parts = [str(p) for p in loc if p not in ("body", "query", "path")]
+    out = ""
+    for p in parts:
+        out += f"[{p}]" if p.isdigit() else (f".{p}" if out else p)
+    return out or ".".join(str(p) for p in loc)
+
+
+def install(app: FastAPI) -> None:
+    @app.exception_handler(RequestValidationError)
+    async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
+        errors = []
+        for e in exc.errors():
+            loc = tuple(e.get("loc", ()))
+            # model-level validators report their own field in the message
+            errors.append({"field": _loc(loc), "message": str(e.get("msg", ""))})
+        first = errors[0] if errors else {"field": None, "message": "invalid request"}
+        return problem(422, "Invalid request",
+                       f"{first['field']}: {first['message']}" if first["field"]
+                       else str(first["message"]),
+                       instance=request.url.path, field=first["field"] or None, errors=errors)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
+        title = {404: "Not found", 405: "Method not allowed", 413: "Payload too large"}.get(
+            exc.status_code, "HTTP error")
+        return problem(exc.status_code, title, str(exc.detail), instance=request.url.path)
+
+    @app.exception_handler(NotFound)
+    async def _not_found(request: Request, exc: NotFound) -> JSONResponse:
+        return problem(404, "Not found", str(exc), instance=request.url.path, field=exc.field)
+
+    @app.exception_handler(Conflict)
+    async def _conflict(request: Request, exc: Conflict) -> JSONResponse:
+        return problem(409, "Conflict", str(exc), instance=request.url.path, field=exc.field)
+
+    @app.exception_handler(InvalidInput)
+    async def _invalid(request: Request, exc: InvalidInput) -> JSONResponse:
+        return problem(422, "Invalid input", str(exc), instance=request.url.path,
+                       field=exc.field)
+
+    @app.exception_handler(KbError)
+    async def _kb(request: Request, exc: KbError) -> JSONResponse:
+        status = KB_STATUS.get(exc.type, 422)
+        if status >= 500:
+            log.error("knowledge base error on %s: %s", request.url.path, exc)
+        detail = exc.detail
+        if exc.type == "unknown_landmark":
+            detail = f"landmark {exc.value!r} is not in this world"
+        elif exc.type == "unknown_world":
+            detail = f"world {exc.value!r} does not exist"
+        elif exc.type == "invalid_id":
+            detail = f"{exc.value!r} is not a valid id (^[a-z][a-zA-Z0-9_]{{0,63}}$)"
+        return problem(status, exc.type.replace("_", " ").capitalize(), detail,
+                       instance=request.url.path, field=exc.field,
+                       type_=exc.type.replace("_", "-"))
+
+
+class BodySizeLimit:
+    """ASGI middleware: refuse bodies over ``max_bytes`` with 413 before parsing them."""
+
+    def __init__(self, app: Any, max_bytes: int) -> None:
+        self.app, self.max_bytes = app, max_bytes
+
+    async def __call__(self, scope: dict[str, Any], receive: Any, send: Any) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        headers = dict(scope.get("headers") or [])
+        declared = headers.get(b"content-length")
+        if declared is not None and (not declared.isdigit() or int(declared) > self.max_bytes):
+            await self._reject(scope, send)
+            return
+        seen = 0
+        rejected = False
+
+        async def limited_receive() -> dict[str, Any]:
+            nonlocal seen, rejected
+            msg: dict[str, Any] = await receive()
+            if msg["type"] == "http.request":
+                seen += len(msg.get("body", b""))
+                if seen > self.max_bytes:
+                    rejected = True
+                    raise _TooLarge
+            return msg
+
+        try:
+            await self.app(scope, limited_receive, send)
+        except _TooLarge:
+            await self._reject(scope, send)
+
+    async def _reject(self, scope: dict[str, Any], send: Any) -> None:
+        resp = problem(413, "Payload too large",
+                       f"request body exceeds {self.max_bytes} bytes",
+                       instance=scope.get("path"), field="body")
+        await resp(scope, None, send)  # type: ignore[arg-type]
+
+
+class _TooLarge(Exception):
+    pass

@@ -1,0 +1,187 @@
+"""The Prolog bridge: the only module that imports pyswip.
+
+One dedicated thread imports pyswip (which initialises SWI-Prolog in that
+thread), loads the rule files with load_checked/1 (a syntax error or warning
+raises at start-up) and then serves jobs from a queue.  Callers never touch
+the engine: they submit ``(op, args)`` and await a future.
+
+Every job is one call of ``api:handle(+Request, -Reply)``: the request is
+JSON text handed over as a Prolog *string* (data, never parsed as Prolog),
+the reply is JSON text copied out before the query is closed, so no pyswip
+term, variable or generator ever leaves the engine thread.  The time and
+inference limits are applied inside Prolog (call_with_time_limit/2,
+call_with_inference_limit/3) around every operation.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import ctypes
+import json
+import queue
+import threading
+from concurrent.futures import Future
+from pathlib import Path
+from typing import Any
+
+from numeric.errors import ChizuError
+
+
+class KbError(ChizuError):
+    """An operation was refused by the knowledge base."""
+
+    def __init__(self, type_: str, detail: str, field: str | None = None,
+                 value: Any = None) -> None:
+        super().__init__(f"{type_}: {detail}")
+        self.type, self.detail, self.field, self.value = type_, detail, field, value
+
+
+class KbStartupError(RuntimeError):
+    """The rule files could not be loaded cleanly."""
+
+
+_STOP = object()
+
+
+class KnowledgeBase:
+    """Owns the SWI-Prolog engine on one thread; thread-safe and asyncio-friendly."""
+
+    def __init__(self, prolog_dir: Path, time_limit_s: float = 10.0,
+                 inference_limit: int = 200_000_000) -> None:
+        self.prolog_dir = Path(prolog_dir).resolve()
+        self.time_limit_s = time_limit_s
+        self.inference_limit = inference_limit
+        self._jobs: queue.Queue[Any] = queue.Queue()
+        self._ready: Future[None] = Future()
+        self._thread = threading.Thread(target=self._run, name="chizu-prolog", daemon=True)
+        self._thread.start()
+        self._ready.result()  # raises KbStartupError if the rules did not load
+
+    # -- engine thread -------------------------------------------------------------
+    def _run(self) -> None:
+        try:
+            from pyswip import core as pl  # noqa: PLC0415 (initialises Prolog here)
+
+            self._pl = pl
+            self._load_rules()
+            self._handle = pl.PL_predicate(b"handle", 2, b"api")
+        except BaseException as e:  # noqa: BLE001 — reported to the constructor
+            self._ready.set_exception(e if isinstance(e, KbStartupError)
+                                      else KbStartupError(str(e)))
+            return
+        self._ready.set_result(None)
+        while True:
+            job = self._jobs.get()
+            if job is _STOP:
+                return
+            request, fut = job
+            if not fut.set_running_or_notify_cancel():
+                continue
+            try:
+                fut.set_result(self._call(request))
+            except BaseException as e:  # noqa: BLE001 — handed to the caller
+                fut.set_exception(e)
+
+    def _load_rules(self) -> None:
+        """consult load.pl's load_checked/1; raise on any load error or warning."""
+        load = str(self.prolog_dir / "loader.pl").encode()
+        reply = self._raw_call(b"load_files", [load], module=b"user", catch_only=True)
+        if reply is not None:
+            raise KbStartupError(f"loading {load.decode()}: {reply}")
+        reply = self._raw_call(b"load_checked", [str(self.prolog_dir).encode()],
+                               module=b"loader", catch_only=True)
+        if reply is not None:
+            raise KbStartupError(f"loading rule files from {self.prolog_dir}: {reply}")
+
+    def _raw_call(self, name: bytes, string_args: list[bytes], module: bytes,
+                  catch_only: bool = False) -> str | None:
+        """Call module:name(Args...) with atom arguments; return the exception text or None."""
+        pl = self._pl
+        fid = pl.PL_open_foreign_frame()
+        try:
+            args = pl.PL_new_term_refs(len(string_args))
+            for i, a in enumerate(string_args):
+                pl.PL_put_chars(args + i, pl.PL_ATOM | pl.REP_UTF8, len(a), a)
+            pred = pl.PL_predicate(name, len(string_args), module)
+            qid = pl.PL_open_query(None, pl.PL_Q_NODEBUG | pl.PL_Q_CATCH_EXCEPTION, pred, args)
+            try:
+                ok = pl.PL_next_solution(qid)
+                exc = pl.PL_exception(qid)
+                if exc:
+                    return self._term_text(exc)
+                return None if ok else "goal failed"
+            finally:
+                pl.PL_close_query(qid)
+        finally:
+            pl.PL_discard_foreign_frame(fid)
+
+    def _term_text(self, term: int) -> str:
+        pl = self._pl
+        out = ctypes.c_char_p()
+        flags = pl.CVT_ALL | pl.CVT_WRITEQ | pl.REP_UTF8 | pl.BUF_DISCARDABLE
+        if pl.PL_get_chars(term, ctypes.byref(out), flags) and out.value is not None:
+            return out.value.decode("utf-8", "replace")
+        return "<unprintable exception>"
+
+    def _call(self, request: bytes) -> str:
+        """Run api:handle(Request, Reply) and copy Reply out as a Python str."""
+        pl = self._pl
+        fid = pl.PL_open_foreign_frame()
+        try:
+            args = pl.PL_new_term_refs(2)
+            pl.PL_put_chars(args, pl.PL_STRING | pl.REP_UTF8, len(request), request)
+            qid = pl.PL_open_query(None, pl.PL_Q_NODEBUG | pl.PL_Q_CATCH_EXCEPTION,
+                                   self._handle, args)
+            try:
+                if not pl.PL_next_solution(qid):
+                    exc = pl.PL_exception(qid)
+                    raise KbError("internal", self._term_text(exc) if exc else "failed")
+                out = ctypes.c_char_p()
+                flags = pl.CVT_STRING | pl.CVT_ATOM | pl.REP_UTF8 | pl.BUF_DISCARDABLE
+                if not pl.PL_get_chars(args + 1, ctypes.byref(out), flags) or out.value is None:
+                    raise KbError("internal", "reply is not text")
+                return out.value.decode("utf-8")
+            finally:
+                pl.PL_close_query(qid)
+        finally:
+            pl.PL_discard_foreign_frame(fid)
+
+    # -- callers -------------------------------------------------------------------
+    def _request(self, op: str, args: dict[str, Any]) -> bytes:
+        return json.dumps({"op": op, "args": args, "time_limit_s": self.time_limit_s,
+                           "inference_limit": self.inference_limit},
+                          allow_nan=False).encode("utf-8")
+
+    def submit(self, op: str, **args: Any) -> Future[str]:
+        """Queue one operation; the future yields the raw JSON reply."""
+        fut: Future[str] = Future()
+        if not self._thread.is_alive():
+            fut.set_exception(KbError("unavailable", "the Prolog engine thread has stopped"))
+            return fut
+        self._jobs.put((self._request(op, args), fut))
+        return fut
+
+    @staticmethod
+    def _unwrap(reply: str) -> Any:
+        data = json.loads(reply)
+        if data.get("ok"):
+            return data["result"]
+        err = data.get("error", {})
+        raise KbError(str(err.get("type", "internal")), str(err.get("detail", "")),
+                      err.get("field"), err.get("value"))
+
+    def call(self, op: str, **args: Any) -> Any:
+        """Blocking call from any thread except the engine's."""
+        return self._unwrap(self.submit(op, **args).result())
+
+    async def acall(self, op: str, **args: Any) -> Any:
+        """Awaitable call for async endpoints."""
+        return self._unwrap(await asyncio.wrap_future(self.submit(op, **args)))
+
+    @property
+    def engine_thread(self) -> threading.Thread:
+        return self._thread
+
+    def close(self) -> None:
+        self._jobs.put(_STOP)
+        self._thread.join(timeout=5)

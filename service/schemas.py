@@ -1,0 +1,73 @@
+"""Response schemas (request bodies are the numeric models themselves)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, Field
+
+from numeric.world import Id
+
+RelationKind = Literal["rec", "frec", "lr", "align", "rea", "reachable"]
+
+
+class Health(BaseModel):
+    status: Literal["ok"]
+    worlds: int
+    engine_thread_alive: bool
+
+
+class WorldSummary(BaseModel):
+    name: str
+    template: str | None
+    landmarks: int
+    walls: int
+    objects: int
+    events: int
+
+
+class ReachedIn(BaseModel):
+    model_config = {"extra": "forbid", "populate_by_name": True}
+    from_: Id = Field(alias="from")
+    to: Id
+
+
+class ObservationOut(BaseModel):
+    world: str
+    at: str
+    relations: int = Field(description="lr/align relations now known from this landmark")
+
+
+class ReachedOut(BaseModel):
+    world: str
+    from_: str = Field(serialization_alias="from")
+    to: str
+
+
+class DrmEdgeOut(BaseModel):
+    from_: str = Field(serialization_alias="from")
+    to: str
+    p: float
+    method: str
+    via: list[str]
+
+
+class DrmOut(BaseModel):
+    nodes: list[str]
+    edges: list[DrmEdgeOut]
+
+
+class StepOut(BaseModel):
+    from_: str = Field(serialization_alias="from")
+    to: str
+    method: str
+    p: float
+    via: list[str]
+
+
+class PathOut(BaseModel):
+    found: bool
+    detail: str | None = None
+    path: list[str]
+    steps: list[StepOut]
+    probability: float

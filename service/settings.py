@@ -1,0 +1,33 @@
+"""Settings (env prefix ``CHIZU_``), built once and handed out by a cached dependency."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+PROLOG_DIR = Path(__file__).resolve().parent.parent / "prolog"
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="CHIZU_")
+
+    host: str = "127.0.0.1"
+    port: int = Field(8000, ge=1, le=65535)
+    data_dir: Path = Path("./var")
+    prolog_dir: Path = PROLOG_DIR
+    demo_world: str | None = Field("demo", description="built-in world created at start-up")
+    kb_time_limit_s: float = Field(10.0, gt=0)
+    kb_inference_limit: int = Field(200_000_000, gt=0)
+    max_body_bytes: int = Field(8 * 1024 * 1024, gt=0)
+
+    @property
+    def db_path(self) -> Path:
+        return self.data_dir / "chizu.sqlite3"
+
+
+@lru_cache
+def get_settings() -> Settings:
+    return Settings()

@@ -1,0 +1,119 @@
+"""Persistent store: SQLite in WAL mode under ``CHIZU_DATA_DIR``.
+
+Holds what clients created: worlds (their JSON description) and, per world,
+an append-only event log (observations, reached landmarks).  The knowledge
+base is rebuilt from it at start-up by replaying the events in order, so a
+restart gives back exactly the facts the client created.  Each write is one
+SQLite transaction; :meth:`Store.transaction` lets the caller apply the same
+change to the knowledge base inside it and roll back if that fails.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS worlds (
+    name        TEXT PRIMARY KEY,
+    description TEXT NOT NULL,
+    created_at  REAL NOT NULL
+);
+CREATE TABLE IF NOT EXISTS events (
+    id          INTEGER PRIMARY KEY AUTOINCREMENT,
+    world       TEXT NOT NULL REFERENCES worlds(name) ON DELETE CASCADE,
+    kind        TEXT NOT NULL,
+    payload     TEXT NOT NULL,
+    created_at  REAL NOT NULL
+);
+CREATE INDEX IF NOT EXISTS events_world ON events(world, id);
+"""
+
+
+@dataclass(frozen=True)
+class WorldRow:
+    name: str
+    description: dict[str, Any]
+    created_at: float
+
+
+@dataclass(frozen=True)
+class Event:
+    id: int
+    world: str
+    kind: str
+    payload: dict[str, Any]
+
+
+class Store:
+    """A small thread-safe wrapper around one SQLite connection."""
+
+    def __init__(self, path: Path) -> None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self._conn = sqlite3.connect(path, check_same_thread=False, isolation_level=None)
+        self._lock = threading.RLock()
+        with self._lock:
+            self._conn.execute("PRAGMA journal_mode=WAL")
+            self._conn.execute("PRAGMA foreign_keys=ON")
+            self._conn.execute("PRAGMA synchronous=NORMAL")
+            self._conn.executescript(SCHEMA)
+
+    @contextmanager
+    def transaction(self) -> Iterator[sqlite3.Connection]:
+        """BEGIN IMMEDIATE ... COMMIT, rolled back if the block raises."""
+        with self._lock:
+            self._conn.execute("BEGIN IMMEDIATE")
+            try:
+                yield self._conn
+            except BaseException:
+                self._conn.execute("ROLLBACK")
+                raise
+            self._conn.execute("COMMIT")
+
+    def world(self, name: str) -> WorldRow | None:
+        with self._lock:
+            row = self._conn.execute(
+                "SELECT name, description, created_at FROM worlds WHERE name = ?", (name,)
+            ).fetchone()
+        return None if row is None else WorldRow(row[0], json.loads(row[1]), row[2])
+
+    def worlds(self) -> list[WorldRow]:
+        with self._lock:
+            rows = self._conn.execute(
+                "SELECT name, description, created_at FROM worlds ORDER BY created_at, name"
+            ).fetchall()
+        return [WorldRow(r[0], json.loads(r[1]), r[2]) for r in rows]
+
+    @staticmethod
+    def insert_world(conn: sqlite3.Connection, name: str, description: dict[str, Any]) -> None:
+        conn.execute("INSERT INTO worlds (name, description, created_at) VALUES (?, ?, ?)",
+                     (name, json.dumps(description, allow_nan=False), time.time()))
+
+    @staticmethod
+    def delete_world(conn: sqlite3.Connection, name: str) -> None:
+        conn.execute("DELETE FROM worlds WHERE name = ?", (name,))
+
+    @staticmethod
+    def append_event(conn: sqlite3.Connection, world: str, kind: str,
+                     payload: dict[str, Any]) -> None:
+        conn.execute("INSERT INTO events (world, kind, payload, created_at) VALUES (?, ?, ?, ?)",
+                     (world, kind, json.dumps(payload, allow_nan=False), time.time()))
+
+    def events(self, world: str) -> list[Event]:
+        with self._lock:
+            rows = self._conn.execute(
+                "SELECT id, world, kind, payload FROM events WHERE world = ? ORDER BY id",
+                (world,),
+            ).fetchall()
+        return [Event(r[0], r[1], r[2], json.loads(r[3])) for r in rows]
+
+    def close(self) -> None:
+        with self._lock:
+            self._conn.close()

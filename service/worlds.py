@@ -1,0 +1,194 @@
+"""World service: one place that keeps the store and the knowledge base in step.
+
+Write order for every mutation (under one asyncio lock, so writers never
+interleave): validate -> apply to the knowledge base (atomic there, a Prolog
+transaction) -> commit the event to SQLite.  If the commit fails the world is
+rebuilt in the knowledge base from the store, so the two never disagree.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from typing import Any
+
+from numeric.qualitative.drm import (
+    DrmPath,
+    build_drm,
+    edges_from_records,
+    max_probability_path,
+)
+from numeric.qualitative.observation import Observation, observation_quantities
+from numeric.world import World, WorldDescription
+from numeric.worlds import TEMPLATES, from_template
+from service.kb import KbError, KnowledgeBase
+from service.store import Store
+
+log = logging.getLogger(__name__)
+
+
+class Conflict(Exception):
+    def __init__(self, message: str, field: str | None = None) -> None:
+        super().__init__(message)
+        self.field = field
+
+
+class NotFound(Exception):
+    def __init__(self, message: str, field: str | None = None) -> None:
+        super().__init__(message)
+        self.field = field
+
+
+def resolve_description(desc: WorldDescription) -> WorldDescription:
+    """Expand ``template`` into a full description (client fields are added on top)."""
+    if desc.template is None:
+        return desc
+    if desc.template not in TEMPLATES:
+        raise NotFound(f"unknown template {desc.template!r}; built-ins: {sorted(TEMPLATES)}",
+                       field="template")
+    base = from_template(desc.template, desc.name)
+    return base.model_copy(update={
+        "walls": base.walls + desc.walls,
+        "landmarks": base.landmarks + desc.landmarks,
+        "objects": base.objects + desc.objects,
+        "rule_probabilities": {**base.rule_probabilities, **desc.rule_probabilities},
+        "parameters": {**base.parameters, **desc.parameters},
+        "template": desc.template,
+    })
+
+
+class WorldService:
+    def __init__(self, store: Store, kb: KnowledgeBase) -> None:
+        self.store, self.kb = store, kb
+        self._write = asyncio.Lock()
+        self._models: dict[str, World] = {}
+
+    # -- start-up ----------------------------------------------------------------------
+    def restore(self) -> int:
+        """Rebuild every stored world in the knowledge base; returns how many."""
+        n = 0
+        for row in self.store.worlds():
+            self._load_into_kb(WorldDescription.model_validate(row.description))
+            n += 1
+        return n
+
+    def _load_into_kb(self, desc: WorldDescription) -> None:
+        self._kb_create(desc)
+        for ev in self.store.events(desc.name):
+            self.kb.call(*self._event_call(desc.name, ev.kind, ev.payload))
+        self._models[desc.name] = World(desc)
+
+    def _kb_create(self, desc: WorldDescription) -> None:
+        self.kb.call("create_world", world=desc.name,
+                     landmarks=[lm.id for lm in desc.landmarks],
+                     rule_probabilities=desc.rule_probabilities, parameters=desc.parameters)
+
+    @staticmethod
+    def _event_call(world: str, kind: str, payload: dict[str, Any]) -> tuple[Any, ...]:
+        if kind == "observation":
+            obs = Observation.model_validate(payload)
+            angles, distances = observation_quantities(obs)
+            return ("observe", {"world": world, "at": obs.at,
+                                "seen": [{"landmark": s.landmark, "features": s.features}
+                                         for s in obs.seen],
+                                "angles": angles, "distances": distances})
+        if kind == "reached":
+            return ("reached", {"world": world, "from": payload["from"], "to": payload["to"]})
+        raise ValueError(f"unknown event kind {kind!r}")
+
+    async def _kb(self, op: str, args: dict[str, Any]) -> Any:
+        return await self.kb.acall(op, **args)
+
+    # -- worlds ------------------------------------------------------------------------
+    async def create(self, desc: WorldDescription) -> dict[str, Any]:
+        desc = resolve_description(desc)
+        async with self._write:
+            if self.store.world(desc.name) is not None:
+                raise Conflict(f"world {desc.name!r} already exists", field="name")
+            await self._kb("create_world", {
+                "world": desc.name, "landmarks": [lm.id for lm in desc.landmarks],
+                "rule_probabilities": desc.rule_probabilities, "parameters": desc.parameters})
+            try:
+                with self.store.transaction() as conn:
+                    self.store.insert_world(conn, desc.name, desc.model_dump(mode="json"))
+            except BaseException:
+                await self._kb("drop_world", {"world": desc.name})
+                raise
+            self._models[desc.name] = World(desc)
+        return self.summary(desc.name)
+
+    def model(self, name: str) -> World:
+        if name not in self._models:
+            row = self.store.world(name)
+            if row is None:
+                raise NotFound(f"world {name!r} does not exist", field="world")
+            self._models[name] = World(WorldDescription.model_validate(row.description))
+        return self._models[name]
+
+    def summary(self, name: str) -> dict[str, Any]:
+        w = self.model(name)
+        d = w.description
+        return {"name": d.name, "template": d.template, "landmarks": len(d.landmarks),
+                "walls": len(d.walls), "objects": len(d.objects),
+                "events": len(self.store.events(name))}
+
+    def names(self) -> list[str]:
+        return [r.name for r in self.store.worlds()]
+
+    async def delete(self, name: str) -> None:
+        async with self._write:
+            self.model(name)
+            with self.store.transaction() as conn:
+                self.store.delete_world(conn, name)
+            self._models.pop(name, None)
+            try:
+                await self._kb("drop_world", {"world": name})
+            except KbError:
+                log.exception("dropping world %s from the knowledge base", name)
+
+    # -- qualitative navigation ---------------------------------------------------------
+    async def _append(self, world: str, kind: str, payload: dict[str, Any]) -> Any:
+        async with self._write:
+            self.model(world)
+            op, args = self._event_call(world, kind, payload)
+            result = await self._kb(op, args)
+            try:
+                with self.store.transaction() as conn:
+                    self.store.append_event(conn, world, kind, payload)
+            except BaseException:
+                log.exception("store write failed; rebuilding %s from the store", world)
+                self._load_into_kb(self.model(world).description)
+                raise
+            return result
+
+    async def observe(self, world: str, obs: Observation) -> Any:
+        return await self._append(world, "observation", obs.model_dump(mode="json"))
+
+    async def reached(self, world: str, source: str, target: str) -> Any:
+        return await self._append(world, "reached", {"from": source, "to": target})
+
+    async def relations(self, world: str, kind: str) -> list[dict[str, Any]]:
+        self.model(world)
+        return list(await self._kb("relations", {"world": world, "kind": kind}))
+
+    async def drm(self, world: str) -> dict[str, Any]:
+        self.model(world)
+        return dict(await self._kb("drm", {"world": world}))
+
+    async def path(self, world: str, source: str, target: str) -> DrmPath | None:
+        self.model(world)
+        try:
+            await self._kb("check_landmarks", {"world": world,
+                                               "landmarks": [["from", source], ["to", target]]})
+        except KbError as e:
+            if e.type in ("unknown_landmark", "invalid_id"):
+                raise NotFound(f"landmark {e.value!r} is not in world {world!r}",
+                               field=e.field) from None
+            raise
+        drm = await self.drm(world)
+        g = build_drm(drm["nodes"], edges_from_records(drm["edges"]))
+        return max_probability_path(g, source, target)
+
+    async def facts(self, world: str) -> list[str]:
+        self.model(world)
+        return list(await self._kb("facts", {"world": world}))
