@@ -96,6 +96,9 @@ probability(P, Field) :-
 		 *          OPERATIONS          *
 		 *******************************/
 
+run(engine, _, _{thread:Id}) :-
+    thread_self(T), ( integer(T) -> Id = T ; thread_property(T, id(Id)) ).
+
 run(worlds, _, Ws) :-
     findall(W, world_exists(W), Ws0), sort(Ws0, Ws).
 
@@ -165,7 +168,7 @@ run(drm, Args, _{nodes:Ns, edges:Es}) :-
 run(check_landmarks, Args, _{world:W}) :-
     existing_world(Args, W),
     arg_(landmarks, Args, Ls),
-    forall(member(Field-Text, Ls), known_landmark(W, Text, Field, _)).
+    forall(member([Field, Text], Ls), known_landmark(W, Text, Field, _)).
 
 run(params, Args, _{rule_probabilities:RPs, parameters:Ps}) :-
     existing_world(Args, W), world_module(W, M),

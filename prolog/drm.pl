@@ -33,7 +33,7 @@
 
 params:default_rule_probability(reach_rea, 0.99).
 params:default_rule_probability(reach_rec, 0.95).
-params:default_rule_probability(move2, 0.9).
+params:default_rule_probability(move2, 0.95).     % geometrically guaranteed shortcut
 params:default_rule_probability(move3, 0.85).
 params:default_rule_probability(retrace, 0.9).
 

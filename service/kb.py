@@ -63,6 +63,9 @@ class KnowledgeBase:
             from pyswip import core as pl  # noqa: PLC0415 (initialises Prolog here)
 
             self._pl = pl
+            if pl.PL_thread_self() == -1:  # Prolog was initialised by an earlier engine thread
+                if pl.PL_thread_attach_engine(None) < 0:
+                    raise KbStartupError("cannot attach a Prolog engine to this thread")
             self._load_rules()
             self._handle = pl.PL_predicate(b"handle", 2, b"api")
         except BaseException as e:  # noqa: BLE001 — reported to the constructor

@@ -15,6 +15,8 @@ class Health(BaseModel):
     status: Literal["ok"]
     worlds: int
     engine_thread_alive: bool
+    prolog_thread: int = Field(description="Prolog thread id that answered")
+    python_thread: int = Field(description="ident of the Python thread owning the engine")
 
 
 class WorldSummary(BaseModel):

@@ -8,6 +8,8 @@ router = APIRouter(tags=["health"])
 
 @router.get("/health", response_model=Health)
 async def health(worlds: WorldsDep, kb: KbDep) -> Health:
-    await kb.acall("worlds")  # the engine answers
+    engine = await kb.acall("engine")  # the engine answers, from its one thread
     return Health(status="ok", worlds=len(worlds.names()),
-                  engine_thread_alive=kb.engine_thread.is_alive())
+                  engine_thread_alive=kb.engine_thread.is_alive(),
+                  prolog_thread=int(engine["thread"]),
+                  python_thread=kb.engine_thread.ident or 0)

@@ -1,0 +1,43 @@
+# chizu — two commands on a fresh Debian machine: `make run` and `make test`.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: run test bench lint install prolog clean
+
+# SWI-Prolog (pyswip needs libswipl): apt swi-prolog-nox when swipl is missing.
+prolog:
+	@if ! command -v swipl >/dev/null 2>&1; then \
+	  echo "installing swi-prolog-nox"; \
+	  SUDO=$$( [ "$$(id -u)" -eq 0 ] || echo sudo ); \
+	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq swi-prolog-nox; \
+	fi
+
+$(STAMP): pyproject.toml
+	@$(MAKE) --no-print-directory prolog
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV) || { \
+	  echo "python3 -m venv failed: installing python3-venv"; \
+	  SUDO=$$( [ "$$(id -u)" -eq 0 ] || echo sudo ); \
+	  $$SUDO apt-get install -y -qq python3-venv python3-pip && $(PYTHON) -m venv $(VENV); }
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[dev]'
+	@touch $(STAMP)
+
+install: prolog $(STAMP)
+
+run: install
+	$(VENV)/bin/chizu serve
+
+test: install
+	$(PY) -m pytest
+
+bench: install
+	$(PY) tests/bench/run.py
+
+lint: install
+	$(VENV)/bin/ruff check numeric service tests
+
+clean:
+	rm -rf $(VENV) var bench-out
