@@ -75,7 +75,8 @@ class WorldService:
     def _load_into_kb(self, desc: WorldDescription) -> None:
         self._kb_create(desc)
         for ev in self.store.events(desc.name):
-            self.kb.call(*self._event_call(desc.name, ev.kind, ev.payload))
+            op, args = self._event_call(desc.name, ev.kind, ev.payload)
+            self.kb.call(op, **args)
         self._models[desc.name] = World(desc)
 
     def _kb_create(self, desc: WorldDescription) -> None:
@@ -84,7 +85,8 @@ class WorldService:
                      rule_probabilities=desc.rule_probabilities, parameters=desc.parameters)
 
     @staticmethod
-    def _event_call(world: str, kind: str, payload: dict[str, Any]) -> tuple[Any, ...]:
+    def _event_call(world: str, kind: str,
+                    payload: dict[str, Any]) -> tuple[str, dict[str, Any]]:
         if kind == "observation":
             obs = Observation.model_validate(payload)
             angles, distances = observation_quantities(obs)
