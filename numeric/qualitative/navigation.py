@@ -1,0 +1,215 @@
+"""Step 4 of the paper (§6) in the simulator: executing a DRM path, and the
+quantitative baseline the paper's §7 asks to compare against.
+
+Qualitative execution steers only by what the robot sees now (bearing and
+recognition of landmarks), one method per DRM arc:
+
+- ``move1``: home on the target's bearing until it is within the arrival radius;
+- ``move2``: head between the two via landmarks (circular mean of their
+  bearings) until the target is recognised, then home on it;
+- ``move3``: home on the via landmark, then home on the target;
+- ``retrace``: home on the target (the route back is known to be free).
+
+The quantitative baseline estimates landmark coordinates from the same noisy
+bearings and distances (nonlinear least squares, scipy), plans the shortest
+route over co-observed pairs (networkx) and drives straight legs by odometry
+between estimated positions, re-localising its heading at each landmark.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import networkx as nx
+import numpy as np
+from pydantic import BaseModel, Field
+from scipy.optimize import least_squares
+
+from numeric.geometry import circular_mean, wrap_angle
+from numeric.qualitative.drm import DrmEdge
+from numeric.qualitative.observation import Observation
+from numeric.simulator import LandmarkObserver, Robot
+
+
+class NavConfig(BaseModel):
+    step_m: float = Field(0.25, gt=0)
+    arrival_radius_m: float = Field(0.6, gt=0)
+    max_steps_per_leg: int = Field(400, gt=0)
+
+
+@dataclass
+class NavResult:
+    success: bool
+    travelled_m: float
+    failed_step: int | None = None
+    reason: str = ""
+
+
+def _arrived(robot: Robot, observer: LandmarkObserver, target: str, cfg: NavConfig) -> bool:
+    true_d = np.linalg.norm(robot.pose[:2] - observer.world.landmark_position(target))
+    return bool(true_d <= cfg.arrival_radius_m)
+
+
+def home_on(robot: Robot, observer: LandmarkObserver, target: str, cfg: NavConfig) -> bool:
+    """move1: steer by the target's measured bearing until the measured range is short."""
+    for _ in range(cfg.max_steps_per_leg):
+        m = observer.measure(robot.pose, target)
+        if m is None:
+            return False
+        b, d = m
+        if d <= cfg.arrival_radius_m * 0.5:
+            return _arrived(robot, observer, target, cfg)
+        robot.turn(b)
+        if not robot.forward(min(cfg.step_m, max(d - cfg.arrival_radius_m * 0.25, 0.05))):
+            return False
+    return False
+
+
+def pass_between(robot: Robot, observer: LandmarkObserver, via: Sequence[str], target: str,
+                 cfg: NavConfig) -> bool:
+    """move2: head between the via landmarks until the target is recognised, then home."""
+    heading_locked: float | None = None
+    for _ in range(cfg.max_steps_per_leg):
+        if observer.measure(robot.pose, target) is not None:
+            return home_on(robot, observer, target, cfg)
+        ms = [observer.measure(robot.pose, v) for v in via]
+        if all(m is not None and abs(m[0]) < np.pi / 2 for m in ms):
+            turn = circular_mean([m[0] for m in ms if m is not None])
+            heading_locked = None
+        else:  # passed them (or lost one): keep the heading we had
+            if heading_locked is None:
+                heading_locked = float(robot.odom_pose[2])
+            turn = float(wrap_angle(heading_locked - robot.odom_pose[2]))
+        robot.turn(turn)
+        if not robot.forward(cfg.step_m):
+            return False
+    return False
+
+
+def execute_step(robot: Robot, observer: LandmarkObserver, step: DrmEdge,
+                 cfg: NavConfig) -> bool:
+    if step.method == "move2":
+        return pass_between(robot, observer, step.via, step.target, cfg)
+    if step.method == "move3":
+        return (home_on(robot, observer, step.via[0], cfg)
+                and home_on(robot, observer, step.target, cfg))
+    return home_on(robot, observer, step.target, cfg)  # move1, retrace
+
+
+def execute_drm_path(robot: Robot, observer: LandmarkObserver, steps: Sequence[DrmEdge],
+                     cfg: NavConfig) -> NavResult:
+    """Run the methods of a DRM path one after another (paper §6)."""
+    start = robot.travelled_m
+    for i, s in enumerate(steps):
+        if not execute_step(robot, observer, s, cfg):
+            reason = "collision" if robot.collided else f"{s.method} to {s.target} failed"
+            return NavResult(False, robot.travelled_m - start, i, reason)
+    return NavResult(True, robot.travelled_m - start)
+
+
+# -- quantitative baseline ---------------------------------------------------------------
+
+def estimate_landmark_positions(observations: Sequence[Observation],
+                                bearing_sigma: float, distance_sigma: float
+                                ) -> dict[str, np.ndarray]:
+    """Least-squares landmark map from panoramic range-bearing observations.
+
+    Unknowns: (x, y) of every landmark and the heading of every station; the
+    first station is fixed at the origin with heading 0 (gauge).  Residuals
+    are bearing and range errors divided by their sigmas.
+    """
+    stations = [o for o in observations if o.seen]
+    if not stations:
+        return {}
+    g = nx.Graph()
+    for o in stations:
+        for s in o.seen:
+            g.add_edge(o.at, s.landmark)
+    root = stations[0].at
+    comp = nx.node_connected_component(g, root)
+    stations = [o for o in stations if o.at in comp]
+    ids = sorted(comp)
+    idx = {k: i for i, k in enumerate(ids)}
+    # initial guess by chaining relative vectors breadth-first
+    pos = {root: np.zeros(2)}
+    head = {root: 0.0}
+    by_at = {o.at: o for o in stations}
+    for a, b in nx.bfs_edges(g, root):
+        if a in by_at and a in head:
+            for s in by_at[a].seen:
+                if s.landmark == b:
+                    ang = head[a] + s.bearing_rad
+                    pos[b] = pos[a] + s.distance_m * np.array([np.cos(ang), np.sin(ang)])
+        elif b in by_at:
+            pos.setdefault(b, pos[a])
+        if b in by_at and b not in head:
+            obs_b = by_at[b]
+            hs = [float(np.arctan2(*(pos[s.landmark] - pos[b])[::-1]) - s.bearing_rad)
+                  for s in obs_b.seen if s.landmark in pos and s.landmark != b]
+            head[b] = circular_mean(hs) if hs else 0.0
+    st_idx = {o.at: i for i, o in enumerate(stations)}
+    x0 = np.concatenate([np.concatenate([pos.get(k, np.zeros(2)) for k in ids]),
+                         np.array([head.get(o.at, 0.0) for o in stations])])
+    n = len(ids)
+    rows = [(st_idx[o.at], idx[o.at], idx[s.landmark], s.bearing_rad, s.distance_m)
+            for o in stations for s in o.seen]
+    si, ai, bi, bz, dz = (np.array(c) for c in zip(*rows, strict=True))
+    r0 = idx[root]
+
+    def residuals(x: np.ndarray) -> np.ndarray:
+        p = x[:2 * n].reshape(n, 2)
+        h = x[2 * n:]
+        d = p[bi] - p[ai]
+        pb = np.arctan2(d[:, 1], d[:, 0]) - h[si]
+        rb = wrap_angle(pb - bz) / max(bearing_sigma, 1e-3)
+        rd = (np.hypot(d[:, 0], d[:, 1]) - dz) / max(distance_sigma, 1e-3)
+        gauge = np.concatenate([p[r0] * 1e3, [h[st_idx[root]] * 1e3]])
+        return np.concatenate([rb, rd, gauge])
+
+    sol = least_squares(residuals, x0, method="trf", loss="soft_l1", max_nfev=200)
+    p = sol.x[:2 * n].reshape(n, 2)
+    return {k: p[i] for k, i in idx.items()}
+
+
+def quantitative_route(observations: Sequence[Observation], est: dict[str, np.ndarray],
+                       source: str, target: str) -> list[str] | None:
+    """Shortest route (estimated metres) over pairs that were seen from one another."""
+    g = nx.Graph()
+    for o in observations:
+        for s in o.seen:
+            if o.at in est and s.landmark in est:
+                g.add_edge(o.at, s.landmark,
+                           w=float(np.linalg.norm(est[o.at] - est[s.landmark])))
+    try:
+        return list(nx.dijkstra_path(g, source, target, weight="w"))
+    except (nx.NetworkXNoPath, nx.NodeNotFound):
+        return None
+
+
+def execute_quantitative(robot: Robot, observer: LandmarkObserver, route: Sequence[str],
+                         est: dict[str, np.ndarray], cfg: NavConfig) -> NavResult:
+    """Drive straight legs by odometry between estimated positions.
+
+    At each landmark the robot knows where it is (it recognises the landmark)
+    and estimates its map heading from the bearings of visible landmarks.
+    """
+    start = robot.travelled_m
+    for i, (a, b) in enumerate(zip(route, route[1:], strict=False)):
+        obs = observer.observe(robot.pose, at=a)
+        hs = [float(np.arctan2(*(est[s.landmark] - est[a])[::-1]) - s.bearing_rad)
+              for s in obs.seen if s.landmark in est]
+        if not hs:
+            return NavResult(False, robot.travelled_m - start, i, "lost: no landmark in view")
+        heading = circular_mean(hs)
+        delta = est[b] - est[a]
+        robot.turn(float(wrap_angle(np.arctan2(delta[1], delta[0]) - heading)))
+        dist = float(np.linalg.norm(delta))
+        while dist > 1e-9:
+            leg = min(cfg.step_m, dist)
+            if not robot.forward(leg):
+                return NavResult(False, robot.travelled_m - start, i, "collision")
+            dist -= leg
+        if not _arrived(robot, observer, b, cfg):
+            return NavResult(False, robot.travelled_m - start, i, f"missed {b}")
+    return NavResult(True, robot.travelled_m - start)

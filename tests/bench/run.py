@@ -1,0 +1,201 @@
+"""make bench: DRM build time and path latency over REST, and qualitative vs quantitative.
+
+Writes bench-out/results.md, bench-out/qual_vs_quant.png and prints the tables.
+Speeds are reported next to a baseline measured in the same run (GET /health
+over the same HTTP stack), since these machines are shared and noisy.
+"""
+
+from __future__ import annotations
+
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+
+from numeric.qualitative.drm import build_drm, edges_from_records, max_probability_path  # noqa: E402
+from numeric.qualitative.navigation import (  # noqa: E402
+    NavConfig,
+    estimate_landmark_positions,
+    execute_drm_path,
+    execute_quantitative,
+    quantitative_route,
+)
+from numeric.qualitative.survey import survey  # noqa: E402
+from numeric.simulator import LandmarkObserver, ObserverConfig, OdometryConfig, Robot  # noqa: E402
+from numeric.world import World  # noqa: E402
+from numeric.worlds import office_world  # noqa: E402
+from service.kb import KnowledgeBase  # noqa: E402
+from service.settings import PROLOG_DIR  # noqa: E402
+from service.worlds import WorldService  # noqa: E402
+from tests.conftest import LiveServer  # noqa: E402
+
+OUT = ROOT / "bench-out"
+
+
+def pct(xs: list[float], q: float) -> float:
+    return float(np.percentile(np.array(xs), q))
+
+
+def bench_rest(sizes: tuple[int, ...] = (4, 20, 40), queries: int = 200) -> list[dict]:
+    rows = []
+    with tempfile.TemporaryDirectory() as d:
+        srv = LiveServer(Path(d))
+        try:
+            with httpx.Client(base_url=srv.url, timeout=120) as c:
+                for k in sizes:
+                    desc = office_world(name=f"office{k}", rooms_per_side=k)
+                    w = World(desc)
+                    assert c.post("/worlds", content=desc.model_dump_json(),
+                                  headers={"content-type": "application/json"}).status_code == 201
+                    obs = survey(w, ObserverConfig(bearing_noise_rad=0.01,
+                                                   distance_noise_m=0.02), seed=1)
+                    for o in obs:
+                        r = c.post(f"/worlds/{desc.name}/observations",
+                                   content=o.model_dump_json(),
+                                   headers={"content-type": "application/json"})
+                        assert r.status_code == 201, r.text
+                    builds = []
+                    for rep in range(5):
+                        if rep:  # re-post one observation: invalidates the closure
+                            c.post(f"/worlds/{desc.name}/observations",
+                                   content=obs[rep].model_dump_json(),
+                                   headers={"content-type": "application/json"})
+                        t0 = time.perf_counter()
+                        drm = c.get(f"/worlds/{desc.name}/drm").json()
+                        builds.append(time.perf_counter() - t0)
+                    rng = np.random.default_rng(0)
+                    ids = w.landmark_ids
+                    lat, health = [], []
+                    for _ in range(queries):
+                        a, b = rng.choice(ids, 2, replace=False)
+                        t0 = time.perf_counter()
+                        r = c.get(f"/worlds/{desc.name}/path", params={"from": a, "to": b})
+                        lat.append(time.perf_counter() - t0)
+                        assert r.status_code == 200
+                        t0 = time.perf_counter()
+                        c.get("/health")
+                        health.append(time.perf_counter() - t0)
+                    rows.append({
+                        "landmarks": len(ids), "edges": len(drm["edges"]),
+                        "drm_build_ms": statistics.median(builds) * 1e3,
+                        "path_p50_ms": pct(lat, 50) * 1e3, "path_p99_ms": pct(lat, 99) * 1e3,
+                        "health_p50_ms": pct(health, 50) * 1e3,
+                    })
+                    print(rows[-1], flush=True)
+        finally:
+            srv.stop()
+    return rows
+
+
+def bench_navigation(levels: tuple[float, ...] = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0),
+                     pairs: int = 40, seeds: int = 2) -> list[dict]:
+    """Noise level L: bearing sigma = L * 1 deg, range sigma = L * 1 % of range + L * 1 cm."""
+    kb = KnowledgeBase(PROLOG_DIR)
+    w = World(office_world(name="navbench"))
+    ids = w.landmark_ids
+    cfg = NavConfig()
+    odo = OdometryConfig()
+    rows = []
+    for level in levels:
+        ocfg = ObserverConfig(bearing_noise_rad=np.deg2rad(1.0) * level,
+                              distance_noise_ratio=0.01 * level, distance_noise_m=0.01 * level)
+        res: dict[str, list[tuple[bool, float]]] = {"qualitative": [], "quantitative": []}
+        for seed in range(seeds):
+            obs = survey(w, ocfg, seed=100 + seed)
+            name = f"nav_{int(level * 10)}_{seed}"
+            kb.call("create_world", world=name, landmarks=ids, rule_probabilities={},
+                    parameters={})
+            for o in obs:
+                op, args = WorldService._event_call(name, "observation", o.model_dump())
+                kb.call(op, **args)
+            drm = kb.call("drm", world=name)
+            g = build_drm(drm["nodes"], edges_from_records(drm["edges"]))
+            est = estimate_landmark_positions(obs, max(ocfg.bearing_noise_rad, 1e-3),
+                                              max(ocfg.distance_noise_m, 1e-2) + 0.05)
+            rng = np.random.default_rng(seed)
+            for _ in range(pairs):
+                a, b = rng.choice(ids, 2, replace=False)
+                start = np.array([*w.landmark_position(a), rng.uniform(-np.pi, np.pi)])
+                # qualitative
+                robot = Robot(w, start.copy(), odo, np.random.default_rng(rng.integers(1 << 31)))
+                observer = LandmarkObserver(w, ocfg, np.random.default_rng(rng.integers(1 << 31)))
+                p = max_probability_path(g, a, b)
+                if p is None:
+                    res["qualitative"].append((False, 0.0))
+                else:
+                    r = execute_drm_path(robot, observer, p.steps, cfg)
+                    res["qualitative"].append((r.success, r.travelled_m))
+                # quantitative, same sensors
+                robot = Robot(w, start.copy(), odo, np.random.default_rng(rng.integers(1 << 31)))
+                observer = LandmarkObserver(w, ocfg, np.random.default_rng(rng.integers(1 << 31)))
+                route = quantitative_route(obs, est, a, b)
+                if route is None:
+                    res["quantitative"].append((False, 0.0))
+                else:
+                    r = execute_quantitative(robot, observer, route, est, cfg)
+                    res["quantitative"].append((r.success, r.travelled_m))
+            kb.call("drop_world", world=name)
+        for planner, xs in res.items():
+            ok = [length for s, length in xs if s]
+            rows.append({"noise_level": level, "bearing_sigma_deg": level,
+                         "range_sigma": f"{level:.1f}% + {level:.1f} cm", "planner": planner,
+                         "runs": len(xs), "success_rate": len(ok) / len(xs),
+                         "mean_length_m": float(np.mean(ok)) if ok else float("nan")})
+            print(rows[-1], flush=True)
+    kb.close()
+    return rows
+
+
+def plot(nav: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(1, 2, figsize=(10, 4))
+    for planner, style in (("qualitative", "o-"), ("quantitative", "s--")):
+        xs = [r for r in nav if r["planner"] == planner]
+        ax[0].plot([r["noise_level"] for r in xs], [r["success_rate"] for r in xs], style,
+                   label=planner)
+        ax[1].plot([r["noise_level"] for r in xs], [r["mean_length_m"] for r in xs], style,
+                   label=planner)
+    ax[0].set(xlabel="noise level (bearing σ in deg; range σ in % and cm)",
+              ylabel="success rate", ylim=(0, 1.05))
+    ax[1].set(xlabel="noise level", ylabel="mean path length of successes [m]")
+    for a in ax:
+        a.grid(alpha=0.3)
+        a.legend()
+    fig.suptitle("DRM (qualitative) vs metric map (quantitative) navigation, demo office")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+def table(rows: list[dict]) -> str:
+    keys = list(rows[0])
+    out = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
+    for r in rows:
+        out.append("| " + " | ".join(f"{v:.3g}" if isinstance(v, float) else str(v)
+                                     for v in r.values()) + " |")
+    return "\n".join(out)
+
+
+def main() -> None:
+    OUT.mkdir(exist_ok=True)
+    rest = bench_rest()
+    nav = bench_navigation()
+    plot(nav, OUT / "qual_vs_quant.png")
+    md = ("## DRM build and path latency (REST, `make bench`)\n\n" + table(rest) +
+          "\n\n## Qualitative vs quantitative navigation (`make bench`)\n\n" + table(nav) + "\n")
+    (OUT / "results.md").write_text(md)
+    print(md)
+
+
+if __name__ == "__main__":
+    main()
