@@ -62,7 +62,11 @@ params:default_rule_probability(align_same_transitive, 0.85).
 params:default_rule_probability(rec_symmetry, 0.8).
 
 params:default_parameter(align_tolerance_rad, 0.0873).    % 5 degrees
-params:default_parameter(min_probability, 0.2).
+%   A relation below 0.5 is more likely false than true; planning on it makes
+%   no sense, and the cut keeps the closure small: on the 102-landmark office
+%   0.2 gave 53 762 lr relations in 2.4 s, 0.5 gives 5 968 in 0.1 s with the
+%   same DRM edges.
+params:default_parameter(min_probability, 0.5).
 
 %!  observe(+World, +At, +Seen, +Angles) is det.
 %

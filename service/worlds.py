@@ -12,6 +12,8 @@ import asyncio
 import logging
 from typing import Any
 
+import networkx as nx
+
 from numeric.qualitative.drm import (
     DrmPath,
     build_drm,
@@ -57,11 +59,18 @@ def resolve_description(desc: WorldDescription) -> WorldDescription:
     })
 
 
+_READ_ONLY = frozenset({"worlds", "landmarks", "relations", "drm", "facts", "params",
+                        "check_landmarks", "engine"})
+
+
 class WorldService:
     def __init__(self, store: Store, kb: KnowledgeBase) -> None:
         self.store, self.kb = store, kb
         self._write = asyncio.Lock()
         self._models: dict[str, World] = {}
+        # DRM graphs per world, tagged with the world's version (bumped on every change)
+        self._drm_graphs: dict[str, tuple[int, nx.DiGraph]] = {}
+        self._versions: dict[str, int] = {}
 
     # -- start-up ----------------------------------------------------------------------
     def restore(self) -> int:
@@ -73,6 +82,7 @@ class WorldService:
         return n
 
     def _load_into_kb(self, desc: WorldDescription) -> None:
+        self._changed(desc.name)
         self._kb_create(desc)
         for ev in self.store.events(desc.name):
             op, args = self._event_call(desc.name, ev.kind, ev.payload)
@@ -99,7 +109,13 @@ class WorldService:
         raise ValueError(f"unknown event kind {kind!r}")
 
     async def _kb(self, op: str, args: dict[str, Any]) -> Any:
+        if op not in _READ_ONLY:
+            self._changed(str(args.get("world")))
         return await self.kb.acall(op, **args)
+
+    def _changed(self, world: str) -> None:
+        self._versions[world] = self._versions.get(world, 0) + 1
+        self._drm_graphs.pop(world, None)
 
     # -- worlds ------------------------------------------------------------------------
     async def create(self, desc: WorldDescription) -> dict[str, Any]:
@@ -177,18 +193,24 @@ class WorldService:
         self.model(world)
         return dict(await self._kb("drm", {"world": world}))
 
-    async def path(self, world: str, source: str, target: str) -> DrmPath | None:
-        self.model(world)
-        try:
-            await self._kb("check_landmarks", {"world": world,
-                                               "landmarks": [["from", source], ["to", target]]})
-        except KbError as e:
-            if e.type in ("unknown_landmark", "invalid_id"):
-                raise NotFound(f"landmark {e.value!r} is not in world {world!r}",
-                               field=e.field) from None
-            raise
+    async def drm_graph(self, world: str) -> nx.DiGraph:
+        """The DRM as a networkx graph, cached until the world changes."""
+        version = self._versions.get(world, 0)
+        cached = self._drm_graphs.get(world)
+        if cached is not None and cached[0] == version:
+            return cached[1]
         drm = await self.drm(world)
         g = build_drm(drm["nodes"], edges_from_records(drm["edges"]))
+        if self._versions.get(world, 0) == version:  # no change while we were reading
+            self._drm_graphs[world] = (version, g)
+        return g
+
+    async def path(self, world: str, source: str, target: str) -> DrmPath | None:
+        self.model(world)
+        g = await self.drm_graph(world)
+        for field, lm in (("from", source), ("to", target)):
+            if lm not in g:
+                raise NotFound(f"landmark {lm!r} is not in world {world!r}", field=field)
         return max_probability_path(g, source, target)
 
     async def facts(self, world: str) -> list[str]:

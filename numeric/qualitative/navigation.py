@@ -67,19 +67,25 @@ def home_on(robot: Robot, observer: LandmarkObserver, target: str, cfg: NavConfi
 
 
 def pass_between(robot: Robot, observer: LandmarkObserver, via: Sequence[str], target: str,
-                 cfg: NavConfig) -> bool:
-    """move2: head between the via landmarks until the target is recognised, then home."""
+                 cfg: NavConfig, between_rad: float = np.deg2rad(150)) -> bool:
+    """move2: head for the gap between the two via landmarks (the circular mean of their
+    bearings) until they are seen on opposite sides (angle > ``between_rad``), then keep
+    straight on; as soon as the target is recognised, home on it."""
     heading_locked: float | None = None
     for _ in range(cfg.max_steps_per_leg):
         if observer.measure(robot.pose, target) is not None:
             return home_on(robot, observer, target, cfg)
-        ms = [observer.measure(robot.pose, v) for v in via]
-        if all(m is not None and abs(m[0]) < np.pi / 2 for m in ms):
-            turn = circular_mean([m[0] for m in ms if m is not None])
-            heading_locked = None
-        else:  # passed them (or lost one): keep the heading we had
-            if heading_locked is None:
-                heading_locked = float(robot.odom_pose[2])
+        if heading_locked is None:
+            ms = [observer.measure(robot.pose, v) for v in via]
+            if any(m is None for m in ms):
+                return False
+            bs = [m[0] for m in ms if m is not None]
+            if abs(float(wrap_angle(bs[0] - bs[1]))) >= between_rad:
+                heading_locked = float(robot.odom_pose[2])  # in the gap: straight on
+                turn = 0.0
+            else:
+                turn = circular_mean(bs)
+        else:
             turn = float(wrap_angle(heading_locked - robot.odom_pose[2]))
         robot.turn(turn)
         if not robot.forward(cfg.step_m):
