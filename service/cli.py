@@ -43,6 +43,10 @@ def _open_worlds():  # type: ignore[no-untyped-def]
     kb = KnowledgeBase(s.prolog_dir, s.kb_time_limit_s, s.kb_inference_limit)
     service = WorldService(store, kb)
     service.restore()
+    if s.demo_world and store.world(s.demo_world) is None:
+        from service.app import create_demo
+
+        asyncio.run(create_demo(service, s.demo_world))
     return service
 
 
@@ -91,7 +95,7 @@ def repl(world: str) -> None:
             f.write(fact + ".\n")
     service.kb.close()
     load = str(Path(s.prolog_dir) / "load.pl")
-    argv = [swipl, load, "-g", "repl:main", "--", f"--world={world}", f"--facts={name}"]
+    argv = [swipl, "-g", "repl:main", load, "--", f"--world={world}", f"--facts={name}"]
     sys.stdout.flush()
     os.execv(swipl, argv)
 

@@ -46,13 +46,16 @@ class LiveServer:
         self.url = f"http://127.0.0.1:{self.port}"
         env = {**os.environ, "CHIZU_DATA_DIR": str(data_dir), "CHIZU_PORT": str(self.port),
                "CHIZU_HOST": "127.0.0.1", "CHIZU_DEMO_WORLD": "demo" if demo else ""}
+        data_dir.mkdir(parents=True, exist_ok=True)
+        # the log goes to a file: an unread pipe fills up and blocks the server
+        self.log_path = data_dir / "server.log"
+        self._log = self.log_path.open("ab")
         self.proc = subprocess.Popen([sys.executable, "-m", "service.cli", "serve"], env=env,
-                                     cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+                                     cwd=ROOT, stdout=self._log, stderr=subprocess.STDOUT)
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
-                out = self.proc.stdout.read().decode() if self.proc.stdout else ""
-                raise RuntimeError(f"server exited: {out}")
+                raise RuntimeError(f"server exited: {self.log_path.read_text()}")
             try:
                 if httpx.get(self.url + "/health", timeout=1).status_code == 200:
                     return
@@ -68,6 +71,7 @@ class LiveServer:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.wait()
+        self._log.close()
 
 
 @pytest.fixture
