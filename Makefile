@@ -38,6 +38,7 @@ bench: install
 
 lint: install
 	$(VENV)/bin/ruff check numeric service tests
+	$(VENV)/bin/mypy numeric service
 
 clean:
 	rm -rf $(VENV) var bench-out

@@ -100,12 +100,13 @@ class WorldDescription(BaseModel):
 
     @model_validator(mode="after")
     def _unique_ids(self) -> WorldDescription:
-        for kind, items in (("landmarks", self.landmarks), ("objects", self.objects)):
+        for kind, ids in (("landmarks", [lm.id for lm in self.landmarks]),
+                          ("objects", [o.id for o in self.objects])):
             seen: set[str] = set()
-            for i, it in enumerate(items):
-                if it.id in seen:
-                    raise ValueError(f"{kind}[{i}].id {it.id!r} is not unique")
-                seen.add(it.id)
+            for i, x in enumerate(ids):
+                if x in seen:
+                    raise ValueError(f"{kind}[{i}].id {x!r} is not unique")
+                seen.add(x)
         return self
 
 

@@ -73,7 +73,7 @@ def test_invalid_world_names(client: TestClient) -> None:
 
 def test_nan_and_inf_rejected(client: TestClient) -> None:
     for lit in ["NaN", "Infinity", "-Infinity"]:
-        raw = ('{"name": "nanw", "landmarks": [{"id": "a", "x": %s, "y": 0}]}' % lit)
+        raw = '{"name": "nanw", "landmarks": [{"id": "a", "x": LIT, "y": 0}]}'.replace("LIT", lit)
         r = client.post("/worlds", content=raw, headers={"content-type": "application/json"})
         assert_problem(r, 422, "landmarks[0].x")
     assert client.get("/worlds/nanw").status_code == 404  # nothing half-written
@@ -109,7 +109,8 @@ def test_bad_rule_probability(client: TestClient) -> None:
 
 
 def test_huge_payload_413(client: TestClient, app_settings) -> None:  # type: ignore[no-untyped-def]
-    big = b'{"name": "huge", "walls": [' + b'{"a":[0,0],"b":[1,1]},' * 400_000 + b'{"a":[0,0],"b":[1,1]}]}'
+    wall = b'{"a":[0,0],"b":[1,1]}'
+    big = b'{"name": "huge", "walls": [' + b",".join([wall] * 400_000) + b"]}"
     assert len(big) > app_settings.max_body_bytes
     r = client.post("/worlds", content=big, headers={"content-type": "application/json"})
     assert_problem(r, 413)

@@ -19,7 +19,8 @@ def _requests() -> list[tuple[str, dict]]:
             src, dst = pairs[i % len(pairs)]
             reqs.append(("/worlds/fig/path", {"from": src, "to": dst}))
         elif k == 1:
-            reqs.append(("/worlds/fig/relations", {"kind": ["lr", "rec", "align", "reachable"][i % 4]}))
+            kind = ["lr", "rec", "align", "reachable"][(i // 4) % 4]
+            reqs.append(("/worlds/fig/relations", {"kind": kind}))
         elif k == 2:
             reqs.append(("/worlds/fig/drm", {}))
         else:

@@ -9,6 +9,7 @@ from numeric.world import ID_PATTERN
 from service.api.routes.worlds import WorldName
 from service.deps import WorldsDep
 from service.schemas import (
+    DrmEdgeOut,
     DrmOut,
     ObservationOut,
     PathOut,
@@ -50,7 +51,7 @@ async def get_drm(world: WorldName, worlds: WorldsDep) -> Any:
     """The Direct Reachability Map: best derivation per ordered pair."""
     d = await worlds.drm(world)
     return DrmOut(nodes=d["nodes"], edges=[
-        {"from_": e["from"], "to": e["to"], "p": e["p"], "method": e["method"], "via": e["via"]}
+        DrmEdgeOut(from_=e["from"], to=e["to"], p=e["p"], method=e["method"], via=e["via"])
         for e in d["edges"]])
 
 
