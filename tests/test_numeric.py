@@ -198,3 +198,17 @@ def test_estimate_positions_recovers_map() -> None:
     dt = np.linalg.norm(true[:, None] - true[None], axis=2)
     de = np.linalg.norm(e[:, None] - e[None], axis=2)
     assert np.max(np.abs(dt - de)) < 0.3
+
+
+def test_reach_any_landmark_from_unknown_pose() -> None:
+    from numeric.qualitative.navigation import reach_any_landmark
+
+    w = World(office_world())
+    rng = np.random.default_rng(11)
+    obs = LandmarkObserver(w, ObserverConfig(recognition_radius_m=3.0,
+                                             bearing_noise_rad=0.05), rng)
+    for start in ([3.0, -4.0, 0.0], [20.0, 7.5, 2.0], [12.0, 1.0, -1.0]):
+        r = Robot(w, np.array(start), OdometryConfig(), rng)
+        lm = reach_any_landmark(r, obs, NavConfig(), rng)
+        assert lm is not None
+        assert np.linalg.norm(r.pose[:2] - w.landmark_position(lm)) <= NavConfig().arrival_radius_m

@@ -93,6 +93,31 @@ def pass_between(robot: Robot, observer: LandmarkObserver, via: Sequence[str], t
     return False
 
 
+def reach_any_landmark(robot: Robot, observer: LandmarkObserver, cfg: NavConfig,
+                       rng: np.random.Generator, max_steps: int = 2000) -> str | None:
+    """From an unknown pose, reach some landmark first (paper §6).
+
+    Look around; if a landmark is recognised, home on the nearest one.  If
+    none is, wander: drive straight, and turn a random angle on bumping into a
+    wall.  Returns the landmark reached, or None.
+    """
+    for _ in range(max_steps):
+        xy = robot.pose[:2]
+        visible = observer.visible(xy)
+        if len(visible):
+            ids = [observer.world.landmark_ids[i] for i in visible]
+            dists = [m[1] for m in (observer.measure(robot.pose, i) for i in ids)
+                     if m is not None]
+            nearest = ids[int(np.argmin(dists))]
+            if home_on(robot, observer, nearest, cfg):
+                return nearest
+            robot.collided = False
+        if not robot.forward(cfg.step_m):
+            robot.collided = False
+            robot.turn(float(rng.uniform(np.pi / 2, 3 * np.pi / 2)))
+    return None
+
+
 def execute_step(robot: Robot, observer: LandmarkObserver, step: DrmEdge,
                  cfg: NavConfig) -> bool:
     if step.method == "move2":
