@@ -20,6 +20,7 @@
 :- use_module(params).
 :- use_module(qualitative).
 :- use_module(drm).
+:- use_module(query).
 
 %!  handle(+Request:text, -Reply:string) is det.
 handle(In, Out) :-
@@ -164,6 +165,13 @@ run(drm, Args, _{nodes:Ns, edges:Es}) :-
     findall(L, M:landmark(L), Ns),
     drm_edges(W, Edges),
     maplist([edge(A, B, P, Me, V), _{from:A, to:B, p:P, method:Me, via:V}]>>true, Edges, Es).
+
+run(query, Args, _{solutions:Sols, truncated:Trunc}) :-
+    existing_world(Args, W),
+    arg_(goal, Args, Text),
+    arg_(max_solutions, Args, Max),
+    (   integer(Max), Max >= 1 -> true ; throw(chizu_error(invalid_max(Max), max_solutions)) ),
+    world_query(W, Text, Max, Sols, Trunc).
 
 run(check_landmarks, Args, _{world:W}) :-
     existing_world(Args, W),

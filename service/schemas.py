@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
@@ -73,3 +73,15 @@ class PathOut(BaseModel):
     path: list[str]
     steps: list[StepOut]
     probability: float
+
+
+class QueryIn(BaseModel):
+    model_config = {"extra": "forbid"}
+    goal: str = Field(min_length=1, max_length=4096,
+                      examples=["reachable(c0, To, P, Method), P > 0.9"])
+    max_solutions: int = Field(100, ge=1, le=10_000)
+
+
+class QueryOut(BaseModel):
+    solutions: list[dict[str, Any]]
+    truncated: bool

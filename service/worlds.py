@@ -60,7 +60,7 @@ def resolve_description(desc: WorldDescription) -> WorldDescription:
 
 
 _READ_ONLY = frozenset({"worlds", "landmarks", "relations", "drm", "facts", "params",
-                        "check_landmarks", "engine"})
+                        "check_landmarks", "engine", "query"})
 
 
 class WorldService:
@@ -212,6 +212,12 @@ class WorldService:
             if lm not in g:
                 raise NotFound(f"landmark {lm!r} is not in world {world!r}", field=field)
         return max_probability_path(g, source, target)
+
+    async def query(self, world: str, goal: str, max_solutions: int) -> dict[str, Any]:
+        """A read-only, whitelisted Prolog query over the world (prolog/query.pl)."""
+        self.model(world)
+        return dict(await self._kb("query", {"world": world, "goal": goal,
+                                             "max_solutions": max_solutions}))
 
     async def facts(self, world: str) -> list[str]:
         self.model(world)

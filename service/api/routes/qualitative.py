@@ -4,15 +4,19 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, status
 
+from numeric.errors import InvalidInput
 from numeric.qualitative.observation import Observation
 from numeric.world import ID_PATTERN
 from service.api.routes.worlds import WorldName
 from service.deps import WorldsDep
+from service.kb import KbError
 from service.schemas import (
     DrmEdgeOut,
     DrmOut,
     ObservationOut,
     PathOut,
+    QueryIn,
+    QueryOut,
     ReachedIn,
     ReachedOut,
     RelationKind,
@@ -68,3 +72,17 @@ async def get_path(world: WorldName, worlds: WorldsDep,
     return PathOut(found=True, path=p.nodes, probability=p.probability, steps=[
         StepOut(from_=s.source, to=s.target, method=s.method, p=s.p, via=list(s.via))
         for s in p.steps])
+
+
+@router.post("/query", response_model=QueryOut)
+async def post_query(world: WorldName, body: QueryIn, worlds: WorldsDep) -> Any:
+    """Read-only Prolog query over the world's relations, e.g.
+    ``reachable(c0, To, P, Method), P > 0.9``.  Only whitelisted predicates run
+    (rec/3, frec/3, lr/4, align/5, rea/2, landmark/1, reachable/4-5, drm_edge/4,
+    comparisons, member/2); time and inference limits apply."""
+    try:
+        return await worlds.query(world, body.goal, body.max_solutions)
+    except KbError as e:
+        if e.type == "limit":
+            raise InvalidInput(f"query exceeded the {e.value} limit", field="goal") from None
+        raise

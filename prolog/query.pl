@@ -1,0 +1,97 @@
+/*  Read-only sandboxed queries over one world (SPEC §8).
+
+    The client's text is parsed as a term (never consulted or called as is),
+    and the goal is checked against a whitelist before it runs:
+
+      - control: (A, B), (A ; B), (A -> B), \+ A, true, fail, false
+      - the world's relations, with the world argument filled in:
+        rec/3, frec/3, lr/4, align/5, rea/2, landmark/1, reachable/4,
+        reachable/5 (with Via), drm_edge/4
+      - comparison: =, \=, ==, \==, and <, >, =<, >=, =:= on numbers or
+        variables only (no arithmetic expressions, so no arithmetic bombs)
+      - member/2, memberchk/2
+
+    Anything else (call/N, assert, I/O, halt, ...) raises
+    chizu_error(not_allowed(Name/Arity)).  The query runs inside api:handle,
+    so the time and inference limits apply, and at most MaxSolutions answers
+    are returned.
+*/
+:- module(query, [world_query/5]).
+:- use_module(library(solution_sequences)).
+:- use_module(world).
+:- use_module(qualitative).
+:- use_module(drm).
+
+%!  world_query(+World, +Text, +MaxSolutions, -Solutions, -Truncated) is det.
+%
+%   Solutions is a list of dicts Var -> value (atoms as strings, numbers as
+%   numbers, lists as lists, other terms as quoted text, unbound as null).
+world_query(World, Text, Max, Solutions, Truncated) :-
+    (   string(Text) ; atom(Text) ), !,
+    catch(term_string(Goal0, Text, [variable_names(VNs)]), E,
+          ( syntax_message(E, Msg), throw(chizu_error(syntax_error(Msg), goal)) )),
+    safe(World, Goal0, Goal),
+    Limit is Max + 1,
+    findall(VNs, limit(Limit, Goal), All0),
+    length(All0, N),
+    (   N > Max -> Truncated = true, length(All, Max), append(All, _, All0)
+    ;   Truncated = false, All = All0
+    ),
+    maplist(bindings_dict, All, Solutions).
+world_query(_, _, _, _, _) :-
+    throw(chizu_error(invalid_goal, goal)).
+
+syntax_message(error(syntax_error(What), _), Msg) :- !, format(string(Msg), "~w", [What]).
+syntax_message(E, Msg) :- format(string(Msg), "~q", [E]).
+
+bindings_dict(VNs, Dict) :-
+    maplist([Name=Value, Name-J]>>json_value(Value, J), VNs, Pairs),
+    dict_pairs(Dict, _, Pairs).
+
+json_value(V, null) :- var(V), !.
+json_value(V, V) :- number(V), !.
+json_value(V, S) :- atom(V), !, atom_string(V, S).
+json_value(V, V) :- string(V), !.
+json_value(V, L) :- is_list(V), !, maplist(json_value, V, L).
+json_value(V, S) :- format(string(S), "~q", [V]).
+
+%!  safe(+World, +Goal, -Runnable) is det.
+%
+%   Runnable is Goal with the world filled in; throws if anything in Goal is
+%   not whitelisted.
+safe(_, G, _) :- var(G), !, throw(chizu_error(not_allowed(variable_goal), goal)).
+safe(W, (A, B), (SA, SB)) :- !, safe(W, A, SA), safe(W, B, SB).
+safe(W, (A ; B), (SA ; SB)) :- !, safe(W, A, SA), safe(W, B, SB).
+safe(W, (A -> B), (SA -> SB)) :- !, safe(W, A, SA), safe(W, B, SB).
+safe(W, \+ A, \+ SA) :- !, safe(W, A, SA).
+safe(_, true, true) :- !.
+safe(_, fail, fail) :- !.
+safe(_, false, false) :- !.
+safe(W, G, R) :- relation_goal(W, G, R), !.
+safe(_, G, G) :- comparison(G), !.
+safe(_, G, G) :- G = member(_, _), !.
+safe(_, G, G) :- G = memberchk(_, _), !.
+safe(_, G, _) :-
+    (   callable(G) -> functor(G, N, A), PI = N/A ; PI = G ),
+    throw(chizu_error(not_allowed(PI), goal)).
+
+relation_goal(W, rec(A, B, P), qualitative:rec(W, A, B, P)).
+relation_goal(W, frec(A, B, F), qualitative:frec(W, A, B, F)).
+relation_goal(W, lr(A, B, C, P), qualitative:lr(W, A, B, C, P)).
+relation_goal(W, align(A, B, C, K, P), qualitative:align(W, A, B, C, K, P)).
+relation_goal(W, rea(A, B), M:rea(A, B)) :- world_module(W, M).
+relation_goal(W, landmark(L), M:landmark(L)) :- world_module(W, M).
+relation_goal(W, reachable(A, B, P, Me), drm:reachable(W, A, B, P, Me)).
+relation_goal(W, reachable(A, B, P, Me, V), drm:reachable(W, A, B, P, Me, V)).
+relation_goal(W, drm_edge(A, B, P, Me), drm:drm_edge(W, A, B, P, Me, _)).
+
+comparison(G) :-
+    G =.. [Op, _, _],
+    memberchk(Op, [=, \=, ==, \==, @<, @>]), !.
+comparison(G) :-
+    G =.. [Op, X, Y],
+    memberchk(Op, [<, >, =<, >=, =:=, =\=]),
+    num_or_var(X), num_or_var(Y).
+
+num_or_var(X) :- ( var(X) ; number(X) ), !.
+num_or_var(_) :- throw(chizu_error(not_allowed(arithmetic_expression), goal)).
