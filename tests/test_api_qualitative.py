@@ -136,3 +136,26 @@ def test_observation_sign_convention(client: TestClient) -> None:
     al = client.get("/worlds/signs/relations", params={"kind": "align"}).json()
     assert any(a["kind"] == "not_same" and a["p"] == 1.0 for a in al)
     assert math.isfinite(al[0]["p"])
+
+
+def test_readme_walkthrough(client: TestClient) -> None:
+    """The README's curl walk-through, verbatim numbers."""
+    client.post("/worlds", json={"name": "readme", "landmarks": [
+        {"id": "a"}, {"id": "b"}, {"id": "c"}, {"id": "d"}]})
+    for body in (
+        {"at": "a", "seen": [{"landmark": "b", "bearing_rad": 1.7682, "distance_m": 5.10},
+                             {"landmark": "d", "bearing_rad": 1.3734, "distance_m": 5.10}]},
+        {"at": "b", "seen": [{"landmark": "a", "bearing_rad": -1.3734, "distance_m": 5.10},
+                             {"landmark": "c", "bearing_rad": 1.3734, "distance_m": 5.10,
+                              "features": ["door"]}]},
+        {"at": "d", "seen": [{"landmark": "a", "bearing_rad": -1.7682, "distance_m": 5.10},
+                             {"landmark": "c", "bearing_rad": 1.7682, "distance_m": 5.10}]},
+    ):
+        assert client.post("/worlds/readme/observations", json=body).status_code == 201
+    r = client.get("/worlds/readme/path", params={"from": "a", "to": "c"}).json()
+    assert r == {"found": True, "detail": None, "path": ["a", "c"], "probability": 0.95,
+                 "steps": [{"from": "a", "to": "c", "method": "move2", "p": 0.95,
+                            "via": ["b", "d"]}]}
+    client.post("/worlds/readme/reached", json={"from": "a", "to": "c"})
+    back = client.get("/worlds/readme/path", params={"from": "c", "to": "a"}).json()
+    assert back["steps"][0]["method"] == "retrace" and back["probability"] == 0.9
