@@ -58,15 +58,15 @@ error_reply(chizu_error(E, Field), _{ok:false, error:Err}) :- !,
     (   Field == null -> Err = Err1 ; put_dict(field, Err1, Field, Err) ).
 error_reply(time_limit_exceeded, _{ok:false, error:_{type:limit, detail:"time limit exceeded", value:time}}) :- !.
 error_reply(E, _{ok:false, error:_{type:internal, detail:Detail}}) :-
-    message_to_codes(E, Detail).
+    error_text(E, Detail).
 
-message_to_codes(E, S) :-
-    catch(message_to_codes_(E, S), _, format(string(S), "~q", [E])).
-message_to_codes_(E, S) :-
-    message_to_codes(E, [], Codes) -> string_codes(S, Codes) ; format(string(S), "~q", [E]).
-message_to_codes(E, _, Codes) :-
-    '$messages':translate_message(E, Lines, []),
-    with_output_to(codes(Codes), print_message_lines(current_output, '', Lines)).
+error_text(E, Text) :-
+    catch(( '$messages':translate_message(E, Lines, []),
+            with_output_to(string(Text), print_message_lines(current_output, '', Lines)) ),
+          _, fail),
+    !.
+error_text(E, Text) :-
+    format(string(Text), "~q", [E]).
 
 		 /*******************************
 		 *        ARGUMENT CHECKS       *
@@ -172,11 +172,6 @@ run(query, Args, _{solutions:Sols, truncated:Trunc}) :-
     arg_(max_solutions, Args, Max),
     (   integer(Max), Max >= 1 -> true ; throw(chizu_error(invalid_max(Max), max_solutions)) ),
     world_query(W, Text, Max, Sols, Trunc).
-
-run(check_landmarks, Args, _{world:W}) :-
-    existing_world(Args, W),
-    arg_(landmarks, Args, Ls),
-    forall(member([Field, Text], Ls), known_landmark(W, Text, Field, _)).
 
 run(params, Args, _{rule_probabilities:RPs, parameters:Ps}) :-
     existing_world(Args, W), world_module(W, M),

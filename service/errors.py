@@ -117,15 +117,13 @@ class BodySizeLimit:
             await self._reject(scope, send)
             return
         seen = 0
-        rejected = False
 
         async def limited_receive() -> dict[str, Any]:
-            nonlocal seen, rejected
+            nonlocal seen
             msg: dict[str, Any] = await receive()
             if msg["type"] == "http.request":
                 seen += len(msg.get("body", b""))
                 if seen > self.max_bytes:
-                    rejected = True
                     raise _TooLarge
             return msg
 

@@ -88,16 +88,15 @@ class KnowledgeBase:
     def _load_rules(self) -> None:
         """consult load.pl's load_checked/1; raise on any load error or warning."""
         load = str(self.prolog_dir / "loader.pl").encode()
-        reply = self._raw_call(b"load_files", [load], module=b"user", catch_only=True)
+        reply = self._raw_call(b"load_files", [load], module=b"user")
         if reply is not None:
             raise KbStartupError(f"loading {load.decode()}: {reply}")
         reply = self._raw_call(b"load_checked", [str(self.prolog_dir).encode()],
-                               module=b"loader", catch_only=True)
+                               module=b"loader")
         if reply is not None:
             raise KbStartupError(f"loading rule files from {self.prolog_dir}: {reply}")
 
-    def _raw_call(self, name: bytes, string_args: list[bytes], module: bytes,
-                  catch_only: bool = False) -> str | None:
+    def _raw_call(self, name: bytes, string_args: list[bytes], module: bytes) -> str | None:
         """Call module:name(Args...) with atom arguments; return the exception text or None."""
         pl = self._pl
         fid = pl.PL_open_foreign_frame()

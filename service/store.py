@@ -114,6 +114,12 @@ class Store:
             ).fetchall()
         return [Event(r[0], r[1], r[2], json.loads(r[3])) for r in rows]
 
+    def event_count(self, world: str) -> int:
+        with self._lock:
+            row = self._conn.execute("SELECT COUNT(*) FROM events WHERE world = ?",
+                                     (world,)).fetchone()
+        return int(row[0])
+
     def close(self) -> None:
         with self._lock:
             self._conn.close()

@@ -60,7 +60,7 @@ def resolve_description(desc: WorldDescription) -> WorldDescription:
 
 
 _READ_ONLY = frozenset({"worlds", "landmarks", "relations", "drm", "facts", "params",
-                        "check_landmarks", "engine", "query"})
+                        "engine", "query"})
 
 
 class WorldService:
@@ -148,7 +148,7 @@ class WorldService:
         d = w.description
         return {"name": d.name, "template": d.template, "landmarks": len(d.landmarks),
                 "walls": len(d.walls), "objects": len(d.objects),
-                "events": len(self.store.events(name))}
+                "events": self.store.event_count(name)}
 
     def names(self) -> list[str]:
         return [r.name for r in self.store.worlds()]
