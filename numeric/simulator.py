@@ -50,18 +50,27 @@ class LandmarkObserver:
         los = line_of_sight(xy, w.landmark_xy[near], w.wall_a, w.wall_b)
         return near[los]
 
+    def scan(self, pose: np.ndarray) -> list[tuple[str, float, float]]:
+        """(landmark id, noisy bearing in the robot frame, noisy range) of every
+        recognisable landmark."""
+        return [(s.landmark, s.bearing_rad, s.distance_m)
+                for s in self._measure_all(pose, exclude=None)]
+
     def observe(self, pose: np.ndarray, at: str) -> Observation:
         """One panoramic observation from ``pose`` (x, y, theta) taken at landmark ``at``.
 
         Bearings are in the robot frame (counter-clockwise from the heading),
         distances in metres, both with the configured Gaussian noise.
         """
+        return Observation(at=at, seen=self._measure_all(pose, exclude=at))
+
+    def _measure_all(self, pose: np.ndarray, exclude: str | None) -> list[SeenLandmark]:
         xy, theta = np.asarray(pose[:2], dtype=float), float(pose[2])
         seen: list[SeenLandmark] = []
         cfg = self.config
         for i in self.visible(xy):
             lm = self.world.placed_landmarks[i]
-            if lm.id == at:
+            if lm.id == exclude:
                 continue
             delta = self.world.landmark_xy[i] - xy
             rng_m = float(np.hypot(*delta))
@@ -75,7 +84,7 @@ class LandmarkObserver:
                      if abs(float(wrap_angle(view_from_lm - f.direction_rad))) <= f.half_width_rad]
             seen.append(SeenLandmark(landmark=lm.id, bearing_rad=b, distance_m=dist,
                                      features=feats))
-        return Observation(at=at, seen=seen)
+        return seen
 
     def measure(self, pose: np.ndarray, landmark_id: str) -> tuple[float, float] | None:
         """Noisy (bearing, distance) of one landmark, or None if not recognisable."""

@@ -244,3 +244,55 @@ def execute_quantitative(robot: Robot, observer: LandmarkObserver, route: Sequen
         if not _arrived(robot, observer, b, cfg):
             return NavResult(False, robot.travelled_m - start, i, f"missed {b}")
     return NavResult(True, robot.travelled_m - start)
+
+
+def localise(observer: LandmarkObserver, pose: np.ndarray, est: dict[str, np.ndarray],
+             guess: np.ndarray, bearing_sigma: float, distance_sigma: float) -> np.ndarray:
+    """Pose (x, y, theta) in the estimated map from the landmarks in view (least squares);
+    the odometry-predicted ``guess`` if none of the mapped landmarks is in view."""
+    seen = [(est[lid], b, d) for lid, b, d in observer.scan(pose) if lid in est]
+    if not seen:
+        return guess
+    xy = np.array([s[0] for s in seen])
+    bz = np.array([s[1] for s in seen])
+    dz = np.array([s[2] for s in seen])
+
+    def residuals(x: np.ndarray) -> np.ndarray:
+        d = xy - x[:2]
+        rb = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - x[2] - bz) / max(bearing_sigma, 1e-3)
+        rd = (np.hypot(d[:, 0], d[:, 1]) - dz) / max(distance_sigma, 1e-2)
+        return np.concatenate([rb, rd])
+
+    sol = least_squares(residuals, guess, method="lm" if 2 * len(seen) >= 3 else "trf")
+    out = sol.x.copy()
+    out[2] = float(wrap_angle(out[2]))
+    return out
+
+
+def execute_quantitative_tracked(robot: Robot, observer: LandmarkObserver,
+                                 route: Sequence[str], est: dict[str, np.ndarray],
+                                 cfg: NavConfig, bearing_sigma: float,
+                                 distance_sigma: float) -> NavResult:
+    """Metric baseline with continuous localisation: at every step the robot fixes its
+    pose in the estimated map from the landmarks in view, then steers straight for the
+    next waypoint's estimated position."""
+    start = robot.travelled_m
+    pose_est = localise(observer, robot.pose, est, np.array([*est[route[0]], 0.0]),
+                        bearing_sigma, distance_sigma)
+    for i, b in enumerate(route[1:]):
+        for _ in range(cfg.max_steps_per_leg):
+            delta = est[b] - pose_est[:2]
+            dist = float(np.hypot(*delta))
+            if dist <= cfg.arrival_radius_m * 0.5:
+                break
+            turn = float(wrap_angle(np.arctan2(delta[1], delta[0]) - pose_est[2]))
+            robot.turn(turn)
+            step = min(cfg.step_m, dist)
+            if not robot.forward(step):
+                return NavResult(False, robot.travelled_m - start, i, "collision")
+            h = pose_est[2] + turn
+            guess = np.array([pose_est[0] + step * np.cos(h), pose_est[1] + step * np.sin(h), h])
+            pose_est = localise(observer, robot.pose, est, guess, bearing_sigma, distance_sigma)
+        if not _arrived(robot, observer, b, cfg):
+            return NavResult(False, robot.travelled_m - start, i, f"missed {b}")
+    return NavResult(True, robot.travelled_m - start)

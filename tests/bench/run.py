@@ -25,6 +25,7 @@ from numeric.qualitative.navigation import (  # noqa: E402
     estimate_landmark_positions,
     execute_drm_path,
     execute_quantitative,
+    execute_quantitative_tracked,
     quantitative_route,
 )
 from numeric.qualitative.survey import survey  # noqa: E402
@@ -106,7 +107,8 @@ def bench_navigation(levels: tuple[float, ...] = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0),
     for level in levels:
         ocfg = ObserverConfig(bearing_noise_rad=np.deg2rad(1.0) * level,
                               distance_noise_ratio=0.01 * level, distance_noise_m=0.01 * level)
-        res: dict[str, list[tuple[bool, float]]] = {"qualitative": [], "quantitative": []}
+        res: dict[str, list[tuple[bool, float]]] = {"qualitative": [], "quantitative": [],
+                                                     "quantitative_tracked": []}
         for seed in range(seeds):
             obs = survey(w, ocfg, seed=100 + seed)
             name = f"nav_{int(level * 10)}_{seed}"
@@ -117,8 +119,9 @@ def bench_navigation(levels: tuple[float, ...] = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0),
                 kb.call(op, **args)
             drm = kb.call("drm", world=name)
             g = build_drm(drm["nodes"], edges_from_records(drm["edges"]))
-            est = estimate_landmark_positions(obs, max(ocfg.bearing_noise_rad, 1e-3),
-                                              max(ocfg.distance_noise_m, 1e-2) + 0.05)
+            sb = max(ocfg.bearing_noise_rad, 1e-3)
+            sd = max(ocfg.distance_noise_m, 1e-2) + 0.05
+            est = estimate_landmark_positions(obs, sb, sd)
             rng = np.random.default_rng(seed)
             for _ in range(pairs):
                 a, b = rng.choice(ids, 2, replace=False)
@@ -138,9 +141,17 @@ def bench_navigation(levels: tuple[float, ...] = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0),
                 route = quantitative_route(obs, est, a, b)
                 if route is None:
                     res["quantitative"].append((False, 0.0))
+                    res["quantitative_tracked"].append((False, 0.0))
                 else:
                     r = execute_quantitative(robot, observer, route, est, cfg)
                     res["quantitative"].append((r.success, r.travelled_m))
+                    # the same route with continuous localisation in the estimated map
+                    robot = Robot(w, start.copy(), odo,
+                                  np.random.default_rng(rng.integers(1 << 31)))
+                    observer = LandmarkObserver(w, ocfg,
+                                                np.random.default_rng(rng.integers(1 << 31)))
+                    r = execute_quantitative_tracked(robot, observer, route, est, cfg, sb, sd)
+                    res["quantitative_tracked"].append((r.success, r.travelled_m))
             kb.call("drop_world", world=name)
         for planner, xs in res.items():
             ok = [length for s, length in xs if s]
@@ -160,7 +171,8 @@ def plot(nav: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(1, 2, figsize=(10, 4))
-    for planner, style in (("qualitative", "o-"), ("quantitative", "s--")):
+    for planner, style in (("qualitative", "o-"), ("quantitative", "s--"),
+                           ("quantitative_tracked", "^:")):
         xs = [r for r in nav if r["planner"] == planner]
         ax[0].plot([r["noise_level"] for r in xs], [r["success_rate"] for r in xs], style,
                    label=planner)
