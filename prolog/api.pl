@@ -21,6 +21,7 @@
 :- use_module(qualitative).
 :- use_module(drm).
 :- use_module(query).
+:- use_module(loader, [message_text/2]).
 
 %!  handle(+Request:text, -Reply:string) is det.
 handle(In, Out) :-
@@ -58,15 +59,7 @@ error_reply(chizu_error(E, Field), _{ok:false, error:Err}) :- !,
     (   Field == null -> Err = Err1 ; put_dict(field, Err1, Field, Err) ).
 error_reply(time_limit_exceeded, _{ok:false, error:_{type:limit, detail:"time limit exceeded", value:time}}) :- !.
 error_reply(E, _{ok:false, error:_{type:internal, detail:Detail}}) :-
-    error_text(E, Detail).
-
-error_text(E, Text) :-
-    catch(( '$messages':translate_message(E, Lines, []),
-            with_output_to(string(Text), print_message_lines(current_output, '', Lines)) ),
-          _, fail),
-    !.
-error_text(E, Text) :-
-    format(string(Text), "~q", [E]).
+    message_text(E, Detail).
 
 		 /*******************************
 		 *        ARGUMENT CHECKS       *

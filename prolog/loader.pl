@@ -4,7 +4,7 @@
     loading: a syntax error must stop start-up, not be printed and skipped.
     The service (service/kb.py) and the REPL entry load.pl both use it.
 */
-:- module(loader, [load_checked/1, chizu_modules/1]).
+:- module(loader, [load_checked/1, chizu_modules/1, message_text/2]).
 
 :- dynamic load_problem/1.
 :- multifile user:message_hook/3.
@@ -34,14 +34,19 @@ load_checked(Dir) :-
     findall(P, load_problem(P), Ps),
     (   Ps == []
     ->  true
-    ;   maplist([P, S]>>message_to_string(P, S), Ps, Ss),
+    ;   maplist(message_text, Ps, Ss),
         throw(chizu_load_error(Ss))
     ).
 
-message_to_string(P, S) :-
-    (   catch(message_to_codes(P, S), _, fail) -> true ; format(string(S), "~q", [P]) ).
-
-message_to_codes(P, S) :-
-    '$messages':translate_message(P, Lines, []),
-    with_output_to(string(S), print_message_lines(current_output, '', Lines)).
+%!  message_text(+Term, -Text:string) is det.
+%
+%   Text is how print_message/2 would show Term, or Term quoted if it has no
+%   message translation.
+message_text(E, Text) :-
+    catch(( '$messages':translate_message(E, Lines, []),
+            with_output_to(string(Text), print_message_lines(current_output, '', Lines)) ),
+          _, fail),
+    !.
+message_text(E, Text) :-
+    format(string(Text), "~q", [E]).
 
