@@ -83,19 +83,20 @@ class WorldService:
 
     def _load_into_kb(self, desc: WorldDescription) -> None:
         self._changed(desc.name)
-        self._kb_create(desc)
+        self.kb.call("create_world", **self.create_call(desc))
         for ev in self.store.events(desc.name):
-            op, args = self._event_call(desc.name, ev.kind, ev.payload)
+            op, args = self.event_call(desc.name, ev.kind, ev.payload)
             self.kb.call(op, **args)
         self._models[desc.name] = World(desc)
 
-    def _kb_create(self, desc: WorldDescription) -> None:
-        self.kb.call("create_world", world=desc.name,
-                     landmarks=[lm.id for lm in desc.landmarks],
-                     rule_probabilities=desc.rule_probabilities, parameters=desc.parameters)
+    @staticmethod
+    def create_call(desc: WorldDescription) -> dict[str, Any]:
+        """The knowledge-base arguments that create ``desc``'s world."""
+        return {"world": desc.name, "landmarks": [lm.id for lm in desc.landmarks],
+                "rule_probabilities": desc.rule_probabilities, "parameters": desc.parameters}
 
     @staticmethod
-    def _event_call(world: str, kind: str,
+    def event_call(world: str, kind: str,
                     payload: dict[str, Any]) -> tuple[str, dict[str, Any]]:
         if kind == "observation":
             obs = Observation.model_validate(payload)
@@ -123,9 +124,7 @@ class WorldService:
         async with self._write:
             if self.store.world(desc.name) is not None:
                 raise Conflict(f"world {desc.name!r} already exists", field="name")
-            await self._kb("create_world", {
-                "world": desc.name, "landmarks": [lm.id for lm in desc.landmarks],
-                "rule_probabilities": desc.rule_probabilities, "parameters": desc.parameters})
+            await self._kb("create_world", self.create_call(desc))
             try:
                 with self.store.transaction() as conn:
                     self.store.insert_world(conn, desc.name, desc.model_dump(mode="json"))
@@ -168,7 +167,7 @@ class WorldService:
     async def _append(self, world: str, kind: str, payload: dict[str, Any]) -> Any:
         async with self._write:
             self.model(world)
-            op, args = self._event_call(world, kind, payload)
+            op, args = self.event_call(world, kind, payload)
             result = await self._kb(op, args)
             try:
                 with self.store.transaction() as conn:

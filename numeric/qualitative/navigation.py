@@ -141,6 +141,15 @@ def execute_drm_path(robot: Robot, observer: LandmarkObserver, steps: Sequence[D
 
 # -- quantitative baseline ---------------------------------------------------------------
 
+def map_heading(at: str, obs: Observation, pos: dict[str, np.ndarray]) -> float | None:
+    """Robot heading in the map frame, standing at ``at``: the circular mean of
+    (map direction to each seen landmark) - (its observed bearing); None if no
+    seen landmark is in ``pos``."""
+    hs = [float(np.arctan2(*(pos[s.landmark] - pos[at])[::-1]) - s.bearing_rad)
+          for s in obs.seen if s.landmark in pos and s.landmark != at]
+    return circular_mean(hs) if hs else None
+
+
 def estimate_landmark_positions(observations: Sequence[Observation],
                                 bearing_sigma: float, distance_sigma: float
                                 ) -> dict[str, np.ndarray]:
@@ -175,10 +184,7 @@ def estimate_landmark_positions(observations: Sequence[Observation],
         elif b in by_at:
             pos.setdefault(b, pos[a])
         if b in by_at and b not in head:
-            obs_b = by_at[b]
-            hs = [float(np.arctan2(*(pos[s.landmark] - pos[b])[::-1]) - s.bearing_rad)
-                  for s in obs_b.seen if s.landmark in pos and s.landmark != b]
-            head[b] = circular_mean(hs) if hs else 0.0
+            head[b] = map_heading(b, by_at[b], pos) or 0.0
     st_idx = {o.at: i for i, o in enumerate(stations)}
     x0 = np.concatenate([np.concatenate([pos.get(k, np.zeros(2)) for k in ids]),
                          np.array([head.get(o.at, 0.0) for o in stations])])
@@ -227,12 +233,9 @@ def execute_quantitative(robot: Robot, observer: LandmarkObserver, route: Sequen
     """
     start = robot.travelled_m
     for i, (a, b) in enumerate(zip(route, route[1:], strict=False)):
-        obs = observer.observe(robot.pose, at=a)
-        hs = [float(np.arctan2(*(est[s.landmark] - est[a])[::-1]) - s.bearing_rad)
-              for s in obs.seen if s.landmark in est]
-        if not hs:
+        heading = map_heading(a, observer.observe(robot.pose, at=a), est)
+        if heading is None:
             return NavResult(False, robot.travelled_m - start, i, "lost: no landmark in view")
-        heading = circular_mean(hs)
         delta = est[b] - est[a]
         robot.turn(float(wrap_angle(np.arctan2(delta[1], delta[0]) - heading)))
         dist = float(np.linalg.norm(delta))

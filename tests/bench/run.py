@@ -115,7 +115,7 @@ def bench_navigation(levels: tuple[float, ...] = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0),
             kb.call("create_world", world=name, landmarks=ids, rule_probabilities={},
                     parameters={})
             for o in obs:
-                op, args = WorldService._event_call(name, "observation", o.model_dump())
+                op, args = WorldService.event_call(name, "observation", o.model_dump())
                 kb.call(op, **args)
             drm = kb.call("drm", world=name)
             g = build_drm(drm["nodes"], edges_from_records(drm["edges"]))
