@@ -8,13 +8,15 @@ The JSON world description (the body of ``POST /worlds``) is exactly
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import cached_property
 from typing import Annotated
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, FiniteFloat, model_validator
 
 from numeric.errors import InvalidInput
+from numeric.textures import TEXTURE_NAMES
 
 ID_PATTERN = r"^[a-z][a-zA-Z0-9_]{0,63}$"
 Id = Annotated[str, Field(pattern=ID_PATTERN, description="id: ^[a-z][a-zA-Z0-9_]{0,63}$")]
@@ -26,12 +28,25 @@ MAX_LANDMARKS = 5_000
 MAX_OBJECTS = 2_000
 
 
+def _known_texture(name: str) -> str:
+    if name not in TEXTURE_NAMES:
+        raise ValueError(f"unknown texture {name!r}; known: {', '.join(TEXTURE_NAMES)}")
+    return name
+
+
+Texture = Annotated[str, Field(max_length=64, description="a built-in texture id"),
+                    AfterValidator(_known_texture)]
+Brightness = Annotated[float, Field(gt=0.0, le=4.0, allow_inf_nan=False,
+                                    description="lighting gain on the texture (1 = as photographed)")]
+
+
 class Wall(BaseModel):
     model_config = ConfigDict(extra="forbid")
     a: Point
     b: Point
-    texture: Annotated[str, Field(max_length=64)] = "brick"
+    texture: Texture = "brick"
     reflectivity: Probability = 0.5
+    brightness: Brightness = 1.0
 
     @model_validator(mode="after")
     def _not_degenerate(self) -> Wall:
@@ -83,6 +98,15 @@ class WorldObject(BaseModel):
         Annotated[float, Field(gt=0, allow_inf_nan=False)],
         Annotated[float, Field(gt=0, allow_inf_nan=False)],
     ] = (0.4, 0.3, 0.5)
+    texture: Texture = "coffee"
+    brightness: Brightness = 1.0
+
+    def footprint(self) -> np.ndarray:
+        """Corners (4, 2) of the cuboid's footprint, counter-clockwise."""
+        hx, hy = self.size_m[0] / 2, self.size_m[1] / 2
+        local = np.array([[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy]])
+        c, s = np.cos(self.theta), np.sin(self.theta)
+        return local @ np.array([[c, s], [-s, c]]) + np.array([self.x, self.y])
 
 
 class WorldDescription(BaseModel):
@@ -154,3 +178,46 @@ class World:
         except KeyError:
             raise InvalidInput(f"landmark {landmark_id!r} has no position in world "
                                f"{self.name!r}", field="landmark") from None
+
+    @cached_property
+    def surfaces(self) -> Surfaces:
+        """Everything the camera sees: walls, then the 4 side faces of every object."""
+        d = self.description
+        a = [w.a for w in d.walls]
+        b = [w.b for w in d.walls]
+        tex = [w.texture for w in d.walls]
+        gain = [w.brightness for w in d.walls]
+        top = [np.inf] * len(d.walls)
+        for o in d.objects:
+            c = o.footprint()
+            for k in range(4):
+                a.append(tuple(c[k]))
+                b.append(tuple(c[(k + 1) % 4]))
+                tex.append(o.texture)
+                gain.append(o.brightness)
+                top.append(o.size_m[2])
+        return Surfaces(a=np.array(a, dtype=float).reshape(-1, 2),
+                        b=np.array(b, dtype=float).reshape(-1, 2),
+                        texture=tex, brightness=np.array(gain, dtype=float),
+                        top_m=np.array(top, dtype=float))
+
+    @cached_property
+    def obstacle_a(self) -> np.ndarray:
+        """Start points of walls and object faces (what a robot collides with)."""
+        return self.surfaces.a
+
+    @cached_property
+    def obstacle_b(self) -> np.ndarray:
+        return self.surfaces.b
+
+
+@dataclass(frozen=True)
+class Surfaces:
+    """Vertical surfaces: segments a->b (S, 2), texture id, lighting gain and top height
+    (``inf`` for walls, which reach the ceiling)."""
+
+    a: np.ndarray
+    b: np.ndarray
+    texture: list[str]
+    brightness: np.ndarray
+    top_m: np.ndarray

@@ -1,4 +1,7 @@
-"""Built-in worlds: the demo office floor (and a scalable generator for benchmarks)."""
+"""Built-in worlds: the demo office floor (and a scalable generator for benchmarks), and
+the eigenspace paper's rooms A-D (Table 1): A a 10 m square room, B a room whose shape
+changes in complex ways, C a square room with many small bumps, D room A after a lighting
+change, a new poster and moved objects."""
 
 from __future__ import annotations
 
@@ -6,7 +9,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from numeric.world import Feature, Landmark, Wall, WorldDescription
+from numeric.world import Feature, Landmark, Wall, WorldDescription, WorldObject
 
 
 def office_world(name: str = "demo", rooms_per_side: int = 4, room_width_m: float = 6.0,
@@ -61,9 +64,123 @@ def office_world(name: str = "demo", rooms_per_side: int = 4, room_width_m: floa
     return WorldDescription(name=name, walls=walls, landmarks=landmarks)
 
 
+#: Wall textures of the paper rooms, two per side, counter-clockwise from the south-west.
+ROOM_TEXTURES = ("brick", "camera", "gravel", "coffee", "grass", "text", "moon", "coins")
+ROOM_SIZE_M = 10.0
+
+
+def _polygon_walls(vertices: list[tuple[float, float]], textures: tuple[str, ...],
+                   segment_m: float, gains: tuple[float, ...] = (1.0,),
+                   offset: int = 0) -> list[Wall]:
+    """Walls along a closed polygon; long edges are cut into pieces of ``segment_m``
+    so textures change along a side (texture ``i`` for the ``i``-th piece)."""
+    walls: list[Wall] = []
+    i = offset
+    for k, a in enumerate(vertices):
+        b = vertices[(k + 1) % len(vertices)]
+        length = float(np.hypot(b[0] - a[0], b[1] - a[1]))
+        n = max(1, int(round(length / segment_m)))
+        for j in range(n):
+            pa = (a[0] + (b[0] - a[0]) * j / n, a[1] + (b[1] - a[1]) * j / n)
+            pb = (a[0] + (b[0] - a[0]) * (j + 1) / n, a[1] + (b[1] - a[1]) * (j + 1) / n)
+            walls.append(Wall(a=pa, b=pb, texture=textures[i % len(textures)],
+                              brightness=gains[i % len(gains)], reflectivity=0.6))
+            i += 1
+    return walls
+
+
+def _boxes(positions: list[tuple[float, float, float]]) -> list[WorldObject]:
+    return [WorldObject(id=f"box{i}", type="box", x=x, y=y, theta=th, size_m=(0.6, 0.6, 0.8),
+                        texture="clock") for i, (x, y, th) in enumerate(positions)]
+
+
+_A_BOXES = [(2.0, 8.0, 0.0), (8.2, 2.2, 0.4), (5.0, 0.6, 0.0)]
+_D_BOXES = [(2.8, 7.4, 0.6), (7.5, 2.8, 0.0), (6.0, 0.6, 0.0)]
+
+
+def room_a(name: str = "room_a") -> WorldDescription:
+    """Environment A: a 10 m square room, eight textured wall pieces, three boxes."""
+    s = ROOM_SIZE_M
+    return WorldDescription(name=name, walls=_polygon_walls(
+        [(0, 0), (s, 0), (s, s), (0, s)], ROOM_TEXTURES, s / 2), objects=_boxes(_A_BOXES))
+
+
+def room_b(name: str = "room_b") -> WorldDescription:
+    """Environment B: the same textures on a room whose outline changes in complex ways
+    (notches, an alcove) plus a square pillar."""
+    outline = [(0, 0), (4, 0), (4, 1.5), (6, 1.5), (6, 0), (10, 0), (10, 4), (8.5, 4.6),
+               (8.5, 6), (10, 6.5), (10, 10), (6.5, 10), (6.5, 8.5), (3.5, 8.5), (3.5, 10),
+               (0, 10), (0, 6), (1.5, 5), (0, 4)]
+    walls = _polygon_walls([(float(x), float(y)) for x, y in outline], ROOM_TEXTURES, 2.5)
+    pillar = [(4.6, 4.6), (5.4, 4.6), (5.4, 5.4), (4.6, 5.4)]
+    walls += _polygon_walls(pillar, ("page",), 1.0)
+    return WorldDescription(name=name, walls=walls, objects=_boxes(_A_BOXES[:2]))
+
+
+def room_c(name: str = "room_c", bump_every_m: float = 1.0, bump_depth_m: float = 0.15,
+           bump_width_m: float = 0.3) -> WorldDescription:
+    """Environment C: room A's square with small rectangular bumps along every wall."""
+    s = ROOM_SIZE_M
+    corners = [(0.0, 0.0), (s, 0.0), (s, s), (0.0, s)]
+    outline: list[tuple[float, float]] = []
+    for k, a in enumerate(corners):
+        b = corners[(k + 1) % 4]
+        d = np.array(b) - np.array(a)
+        length = float(np.hypot(*d))
+        u = d / length
+        inward = np.array([-u[1], u[0]])  # polygon is counter-clockwise
+        outline.append(a)
+        pos = bump_every_m
+        while pos + bump_width_m < length - 0.2:
+            p0 = np.array(a) + u * pos
+            p1 = p0 + u * bump_width_m
+            for q in (p0, p0 + inward * bump_depth_m, p1 + inward * bump_depth_m, p1):
+                outline.append((float(q[0]), float(q[1])))
+            pos += bump_every_m
+    walls: list[Wall] = []
+    # texture by the side of the room and the half of that side, as in room A
+    for k, a in enumerate(outline):
+        b = outline[(k + 1) % len(outline)]
+        mid = (0.5 * (a[0] + b[0]), 0.5 * (a[1] + b[1]))
+        walls.append(Wall(a=a, b=b, texture=ROOM_TEXTURES[_side_piece(mid, s)],
+                          reflectivity=0.6))
+    return WorldDescription(name=name, walls=walls, objects=_boxes(_A_BOXES))
+
+
+def _side_piece(p: tuple[float, float], s: float) -> int:
+    """Index 0..7 of the wall piece of a square room of side ``s`` nearest to ``p``
+    (counter-clockwise from the south-west corner, two pieces per side)."""
+    x, y = p
+    dists = [y, s - x, s - y, x]  # south, east, north, west
+    side = int(np.argmin(dists))
+    along = [x, y, s - x, s - y][side]
+    return 2 * side + int(along >= s / 2)
+
+
+def room_d(name: str = "room_d") -> WorldDescription:
+    """Environment D: room A after a lighting change (each wall piece brighter or darker),
+    with a poster on the north wall and the boxes moved."""
+    s = ROOM_SIZE_M
+    gains = (0.8, 1.15, 0.9, 1.1, 0.75, 1.2, 0.85, 1.05)
+    walls = _polygon_walls([(0, 0), (s, 0), (s, s), (0, s)], ROOM_TEXTURES, s / 2, gains)
+    north = next(i for i, w in enumerate(walls) if w.a == (s, s))
+    w = walls.pop(north)  # the north wall's eastern half: poster in its middle
+    x0, x1 = w.a[0], w.b[0]
+    cuts = [x0, x0 - 1.5, x0 - 3.0, x1]
+    for j in range(3):
+        tex = "chelsea" if j == 1 else w.texture
+        walls.insert(north + j, Wall(a=(cuts[j], s), b=(cuts[j + 1], s), texture=tex,
+                                     brightness=w.brightness, reflectivity=0.6))
+    return WorldDescription(name=name, walls=walls, objects=_boxes(_D_BOXES))
+
+
 TEMPLATES: dict[str, Callable[[str], WorldDescription]] = {
     "demo": lambda name: office_world(name=name),
     "office": lambda name: office_world(name=name),
+    "room_a": room_a,
+    "room_b": room_b,
+    "room_c": room_c,
+    "room_d": room_d,
 }
 
 
