@@ -35,7 +35,7 @@ class CameraConfig(BaseModel):
     hfov_rad: float = Field(np.deg2rad(60.0), gt=0.05, lt=np.pi - 0.05)
     camera_height_m: float = Field(1.0, gt=0.0, le=10.0)
     wall_height_m: float = Field(2.5, gt=0.0, le=20.0)
-    texture_tile_m: float = Field(2.5, gt=0.0, le=100.0,
+    texture_tile_m: float = Field(5.0, gt=0.0, le=100.0,
                                   description="wall length one texture tile spans")
     floor_level: float = Field(0.3, ge=0.0, le=1.0)
     ceiling_level: float = Field(0.85, ge=0.0, le=1.0)
@@ -67,6 +67,9 @@ class Camera:
         self._phi = -np.arctan2(xc, f)
         yc = 0.5 * c.height_px - (np.arange(c.height_px * ss) + 0.5) / ss
         self._tan_elev = yc / f  # (Hs,) up positive
+        names = world.surfaces.texture
+        self._tex_names = sorted(set(names))
+        self._tex_id = np.array([self._tex_names.index(n) for n in names], dtype=int)
 
     # -- public ---------------------------------------------------------------------
     def render(self, pose: np.ndarray) -> np.ndarray:
@@ -133,42 +136,36 @@ class Camera:
             h = c.camera_height_m + z[None, :] * self._tan_elev[:, None]  # (Hs, R)
             top = np.minimum(surf.top_m[np.maximum(k, 0)], c.wall_height_m)
             on = hit[None, :] & (h >= 0.0) & (h <= top[None, :]) & (t[None, :] < depth_drawn)
-            if not on.any():
-                continue
             kk = np.maximum(k, 0)
             a, b = surf.a[kk], surf.b[kk]
             d = np.stack([np.cos(angles), np.sin(angles)], axis=1)
             hitp = xy[None, :] + np.where(hit, t, 0.0)[:, None] * d
             along = np.linalg.norm(hitp - a, axis=1)  # metres from the surface start
+            # a texture spans texture_tile_m along the wall and the full wall height
             texels_per_m = BASE_TEXELS / c.texture_tile_m
+            texels_per_m_v = BASE_TEXELS / c.wall_height_m
             u0 = along * texels_per_m  # (R,)
-            footprint = z / (c.focal_px * c.supersample) * texels_per_m
+            footprint = z / (c.focal_px * c.supersample) * max(texels_per_m, texels_per_m_v)
             level = np.clip(np.floor(np.log2(np.maximum(footprint, 1.0))), 0, LEVELS - 1)
             level = level.astype(int)
-            v0 = (c.wall_height_m - h) * texels_per_m  # (Hs, R)
-            rows, cols = np.nonzero(on)
-            vals = np.empty(len(rows))
-            tex_of = np.array([surf.texture[i] for i in kk])
-            groups: dict[tuple[str, int], list[int]] = defaultdict(list)
-            key_tex, key_lvl = tex_of[cols], level[cols]
-            order = np.lexsort((key_lvl, key_tex))
-            # group pixel indices by (texture, level) for one map_coordinates call each
-            if len(order):
-                kt, kl = key_tex[order], key_lvl[order]
-                brk = np.flatnonzero((kt[1:] != kt[:-1]) | (kl[1:] != kl[:-1])) + 1
-                for chunk in np.split(order, brk):
-                    groups[(str(key_tex[chunk[0]]), int(key_lvl[chunk[0]]))] = chunk.tolist()
-            for (tex, lv), idx_list in groups.items():
-                idx = np.asarray(idx_list)
-                lvl_img = pyramid(tex)[lv]
+            v0 = (c.wall_height_m - h) * texels_per_m_v  # (Hs, R)
+            # one map_coordinates call per (texture, mip level) among the columns
+            key = np.where(hit, self._tex_id[kk] * LEVELS + level, -1)
+            gain = surf.brightness[kk]
+            for kv in np.unique(key[key >= 0]):
+                cm = np.flatnonzero(key == kv)
+                rows, cl = np.nonzero(on[:, cm])
+                if len(rows) == 0:
+                    continue
+                cols = cm[cl]
+                lv = int(kv % LEVELS)
+                lvl_img = pyramid(self._tex_names[int(kv // LEVELS)])[lv]
                 scale = 2.0 ** lv
-                yy = (v0[rows[idx], cols[idx]] + 0.5) / scale - 0.5
-                xx = (u0[cols[idx]] + 0.5) / scale - 0.5
-                vals[idx] = ndimage.map_coordinates(lvl_img, [yy, xx], order=1,
-                                                    mode="grid-wrap")
-            vals *= surf.brightness[kk[cols]]
-            img[rows, cols] = vals
-            depth_drawn[rows, cols] = t[cols]
+                yy = (v0[rows, cols] + 0.5) / scale - 0.5
+                xx = (u0[cols] + 0.5) / scale - 0.5
+                img[rows, cols] = gain[cols] * ndimage.map_coordinates(
+                    lvl_img, [yy, xx], order=1, mode="grid-wrap")
+                depth_drawn[rows, cols] = t[cols]
         return img
 
 

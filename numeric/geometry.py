@@ -93,3 +93,71 @@ def ray_cast(
     dist = t[np.arange(m), idx]
     idx = np.where(np.isfinite(dist), idx, -1)
     return dist, idx
+
+
+def point_segment_distance(points: ArrayLike, seg_a: FloatArray, seg_b: FloatArray) -> FloatArray:
+    """Distances ``(M, S)`` from each point ``(M, 2)`` to each segment a->b ``(S, 2)``."""
+    p = np.atleast_2d(np.asarray(points, dtype=float))
+    if len(seg_a) == 0:
+        return np.full((len(p), 0), np.inf)
+    ab = (seg_b - seg_a)[None, :, :]
+    ap = p[:, None, :] - seg_a[None, :, :]
+    denom = np.maximum(np.sum(ab * ab, axis=-1), _EPS)
+    t = np.clip(np.sum(ap * ab, axis=-1) / denom, 0.0, 1.0)
+    return np.asarray(np.linalg.norm(ap - t[..., None] * ab, axis=-1))
+
+
+def ray_crossings(points: ArrayLike, seg_a: FloatArray, seg_b: FloatArray) -> NDArray[np.intp]:
+    """How many segments a ray from each point ``(M, 2)`` towards +x crosses (even-odd
+    rule: odd means inside a closed outline)."""
+    p = np.atleast_2d(np.asarray(points, dtype=float))
+    if len(seg_a) == 0:
+        return np.zeros(len(p), dtype=np.intp)
+    ay, by = seg_a[None, :, 1], seg_b[None, :, 1]
+    px, py = p[:, 0:1], p[:, 1:2]
+    straddle = (ay > py) != (by > py)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x_at = seg_a[None, :, 0] + (py - ay) * (seg_b[None, :, 0] - seg_a[None, :, 0]) / (by - ay)
+    return np.asarray(np.sum(straddle & (x_at > px), axis=1), dtype=np.intp)
+
+
+def compose(pose: ArrayLike, delta: ArrayLike) -> FloatArray:
+    """``pose (+) delta`` for poses (..., 3): ``delta`` is expressed in ``pose``'s frame."""
+    p, d = np.asarray(pose, dtype=float), np.asarray(delta, dtype=float)
+    c, s = np.cos(p[..., 2]), np.sin(p[..., 2])
+    out = np.empty(np.broadcast(p, d).shape)
+    out[..., 0] = p[..., 0] + c * d[..., 0] - s * d[..., 1]
+    out[..., 1] = p[..., 1] + s * d[..., 0] + c * d[..., 1]
+    out[..., 2] = wrap_angle(p[..., 2] + d[..., 2])
+    return out
+
+
+def relative(pose: ArrayLike, other: ArrayLike) -> FloatArray:
+    """``pose (-) other``: ``other`` expressed in ``pose``'s frame (inverse of compose)."""
+    p, o = np.asarray(pose, dtype=float), np.asarray(other, dtype=float)
+    c, s = np.cos(p[..., 2]), np.sin(p[..., 2])
+    dx, dy = o[..., 0] - p[..., 0], o[..., 1] - p[..., 1]
+    out = np.empty(np.broadcast(p, o).shape)
+    out[..., 0] = c * dx + s * dy
+    out[..., 1] = -s * dx + c * dy
+    out[..., 2] = wrap_angle(o[..., 2] - p[..., 2])
+    return out
+
+
+def free_distance(origins: ArrayLike, angles: ArrayLike, wall_a: FloatArray,
+                  wall_b: FloatArray) -> FloatArray:
+    """Distance ``(N,)`` from each origin ``(N, 2)`` along its own direction ``(N,)`` to
+    the nearest wall (``inf`` if none): :func:`ray_cast` for many origins."""
+    o = np.atleast_2d(np.asarray(origins, dtype=float))
+    ang = np.asarray(angles, dtype=float).reshape(-1)
+    if len(wall_a) == 0:
+        return np.full(len(o), np.inf)
+    r = np.stack([np.cos(ang), np.sin(ang)], axis=1)[:, None, :]
+    s = (wall_b - wall_a)[None, :, :]
+    qp = wall_a[None, :, :] - o[:, None, :]
+    denom = r[..., 0] * s[..., 1] - r[..., 1] * s[..., 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (qp[..., 0] * s[..., 1] - qp[..., 1] * s[..., 0]) / denom
+        u = (qp[..., 0] * r[..., 1] - qp[..., 1] * r[..., 0]) / denom
+    ok = (np.abs(denom) > _EPS) & (t > 0) & (u >= 0) & (u <= 1)
+    return np.asarray(np.where(ok, t, np.inf).min(axis=1))

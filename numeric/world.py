@@ -16,6 +16,7 @@ import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, FiniteFloat, model_validator
 
 from numeric.errors import InvalidInput
+from numeric.geometry import point_segment_distance, ray_crossings
 from numeric.textures import TEXTURE_NAMES
 
 ID_PATTERN = r"^[a-z][a-zA-Z0-9_]{0,63}$"
@@ -201,14 +202,36 @@ class World:
                         texture=tex, brightness=np.array(gain, dtype=float),
                         top_m=np.array(top, dtype=float))
 
-    @cached_property
-    def obstacle_a(self) -> np.ndarray:
-        """Start points of walls and object faces (what a robot collides with)."""
-        return self.surfaces.a
+    def is_free(self, xy: np.ndarray, clearance_m: float = 0.3) -> np.ndarray:
+        """True for positions ``(M, 2)`` inside the walls (even-odd rule), outside every
+        object and at least ``clearance_m`` from every surface."""
+        surf = self.surfaces
+        xy = np.atleast_2d(np.asarray(xy, dtype=float))
+        near = point_segment_distance(xy, surf.a, surf.b).min(axis=1, initial=np.inf)
+        walls = ~np.isfinite(surf.top_m)
+        inside = ray_crossings(xy, surf.a[walls], surf.b[walls]) % 2 == 1
+        in_object = ray_crossings(xy, surf.a[~walls], surf.b[~walls]) % 2 == 1
+        return np.asarray((near >= clearance_m) & inside & ~in_object)
 
-    @cached_property
-    def obstacle_b(self) -> np.ndarray:
-        return self.surfaces.b
+    def sample_free(self, n: int, rng: np.random.Generator,
+                    clearance_m: float = 0.3) -> np.ndarray:
+        """``n`` positions ``(n, 2)`` drawn uniformly from the free space (rejection
+        sampling in the walls' bounding box)."""
+        surf = self.surfaces
+        if len(surf.a) == 0:
+            raise InvalidInput("the world has no walls", field="world")
+        pts = np.vstack([surf.a, surf.b])
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        out: list[np.ndarray] = []
+        got = 0
+        for _ in range(1000):
+            cand = rng.uniform(lo, hi, size=(max(2 * n, 64), 2))
+            cand = cand[self.is_free(cand, clearance_m)]
+            out.append(cand)
+            got += len(cand)
+            if got >= n:
+                return np.vstack(out)[:n]
+        raise InvalidInput("the world has (almost) no free space", field="world")
 
 
 @dataclass(frozen=True)

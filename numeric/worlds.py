@@ -65,7 +65,7 @@ def office_world(name: str = "demo", rooms_per_side: int = 4, room_width_m: floa
 
 
 #: Wall textures of the paper rooms, two per side, counter-clockwise from the south-west.
-ROOM_TEXTURES = ("brick", "camera", "gravel", "coffee", "grass", "text", "moon", "coins")
+ROOM_TEXTURES = ("brick", "camera", "astronaut", "coffee", "rocket", "chelsea", "clock", "coins")
 ROOM_SIZE_M = 10.0
 
 
@@ -91,11 +91,11 @@ def _polygon_walls(vertices: list[tuple[float, float]], textures: tuple[str, ...
 
 def _boxes(positions: list[tuple[float, float, float]]) -> list[WorldObject]:
     return [WorldObject(id=f"box{i}", type="box", x=x, y=y, theta=th, size_m=(0.6, 0.6, 0.8),
-                        texture="clock") for i, (x, y, th) in enumerate(positions)]
+                        texture="text") for i, (x, y, th) in enumerate(positions)]
 
 
-_A_BOXES = [(2.0, 8.0, 0.0), (8.2, 2.2, 0.4), (5.0, 0.6, 0.0)]
-_D_BOXES = [(2.8, 7.4, 0.6), (7.5, 2.8, 0.0), (6.0, 0.6, 0.0)]
+_A_BOXES = [(2.0, 8.0, 0.0), (8.2, 2.2, 0.4), (6.2, 0.5, 0.0)]
+_D_BOXES = [(2.8, 7.4, 0.6), (7.5, 2.8, 0.0), (4.0, 0.5, 0.0)]
 
 
 def room_a(name: str = "room_a") -> WorldDescription:

@@ -26,6 +26,11 @@ test(injection_in_landmark, [nondet, cleanup(drop_world(api1))]) :-
                         seen:[_{landmark:"b'), assertz(pwned), ('"}], angles:[], distances:[]}, R),
     R.error.type == "invalid_id", R.error.field == "seen[0].landmark",
     \+ catch(user:pwned, _, fail).
+test(invalid_feature_names_field, [nondet, cleanup(drop_world(api7))]) :-
+    mk(api7),
+    call_api(observe, _{world:"api7", at:"a", seen:[_{landmark:"b", features:["Bad-id"]}],
+                        angles:[], distances:[]}, R),
+    R.error.type == "invalid_id", R.error.field == "seen[0].features".
 test(unknown_landmark_names_field, [nondet, cleanup(drop_world(api2))]) :-
     mk(api2),
     call_api(observe, _{world:"api2", at:"a", seen:[_{landmark:"b"}, _{landmark:"zz"}],

@@ -7,6 +7,9 @@
       - the world's relations, with the world argument filled in:
         rec/3, frec/3, lr/4, align/5, rea/2, landmark/1, reachable/4,
         reachable/5 (with Via), drm_edge/4
+      - the eigenspace facts and rules (eigenspace.pl), world filled in:
+        eig_point/3, eig_triplet/4, eig_candidate_set/2, stop_outcome/3,
+        next_state/3, state_after/2, covers/3, triplet_distance/4
       - comparison: =, \=, ==, \==, and <, >, =<, >=, =:= on numbers or
         variables only (no arithmetic expressions, so no arithmetic bombs)
       - member/2, memberchk/2
@@ -21,6 +24,7 @@
 :- use_module(world).
 :- use_module(qualitative).
 :- use_module(drm).
+:- use_module(eigenspace).
 
 %!  world_query(+World, +Text, +MaxSolutions, -Solutions, -Truncated) is det.
 %
@@ -84,6 +88,14 @@ relation_goal(W, landmark(L), M:landmark(L)) :- world_module(W, M).
 relation_goal(W, reachable(A, B, P, Me), drm:reachable(W, A, B, P, Me)).
 relation_goal(W, reachable(A, B, P, Me, V), drm:reachable(W, A, B, P, Me, V)).
 relation_goal(W, drm_edge(A, B, P, Me), drm:drm_edge(W, A, B, P, Me, _)).
+relation_goal(W, eig_point(I, X, Y), M:eig_point(I, X, Y)) :- world_module(W, M).
+relation_goal(W, eig_triplet(T, Ps, Ds, A), M:eig_triplet(T, Ps, Ds, A)) :- world_module(W, M).
+relation_goal(W, eig_candidate_set(S, T), M:eig_candidate_set(S, T)) :- world_module(W, M).
+relation_goal(W, stop_outcome(Ts, U, O), eigenspace:stop_outcome(W, Ts, U, O)).
+relation_goal(_, next_state(S0, O, S), eigenspace:next_state(S0, O, S)).
+relation_goal(W, state_after(Stops, S), eigenspace:state_after(W, Stops, S)).
+relation_goal(W, covers(T, X, Y), eigenspace:covers(W, T, X, Y)).
+relation_goal(W, triplet_distance(T, X, Y, D), eigenspace:triplet_distance(W, T, X, Y, D)).
 
 comparison(G) :-
     G =.. [Op, _, _],

@@ -10,12 +10,18 @@
             align/5,                % ?L1, ?L2, ?L3, ?Kind, -P
             rec/3,                  % ?L1, ?L2, -P
             drm_edge/4,             % ?From, ?To, -P, -Method
+            eig_stop_outcome/3,     % +Triplets, +Unique, -Outcome
+            eig_next_state/3,       % +Prev, +Outcome, -Next
+            eig_state_after/2,      % +Stops, -State
+            covers/3,               % ?T, +X, +Y
+            triplet_distance/4,     % ?T, +X, +Y, -D
             main/0
           ]).
 :- use_module(library(main), [argv_options/3]).
 :- use_module(world).
 :- use_module(qualitative, []).
 :- use_module(drm, []).
+:- use_module(eigenspace, []).
 
 :- dynamic current_world/1.
 
@@ -54,6 +60,14 @@ lr(A, B, C, P) :- w(W), qualitative:lr(W, A, B, C, P).
 align(A, B, C, K, P) :- w(W), qualitative:align(W, A, B, C, K, P).
 rec(A, B, P) :- w(W), qualitative:rec(W, A, B, P).
 drm_edge(A, B, P, M) :- w(W), drm:drm_edge(W, A, B, P, M, _).
+
+%   Eigenspace localization (eigenspace.pl), e.g.
+%   ?- eig_state_after([stop([3, 7], false), stop([7], false)], S).
+eig_stop_outcome(Ts, U, O) :- w(W), eigenspace:stop_outcome(W, Ts, U, O).
+eig_next_state(S0, O, S) :- eigenspace:next_state(S0, O, S).
+eig_state_after(Stops, S) :- w(W), eigenspace:state_after(W, Stops, S).
+covers(T, X, Y) :- w(W), eigenspace:covers(W, T, X, Y).
+triplet_distance(T, X, Y, D) :- w(W), eigenspace:triplet_distance(W, T, X, Y, D).
 
 %!  main is det.
 %

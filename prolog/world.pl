@@ -34,6 +34,9 @@ world_fact(closed/0).               % derived relations are materialised
 world_fact(d_lr/4).                 % materialised lr with probability
 world_fact(d_align/5).              % materialised align with probability
 world_fact(d_rec/3).                % materialised rec with probability
+world_fact(eig_point/3).            % eig_point(I, X, Y): eigenspace learning point
+world_fact(eig_triplet/4).          % eig_triplet(T, Points, Directions, Area)
+world_fact(eig_candidate_set/2).    % eig_candidate_set(M, T): T in candidate set M
 
 %!  valid_id(+Text) is semidet.
 %

@@ -13,7 +13,8 @@ from numeric.qualitative.survey import survey
 from numeric.simulator import ObserverConfig
 from numeric.world import WorldDescription
 from service import errors
-from service.api.routes import health, qualitative, worlds
+from service.api.routes import eigenspace, health, qualitative, worlds
+from service.eigenspace import EigenspaceService
 from service.kb import KnowledgeBase
 from service.settings import Settings, get_settings
 from service.store import Store
@@ -43,7 +44,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         log.info("restored %d world(s) from %s", n, settings.db_path)
         if settings.demo_world and store.world(settings.demo_world) is None:
             await create_demo(service, settings.demo_world)
+        eig = EigenspaceService(store, kb, service)
+        m = await asyncio.to_thread(eig.restore)
+        log.info("restored %d eigenspace analys(e)s", m)
         app.state.store, app.state.kb, app.state.worlds = store, kb, service
+        app.state.eigenspace = eig
         try:
             yield
         finally:
@@ -55,6 +60,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(health.router)
     app.include_router(worlds.router)
     app.include_router(qualitative.router)
+    app.include_router(eigenspace.router)
     errors.install(app)
     app.add_middleware(errors.BodySizeLimit, max_bytes=settings.max_body_bytes)
     return app

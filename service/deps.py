@@ -6,6 +6,7 @@ from typing import Annotated
 
 from fastapi import Depends, Request
 
+from service.eigenspace import EigenspaceService
 from service.kb import KnowledgeBase
 from service.settings import Settings, get_settings
 from service.worlds import WorldService
@@ -15,6 +16,10 @@ def _worlds(request: Request) -> WorldService:
     return request.app.state.worlds  # type: ignore[no-any-return]
 
 
+def _eigenspace(request: Request) -> EigenspaceService:
+    return request.app.state.eigenspace  # type: ignore[no-any-return]
+
+
 def _kb(request: Request) -> KnowledgeBase:
     return request.app.state.kb  # type: ignore[no-any-return]
 
@@ -22,3 +27,4 @@ def _kb(request: Request) -> KnowledgeBase:
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 WorldsDep = Annotated[WorldService, Depends(_worlds)]
 KbDep = Annotated[KnowledgeBase, Depends(_kb)]
+EigenspaceDep = Annotated[EigenspaceService, Depends(_eigenspace)]

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, model_validator
 
+from numeric.camera import CameraConfig
 from numeric.world import Id
 
 RelationKind = Literal["rec", "frec", "lr", "align", "rea", "reachable"]
@@ -85,3 +86,58 @@ class QueryIn(BaseModel):
 class QueryOut(BaseModel):
     solutions: list[dict[str, Any]]
     truncated: bool
+
+
+# -- eigenspace localization ---------------------------------------------------------------
+MAX_TURN_IMAGES = 360
+MAX_IMAGE_SIDE = 256
+
+
+class PoseIn(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    x: FiniteFloat
+    y: FiniteFloat
+    theta: FiniteFloat = 0.0
+
+
+Row = Annotated[list[FiniteFloat], Field(min_length=1, max_length=MAX_IMAGE_SIDE)]
+Image = Annotated[list[Row], Field(min_length=1, max_length=MAX_IMAGE_SIDE)]
+
+
+class TurnIn(BaseModel):
+    """One full turn of grey images in [0, 1], in order of relative heading 2*pi*j/n
+    (counter-clockwise from the robot's heading): as nested lists ``images`` [n][H][W]
+    or as base64 PNG files ``images_png`` (8-bit grey), exactly one of the two."""
+
+    model_config = ConfigDict(extra="forbid")
+    images: Annotated[list[Image], Field(min_length=1, max_length=MAX_TURN_IMAGES)] | None = None
+    images_png: Annotated[list[Annotated[str, Field(max_length=1_000_000)]],
+                          Field(min_length=1, max_length=MAX_TURN_IMAGES)] | None = None
+
+    @model_validator(mode="after")
+    def _exactly_one(self) -> TurnIn:
+        if (self.images is None) == (self.images_png is None):
+            raise ValueError("give exactly one of images or images_png")
+        return self
+
+
+class OdometryIn(BaseModel):
+    """Motion from the previous stop's start pose, in that pose's frame (m, m, rad)."""
+
+    model_config = ConfigDict(extra="forbid")
+    dx: FiniteFloat
+    dy: FiniteFloat
+    dtheta: FiniteFloat
+
+
+class StopIn(TurnIn):
+    odometry: OdometryIn | None = None
+
+
+class CameraIn(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    pose: PoseIn
+    turn: Annotated[int, Field(ge=1, le=MAX_TURN_IMAGES)] | None = Field(
+        None, description="render a full turn of this many images instead of one")
+    format: Literal["list", "png"] = "list"
+    camera: CameraConfig | None = None

@@ -34,6 +34,19 @@ CREATE TABLE IF NOT EXISTS events (
     created_at  REAL NOT NULL
 );
 CREATE INDEX IF NOT EXISTS events_world ON events(world, id);
+CREATE TABLE IF NOT EXISTS artifacts (
+    world       TEXT NOT NULL REFERENCES worlds(name) ON DELETE CASCADE,
+    kind        TEXT NOT NULL,
+    blob        BLOB NOT NULL,
+    created_at  REAL NOT NULL,
+    PRIMARY KEY (world, kind)
+);
+CREATE TABLE IF NOT EXISTS sessions (
+    id          TEXT PRIMARY KEY,
+    world       TEXT NOT NULL REFERENCES worlds(name) ON DELETE CASCADE,
+    data        TEXT NOT NULL,
+    created_at  REAL NOT NULL
+);
 """
 
 
@@ -119,6 +132,31 @@ class Store:
             row = self._conn.execute("SELECT COUNT(*) FROM events WHERE world = ?",
                                      (world,)).fetchone()
         return int(row[0])
+
+    # -- learned artifacts (e.g. an eigenspace analysis) and localization sessions ---------
+    @staticmethod
+    def put_artifact(conn: sqlite3.Connection, world: str, kind: str, blob: bytes) -> None:
+        conn.execute("INSERT OR REPLACE INTO artifacts (world, kind, blob, created_at) "
+                     "VALUES (?, ?, ?, ?)", (world, kind, blob, time.time()))
+
+    def artifact(self, world: str, kind: str) -> bytes | None:
+        with self._lock:
+            row = self._conn.execute("SELECT blob FROM artifacts WHERE world = ? AND kind = ?",
+                                     (world, kind)).fetchone()
+        return None if row is None else bytes(row[0])
+
+    @staticmethod
+    def put_session(conn: sqlite3.Connection, sid: str, world: str,
+                    data: dict[str, Any]) -> None:
+        conn.execute("INSERT INTO sessions (id, world, data, created_at) VALUES (?, ?, ?, ?) "
+                     "ON CONFLICT(id) DO UPDATE SET data = excluded.data",
+                     (sid, world, json.dumps(data, allow_nan=False), time.time()))
+
+    def session(self, sid: str) -> tuple[str, dict[str, Any]] | None:
+        with self._lock:
+            row = self._conn.execute("SELECT world, data FROM sessions WHERE id = ?",
+                                     (sid,)).fetchone()
+        return None if row is None else (row[0], json.loads(row[1]))
 
     def close(self) -> None:
         with self._lock:

@@ -1,0 +1,143 @@
+"""Learning strategy (paper §4.2): add learning points until the robot is localized
+within n observations with probability >= target.
+
+1. Candidates: a grid finer than the learning spacing, outside the localizable area.
+   For each, assume the triples it forms with its neighbouring learning points become
+   regions and measure the localizable area gained (eq. 7 regions, area on a raster).
+2. One best candidate: learn there.  Several tied: take the first move a_1 of the
+   movement strategy, and on the circle of radius |a_1| around the tied candidates
+   learn at the point least likely to be in a region (it raises P(Z_1 | a_1)).
+3. Redo the triplet search around the new point; stop when P(Z | a_1..a_{n-1}) >= target.
+
+``random_additions`` is the paper's baseline: the next point is drawn at random from
+the same candidates.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from concurrent.futures import Executor
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from numeric.eigenspace.analysis import EigenspaceAnalysis, free_grid, with_learning_point
+from numeric.eigenspace.movement_strategy import (
+    RegionLayout,
+    initial_samples,
+    p_z_curve,
+)
+from numeric.eigenspace.triplets import triangle_area
+from numeric.world import World
+
+
+class LearningStrategyConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    target_probability: float = Field(0.9, gt=0.0, le=1.0)
+    n_observations: int = Field(5, ge=1, le=50)
+    candidate_spacing_m: float = Field(0.5, gt=0.01, le=10.0)
+    area_cell_m: float = Field(0.2, gt=0.01, le=10.0)
+    max_additions: int = Field(10, ge=0, le=200)
+    circle_points: int = Field(16, ge=4, le=360)
+
+
+@dataclass
+class LearningStep:
+    added: list[float] | None
+    p_z: list[float]
+    triplets: int
+    learning_points: int
+
+
+@dataclass
+class LearningResult:
+    analysis: EigenspaceAnalysis
+    steps: list[LearningStep] = field(default_factory=list)
+
+    @property
+    def additions(self) -> int:
+        return sum(1 for s in self.steps if s.added is not None)
+
+    @property
+    def reached(self) -> bool:
+        return bool(self.steps and self.steps[-1].p_z[-1] >= 0)
+
+
+def hypothetical_gain(layout: RegionLayout, points: np.ndarray, candidates: np.ndarray,
+                      grid: np.ndarray, neighbour_max_m: float, min_area_m2: float
+                      ) -> np.ndarray:
+    """Localizable area (m^2 up to the cell size) gained if each candidate formed regions
+    with every pair of nearby learning points (step 1)."""
+    p_base = layout.p_any(grid)
+    miss_base = 1.0 - p_base
+    covered = p_base >= 0.5
+    gains = np.zeros(len(candidates))
+    for c, xy in enumerate(candidates):
+        near = np.flatnonzero(np.linalg.norm(points - xy, axis=1) <= neighbour_max_m)
+        tri = [(i, j) for a, i in enumerate(near) for j in near[a + 1:]
+               if np.linalg.norm(points[i] - points[j]) <= neighbour_max_m
+               and triangle_area(np.array([xy, points[i], points[j]])) >= min_area_m2]
+        if not tri:
+            continue
+        pts = np.array([[xy, points[i], points[j]] for i, j in tri])  # (n, 3, 2)
+        d = np.linalg.norm(grid[:, None, None, :] - pts[None], axis=-1).min(axis=2)
+        miss = miss_base * np.prod(1.0 - layout.entry.probability(d), axis=1)
+        gains[c] = np.sum((1.0 - miss >= 0.5) & ~covered)
+    return gains
+
+
+def choose_learning_point(analysis: EigenspaceAnalysis, world: World,
+                          config: LearningStrategyConfig, first_move_m: float,
+                          rng: np.random.Generator, random_choice: bool = False) -> np.ndarray:
+    """Steps 1-2: where to learn next (or at random among the candidates)."""
+    layout = analysis.layout(world)
+    cand = free_grid(world, config.candidate_spacing_m)
+    cand = cand[layout.p_any(cand) < 0.5] if len(analysis.triplets) else cand
+    if len(cand) == 0:
+        cand = free_grid(world, config.candidate_spacing_m)
+    if random_choice:
+        return np.asarray(cand[rng.integers(len(cand))])
+    grid = free_grid(world, config.area_cell_m)
+    tcfg = analysis.config.triplets
+    gains = hypothetical_gain(layout, analysis.model.points, cand, grid, tcfg.neighbour_max_m,
+                              tcfg.min_area_m2)
+    best = np.flatnonzero(gains >= gains.max())
+    if len(best) == 1 or first_move_m <= 0:
+        return np.asarray(cand[best[0]])
+    ang = 2 * np.pi * np.arange(config.circle_points) / config.circle_points
+    ring = (cand[best][:, None, :] + first_move_m * np.stack([np.cos(ang), np.sin(ang)], 1)
+            ).reshape(-1, 2)
+    ring = ring[world.is_free(ring)]
+    if len(ring) == 0:
+        return np.asarray(cand[best[0]])
+    return np.asarray(ring[int(np.argmin(layout.p_any(ring)))])
+
+
+def learning_strategy(analysis: EigenspaceAnalysis, world: World,
+                      config: LearningStrategyConfig, rng: np.random.Generator,
+                      random_additions: bool = False, executor: Executor | None = None,
+                      progress: Callable[[LearningStep], None] | None = None
+                      ) -> LearningResult:
+    """Add learning points (§4.2) until P(Z within n observations) >= target."""
+    samples = initial_samples(world.sample_free, analysis.config.strategy.n_samples,
+                              np.random.default_rng(analysis.config.seed + 7))
+    result = LearningResult(analysis)
+    added: list[float] | None = None
+    for _ in range(config.max_additions + 1):
+        layout = result.analysis.layout(world)
+        curve, acts = p_z_curve(samples, layout, result.analysis.config.strategy,
+                                config.n_observations, executor)
+        step = LearningStep(added, curve, len(result.analysis.triplets),
+                            len(result.analysis.model.points))
+        result.steps.append(step)
+        if progress:
+            progress(step)
+        if curve[-1] >= config.target_probability or len(result.steps) > config.max_additions:
+            break
+        first = float(acts[0][1]) if acts else 0.0
+        point = choose_learning_point(result.analysis, world, config, first, rng,
+                                      random_additions)
+        result.analysis = with_learning_point(result.analysis, world, point)
+        added = [float(point[0]), float(point[1])]
+    return result

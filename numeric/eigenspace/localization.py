@@ -1,0 +1,220 @@
+"""Localization with several stops (paper §2.5, §3.4) and candidate-multiple sets (§3.3).
+
+At every stop the robot takes one full turn of images (relative headings
+``2 pi j / n``); each image's region hits (eq. 6) give candidate start-of-turn poses.
+Odometry between stops normalises every candidate to the pose of the first stop;
+candidates that agree within the tolerances are identified and vote for each other
+with weight ``1 - D_err / D_thd`` (smaller d, more votes).  The stop is *unique* when
+no candidate disagrees with the winner or the winner leads every rival by the vote
+ratio ``vote_margin``.  Which X / Y^(m) / Z state follows is decided by the Fig. 4
+rules in ``prolog/eigenspace.pl`` from the outcome this module reports.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from numeric.eigenspace.learning import EigenspaceModel
+from numeric.eigenspace.regions import region_candidates
+from numeric.eigenspace.triplets import Triplets
+from numeric.geometry import compose, relative, wrap_angle
+
+
+class LocalizationConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    same_position_m: float = Field(1.0, gt=0.0, le=100.0,
+                                   description="candidates closer than this are identified")
+    same_heading_rad: float = Field(np.deg2rad(15.0), gt=0.0, le=np.pi)
+    odometry_slack_ratio: float = Field(0.05, ge=0.0, le=1.0,
+                                        description="extra position tolerance per metre driven")
+    vote_margin: float = Field(2.0, ge=1.0, le=1000.0,
+                               description="winner/rival vote ratio that makes a stop unique")
+
+
+@dataclass
+class RegionModel:
+    """What localization needs from the analysis: the eigenspace, the triplets and the
+    eq.-6 constants."""
+
+    model: EigenspaceModel
+    triplets: Triplets
+    c_a: float
+    d_thd_m: float
+
+
+@dataclass
+class TurnCandidates:
+    """Region hits of one turn: triplet ``t``, eq.-6 ``d_err`` and the estimated pose at
+    the start of the turn ``start_pose (n, 3)``."""
+
+    t: np.ndarray
+    d_err: np.ndarray
+    start_pose: np.ndarray
+    image: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+
+def turn_candidates(regions: RegionModel, images: np.ndarray) -> TurnCandidates:
+    """Region hits of a full turn ``(n, H, W)`` (relative headings 2 pi j / n)."""
+    imgs = regions.model.check_images(images)
+    q = regions.model.project(imgs)
+    c = region_candidates(regions.model, regions.triplets, q, regions.c_a, regions.d_thd_m)
+    start = c.pose.copy()
+    start[:, 2] = wrap_angle(c.pose[:, 2] - 2.0 * np.pi * c.m / len(imgs))
+    return TurnCandidates(t=c.t, d_err=c.d_err, start_pose=start, image=c.m)
+
+
+@dataclass
+class Vote:
+    """Result of voting over all stops so far."""
+
+    unique: bool
+    winner: int | None  # index into the pooled candidates
+    votes: np.ndarray
+    clusters: list[list[int]]  # pooled candidate indices per identified group
+
+
+@dataclass
+class Session:
+    """A localization run: stops, odometry and the pooled candidates (pure numeric).
+
+    ``odometry[k]`` is the pose of stop k's start in stop 0's frame (stop 0 is the origin).
+    """
+
+    config: LocalizationConfig
+    odometry: list[np.ndarray] = field(default_factory=list)
+    travelled_m: float = 0.0
+    stop_of: list[int] = field(default_factory=list)
+    triplet: list[int] = field(default_factory=list)
+    weight: list[float] = field(default_factory=list)
+    pose0: list[np.ndarray] = field(default_factory=list)
+    own_pose: list[np.ndarray] = field(default_factory=list)
+
+    @property
+    def stops(self) -> int:
+        return len(self.odometry)
+
+    def add_stop(self, cands: TurnCandidates, d_thd_m: float,
+                 motion: np.ndarray | None = None) -> TurnCandidates:
+        """Record a stop; ``motion`` is (dx, dy, dtheta) from the previous stop's start in
+        its frame (ignored for the first stop)."""
+        if not self.odometry:
+            self.odometry.append(np.zeros(3))
+        else:
+            mv = np.zeros(3) if motion is None else np.asarray(motion, dtype=float)
+            self.odometry.append(compose(self.odometry[-1], mv))
+            self.travelled_m += float(np.hypot(mv[0], mv[1]))
+        o = self.odometry[-1]
+        inv = relative(o, np.zeros(3))  # o^-1
+        k = self.stops - 1
+        for i in range(len(cands)):
+            self.stop_of.append(k)
+            self.triplet.append(int(cands.t[i]))
+            self.weight.append(float(max(1e-3, 1.0 - cands.d_err[i] / d_thd_m)))
+            self.pose0.append(compose(cands.start_pose[i], inv))
+            self.own_pose.append(cands.start_pose[i])
+        return cands
+
+    def same(self, p: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """Whether candidates at stop-0 poses ``p (n,3)`` and ``q (3,)`` are identified."""
+        tol = self.config.same_position_m + self.config.odometry_slack_ratio * self.travelled_m
+        return np.asarray((np.linalg.norm(p[:, :2] - q[:2], axis=1) <= tol)
+                          & (np.abs(wrap_angle(p[:, 2] - q[2])) <= self.config.same_heading_rad))
+
+    def vote(self) -> Vote:
+        """Mutual voting of §2.5 over every candidate so far."""
+        n = len(self.pose0)
+        if n == 0:
+            return Vote(False, None, np.zeros(0), [])
+        p = np.array(self.pose0)
+        w = np.array(self.weight)
+        same = np.stack([self.same(p, p[i]) for i in range(n)])
+        votes = same.astype(float) @ w
+        win = int(np.argmax(votes))
+        rivals = ~same[win]
+        unique = (not rivals.any()) or votes[win] >= self.config.vote_margin * votes[rivals].max()
+        clusters: list[list[int]] = []
+        left = np.ones(n, dtype=bool)
+        for i in np.argsort(-votes):
+            if left[i]:
+                members = np.flatnonzero(same[i] & left)
+                clusters.append(members.tolist())
+                left[members] = False
+        return Vote(bool(unique), win, votes, clusters)
+
+    def current_pose(self, candidate: int) -> np.ndarray:
+        """Pose at the start of the latest stop implied by a pooled candidate."""
+        if self.stop_of[candidate] == self.stops - 1:
+            return np.asarray(self.own_pose[candidate])
+        return compose(self.pose0[candidate], self.odometry[-1])
+
+    def stop_triplets(self, k: int) -> list[int]:
+        """Distinct triplets hit at stop ``k``."""
+        return sorted({t for s, t in zip(self.stop_of, self.triplet, strict=True) if s == k})
+
+
+def candidate_multiple_sets(regions: RegionModel,
+                            config: LocalizationConfig) -> list[list[int]]:
+    """§3.3: groups of triplets that a robot standing at their learning points cannot
+    tell apart.
+
+    Each learning point's own full turn of learning images is treated as an observation
+    and yields the set S_w of triplets it enters.  For every pair of triplets the
+    closest pair of their images (in the eigenspace) names two learning points w_a,
+    w_b; if S_wa == S_wb the two triplets join the same set (union-find).
+    """
+    m, tr = regions.model, regions.triplets
+    n_t = len(tr)
+    if n_t < 2:
+        return []
+    entered: list[frozenset[int]] = []
+    for w in range(len(m.points)):
+        c = region_candidates(m, tr, m.projections[w], regions.c_a, regions.d_thd_m)
+        entered.append(frozenset(c.t.tolist()))
+    x3 = tr.projections(m)  # (T, 3, K)
+    parent = list(range(n_t))
+
+    def find(a: int) -> int:
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for t1 in range(n_t - 1):
+        d = np.linalg.norm(x3[t1][None, :, None, :] - x3[t1 + 1:, None, :, :], axis=-1)
+        flat = d.reshape(len(d), -1).argmin(axis=1)  # (T - t1 - 1,)
+        i1, i2 = np.unravel_index(flat, (3, 3))
+        for off, (a, b) in enumerate(zip(i1, i2, strict=True)):
+            t2 = t1 + 1 + off
+            wa, wb = tr.point_idx[t1, a], tr.point_idx[t2, b]
+            # a shared learning point is the same place, not a confusion of places
+            if wa != wb and entered[wa] == entered[wb]:
+                parent[find(t2)] = find(t1)
+    groups: dict[int, list[int]] = {}
+    for t in range(n_t):
+        groups.setdefault(find(t), []).append(t)
+    return sorted((g for g in groups.values() if len(g) > 1), key=lambda g: g[0])
+
+
+def session_to_dict(s: Session) -> dict[str, object]:
+    """JSON-safe form of a session (for the store)."""
+    return {"config": s.config.model_dump(mode="json"),
+            "odometry": [o.tolist() for o in s.odometry], "travelled_m": s.travelled_m,
+            "stop_of": s.stop_of, "triplet": s.triplet, "weight": s.weight,
+            "pose0": [p.tolist() for p in s.pose0], "own_pose": [p.tolist() for p in s.own_pose]}
+
+
+def session_from_dict(d: dict[str, object]) -> Session:
+    def arrs(key: str) -> list[np.ndarray]:
+        return [np.asarray(v, dtype=float) for v in d[key]]  # type: ignore[attr-defined]
+
+    return Session(config=LocalizationConfig.model_validate(d["config"]),
+                   odometry=arrs("odometry"), travelled_m=float(d["travelled_m"]),  # type: ignore[arg-type]
+                   stop_of=list(d["stop_of"]), triplet=list(d["triplet"]),  # type: ignore[call-overload]
+                   weight=list(d["weight"]), pose0=arrs("pose0"),  # type: ignore[call-overload]
+                   own_pose=arrs("own_pose"))

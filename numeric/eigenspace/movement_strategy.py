@@ -1,0 +1,193 @@
+"""Movement strategy (paper §3.5, eqs. 8-11).
+
+Poses s^(i) (Monte Carlo samples of where the robot may be) carry a distribution
+over the states X, Y^(1..M), Z.  An action a = (alpha, l, beta) turns by alpha,
+drives l (stopping ``clearance_m`` short of a wall) and turns by beta; at the new
+pose every region l is entered with P(R^(l)|s) of eq. 7, and the state moves by
+eq. 9 (from X), eq. 10 (from Y^(m)) and eq. 11 (from Z).  Q(Z) of an action is the
+sample-weighted P(Z) after it (eq. 8); the strategy picks the action with the
+largest Q(Z) (ties: the shorter turn, then the shorter drive).
+
+Eq. 9's ``Y^(m)`` term multiplies in ``1 - P(R_Y^(m'))`` for the other sets m' (the
+"M = {1..m-1, m+1..M}" of the paper); eq. 10 keeps Y^(m) only if neither a Z region
+nor another set is entered (entering another set narrows to their common element, Z).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import Executor
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from numeric.eigenspace.regions import EntryModel
+from numeric.geometry import free_distance, wrap_angle
+
+
+class StrategyConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    n_samples: int = Field(400, ge=10, le=100_000, description="I initial poses of eq. 8")
+    alphas_rad: list[float] = Field(
+        default_factory=lambda: [float(a) for a in np.deg2rad(np.arange(-135, 181, 45))])
+    lengths_m: list[float] = Field(default_factory=lambda: [0.5, 1.0, 2.0, 3.0, 4.0])
+    betas_rad: list[float] = Field(default_factory=lambda: [0.0, float(np.pi / 2),
+                                                           float(np.pi), float(-np.pi / 2)])
+    clearance_m: float = Field(0.3, ge=0.0, le=10.0)
+    chunks: int = Field(4, ge=1, le=256, description="action-grid chunks for the executor")
+
+    def actions(self) -> np.ndarray:
+        """The action grid ``(A, 3)``: (alpha, l, beta), ordered so ties prefer small
+        turns and short drives."""
+        grid = np.array([(a, l, b) for a in self.alphas_rad for l in self.lengths_m
+                         for b in self.betas_rad], dtype=float)
+        order = np.lexsort((np.abs(wrap_angle(grid[:, 2])), grid[:, 1],
+                            np.abs(wrap_angle(grid[:, 0]))))
+        return grid[order]
+
+
+@dataclass
+class RegionLayout:
+    """What eqs. 9-11 need: the entry model, the learning points of each region
+    ``(T, 3, 2)`` and the candidate-multiple set of each region (``-1``: none, else
+    0..M-1)."""
+
+    entry: EntryModel
+    points: np.ndarray
+    set_of: np.ndarray
+    walls: tuple[np.ndarray, np.ndarray]
+
+    @property
+    def n_sets(self) -> int:
+        return int(self.set_of.max()) + 1 if len(self.set_of) else 0
+
+    def entry_probabilities(self, xy: np.ndarray) -> np.ndarray:
+        """P(R^(l)|s) ``(I, T)`` for positions ``(I, 2)`` (eq. 7 with D(s) of §3.2)."""
+        if len(self.points) == 0:
+            return np.zeros((len(xy), 0))
+        d = np.linalg.norm(xy[:, None, None, :] - self.points[None], axis=-1).min(axis=2)
+        return self.entry.probability(d)
+
+    def p_any(self, xy: np.ndarray) -> np.ndarray:
+        """Probability ``(I,)`` that one observation at ``xy`` enters some region."""
+        return 1.0 - np.prod(1.0 - self.entry_probabilities(xy), axis=1)
+
+
+@dataclass
+class StateBelief:
+    """Per-sample state distribution: ``x (I,)``, ``y (I, M)``, ``z (I,)`` and weights."""
+
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    weight: np.ndarray
+
+    @staticmethod
+    def start(n: int, m: int, weight: np.ndarray | None = None) -> StateBelief:
+        w = np.full(n, 1.0 / n) if weight is None else weight / weight.sum()
+        return StateBelief(np.ones(n), np.zeros((n, m)), np.zeros(n), w)
+
+    def p_z(self) -> float:
+        return float(np.dot(self.weight, self.z))
+
+    def p_not_x(self) -> float:
+        return float(np.dot(self.weight, 1.0 - self.x))
+
+
+def transition(belief: StateBelief, p: np.ndarray, layout: RegionLayout) -> StateBelief:
+    """One observation at poses with entry probabilities ``p (I, T)``: eqs. 9-11."""
+    miss = 1.0 - p
+    in_z = layout.set_of < 0
+    q_no_z = np.prod(miss[:, in_z], axis=1)  # prod_k (1 - P(R_Z^k))
+    m = layout.n_sets
+    q_no_y = np.ones((len(p), m))
+    for k in range(m):
+        q_no_y[:, k] = np.prod(miss[:, layout.set_of == k], axis=1)
+    p_y = 1.0 - q_no_y  # P(R_Y^(m)): one or more regions of set m
+    others_no_y = np.ones((len(p), m))  # prod over m' != m of (1 - P(R_Y^(m')))
+    for k in range(m):
+        others_no_y[:, k] = np.prod(np.delete(q_no_y, k, axis=1), axis=1)
+    q_x = np.prod(miss, axis=1)                                   # eq. 9, W_n = X
+    q_y_from_x = p_y * others_no_y * q_no_z[:, None]              # eq. 9, W_n = Y^(m)
+    stay_y = others_no_y * q_no_z[:, None]                        # eq. 10, W_n = Y^(m)
+    x = belief.x * q_x
+    y = belief.x[:, None] * q_y_from_x + belief.y * stay_y
+    z = 1.0 - x - y.sum(axis=1)                                   # eqs. 9-11, W_n = Z
+    return StateBelief(x, y, np.clip(z, 0.0, 1.0), belief.weight)
+
+
+def apply_action(poses: np.ndarray, action: np.ndarray, walls: tuple[np.ndarray, np.ndarray],
+                 clearance_m: float) -> np.ndarray:
+    """s (+) a of §3.4 for poses ``(I, 3)``; a drive stops ``clearance_m`` before a wall."""
+    alpha, length, beta = (float(v) for v in action)
+    heading = poses[:, 2] + alpha
+    room = free_distance(poses[:, :2], heading, walls[0], walls[1]) - clearance_m
+    ell = np.clip(np.minimum(length, room), 0.0, None)
+    out = np.empty_like(poses)
+    out[:, 0] = poses[:, 0] + ell * np.cos(heading)
+    out[:, 1] = poses[:, 1] + ell * np.sin(heading)
+    out[:, 2] = wrap_angle(heading + beta)
+    return out
+
+
+def _q_z_chunk(args: tuple[np.ndarray, StateBelief, np.ndarray, RegionLayout, float]
+               ) -> np.ndarray:
+    poses, belief, actions, layout, clearance = args
+    out = np.empty(len(actions))
+    for i, a in enumerate(actions):
+        moved = apply_action(poses, a, layout.walls, clearance)
+        out[i] = transition(belief, layout.entry_probabilities(moved[:, :2]), layout).p_z()
+    return out
+
+
+def q_z_of_actions(poses: np.ndarray, belief: StateBelief, actions: np.ndarray,
+                   layout: RegionLayout, config: StrategyConfig,
+                   executor: Executor | None = None) -> np.ndarray:
+    """Q(Z) (eq. 8) of every action ``(A, 3)``; chunks run on ``executor`` when given
+    (a ProcessPoolExecutor parallelises over cores), in-process otherwise."""
+    chunks = [c for c in np.array_split(actions, config.chunks) if len(c)]
+    jobs = [(poses, belief, c, layout, config.clearance_m) for c in chunks]
+    mapper: Callable[[Any, Iterable[Any]], Iterator[Any]] = (
+        executor.map if executor is not None else map)  # type: ignore[assignment]
+    return np.concatenate(list(mapper(_q_z_chunk, jobs)))
+
+
+@dataclass
+class Decision:
+    action: np.ndarray  # (alpha, l, beta)
+    q_z: float
+
+
+def choose_action(poses: np.ndarray, belief: StateBelief, layout: RegionLayout,
+                  config: StrategyConfig, executor: Executor | None = None) -> Decision:
+    """The action of the grid with the largest Q(Z) (first in grid order on ties)."""
+    actions = config.actions()
+    q = q_z_of_actions(poses, belief, actions, layout, config, executor)
+    best = int(np.argmax(q >= q.max() - 1e-12))
+    return Decision(actions[best], float(q[best]))
+
+
+def initial_samples(sample_free: Callable[[int, np.random.Generator], np.ndarray], n: int,
+                    rng: np.random.Generator) -> np.ndarray:
+    """I initial poses: positions from ``sample_free``, headings uniform."""
+    xy = sample_free(n, rng)
+    return np.column_stack([xy, rng.uniform(-np.pi, np.pi, len(xy))])
+
+
+def p_z_curve(poses: np.ndarray, layout: RegionLayout, config: StrategyConfig,
+              n_observations: int, executor: Executor | None = None
+              ) -> tuple[list[float], list[np.ndarray]]:
+    """P(Z) after 1..n observations when every move follows the strategy (§4.1), and
+    the chosen actions.  The first observation is at the initial poses."""
+    belief = StateBelief.start(len(poses), layout.n_sets)
+    belief = transition(belief, layout.entry_probabilities(poses[:, :2]), layout)
+    curve, acts = [belief.p_z()], []
+    for _ in range(n_observations - 1):
+        dec = choose_action(poses, belief, layout, config, executor)
+        poses = apply_action(poses, dec.action, layout.walls, config.clearance_m)
+        belief = transition(belief, layout.entry_probabilities(poses[:, :2]), layout)
+        curve.append(belief.p_z())
+        acts.append(dec.action)
+    return curve, acts

@@ -1,0 +1,175 @@
+"""Localizable regions (paper §2.4, eq. 6) and the chance of entering one (§3.2, eq. 7).
+
+For a triplet t and a query projection x', d is the smallest eq.-3 difference to the
+triplet's three images and ``D_err = c_a d / sqrt(A)`` (eq. 6, A the triangle area);
+the query lies in the region when ``D_err < D_thd``.  ``c_a`` is fitted by least
+squares from simulated observations near the triplets.  In the real world the
+distance of a pose to region t is ``D(s)`` = the smallest distance to the triplet's
+three learning points, and ``P(R|s) = clamp(c0 + c1 D(s), 0, 1)`` (eq. 7).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from numeric.camera import Camera
+from numeric.eigenspace.interpolation import affine_weights, interpolate_pose
+from numeric.eigenspace.learning import EigenspaceModel, f_d
+from numeric.eigenspace.triplets import Triplets
+from numeric.errors import InvalidInput
+from numeric.geometry import bearing, wrap_angle
+from numeric.world import World
+
+
+class RegionConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    d_thd_m: float = Field(0.2, gt=0.0, le=100.0, description="D_thd of §2.4 (paper 200 mm)")
+    c_a: float | None = Field(None, gt=0.0, description="eq. 6 constant; fitted when None")
+    calibration_per_triplet: int = Field(4, ge=1, le=100)
+
+
+@dataclass
+class Candidates:
+    """Region hits of M query images against T triplets: for each hit ``m`` (image
+    index), ``t`` (triplet), ``d`` (eq. 3 minimum), ``d_err`` (eq. 6) and the
+    interpolated pose ``pose (n, 3)`` (eqs. 4-5)."""
+
+    m: np.ndarray
+    t: np.ndarray
+    d: np.ndarray
+    d_err: np.ndarray
+    pose: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.m)
+
+
+def triplet_differences(model: EigenspaceModel, triplets: Triplets,
+                        query: np.ndarray) -> np.ndarray:
+    """d of §2.4 for every query projection and triplet: ``(M, T)``."""
+    x3 = triplets.projections(model)  # (T, 3, K)
+    diff = f_d(query[:, None, None, :], x3[None], model.n_pixels)  # (M, T, 3)
+    return np.asarray(diff.min(axis=2))
+
+
+def estimation_error(d: np.ndarray, area: np.ndarray, c_a: float) -> np.ndarray:
+    """Eq. 6: D_err = c_a d / sqrt(A) [m]."""
+    return c_a * d / np.sqrt(area)
+
+
+def interpolate(model: EigenspaceModel, triplets: Triplets, query: np.ndarray,
+                t: np.ndarray) -> np.ndarray:
+    """Eqs. 4-5 for pairs (query[i], triplet t[i]): poses ``(n, 3)``."""
+    k = affine_weights(query, triplets.projections(model)[t])
+    return interpolate_pose(k, triplets.poses(model)[t])
+
+
+def region_candidates(model: EigenspaceModel, triplets: Triplets, query: np.ndarray,
+                      c_a: float, d_thd: float) -> Candidates:
+    """Every (image, triplet) pair whose D_err < D_thd, with its interpolated pose."""
+    if len(triplets) == 0:
+        z = np.zeros(0, dtype=int)
+        return Candidates(z, z, np.zeros(0), np.zeros(0), np.zeros((0, 3)))
+    d = triplet_differences(model, triplets, query)
+    err = estimation_error(d, triplets.area[None, :], c_a)
+    m, t = np.nonzero(err < d_thd)
+    pose = interpolate(model, triplets, query[m], t) if len(m) else np.zeros((0, 3))
+    return Candidates(m, t, d[m, t], err[m, t], pose)
+
+
+def calibration_observations(world: World, camera: Camera, model: EigenspaceModel,
+                             triplets: Triplets, per_triplet: int,
+                             rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray,
+                                                                np.ndarray]:
+    """Simulated observations near the triplets for fitting c_a.
+
+    For each triplet, poses uniformly inside its triangle looking at its target
+    (+-half a direction step): returns ``(triplet index, d, position error)`` arrays.
+    """
+    ts, poses = [], []
+    step = np.pi / len(model.directions)
+    for t in range(len(triplets)):
+        tri = model.points[triplets.point_idx[t]]
+        for _ in range(per_triplet):
+            r1, r2 = rng.random(2)
+            if r1 + r2 > 1:
+                r1, r2 = 1 - r1, 1 - r2
+            xy = tri[0] + r1 * (tri[1] - tri[0]) + r2 * (tri[2] - tri[0])
+            th = float(bearing(xy, triplets.target[t])[0]) + rng.uniform(-step, step)
+            ts.append(t)
+            poses.append((xy[0], xy[1], th))
+    if not poses:
+        raise InvalidInput("no localizable triplets to calibrate the region model with",
+                           field="triplets")
+    pose_arr = np.array(poses)
+    ok = world.is_free(pose_arr[:, :2], clearance_m=0.1)
+    t_arr, pose_arr = np.array(ts)[ok], pose_arr[ok]
+    query = model.project(camera.render_many(pose_arr))
+    d = triplet_differences(model, triplets, query)[np.arange(len(t_arr)), t_arr]
+    est = interpolate(model, triplets, query, t_arr)
+    err = np.linalg.norm(est[:, :2] - pose_arr[:, :2], axis=1)
+    return t_arr, d, err
+
+
+def fit_c_a(d: np.ndarray, area: np.ndarray, err: np.ndarray) -> float:
+    """Least-squares c_a of eq. 6 through the origin: err ~ c_a d / sqrt(A)."""
+    x = d / np.sqrt(area)
+    den = float(np.dot(x, x))
+    if den <= 0:
+        raise InvalidInput("cannot fit c_a: all differences are zero", field="c_a")
+    return float(np.dot(x, err) / den)
+
+
+def real_world_distance(model: EigenspaceModel, triplets: Triplets,
+                        xy: np.ndarray) -> np.ndarray:
+    """D(s) of §3.2: ``(M, T)`` smallest distance from each position to a triplet's points."""
+    pts = model.points[triplets.point_idx]  # (T, 3, 2)
+    xy = np.atleast_2d(np.asarray(xy, dtype=float))
+    return np.asarray(np.linalg.norm(xy[:, None, None, :] - pts[None], axis=-1).min(axis=2))
+
+
+@dataclass(frozen=True)
+class EntryModel:
+    """Eq. 7: P(R|s) = clamp(c0 + c1 D(s), 0, 1) with D in metres."""
+
+    c0: float
+    c1: float
+
+    def probability(self, distance_m: np.ndarray) -> np.ndarray:
+        return np.clip(self.c0 + self.c1 * np.asarray(distance_m), 0.0, 1.0)
+
+    def radius_m(self, p: float = 0.5) -> float:
+        """Distance at which P(R|s) falls to ``p`` (the region's real-world radius)."""
+        if self.c1 >= 0:
+            return 0.0 if self.c0 < p else np.inf
+        return max(0.0, (p - self.c0) / self.c1)
+
+
+def fit_entry_model(distances: np.ndarray, entered: np.ndarray,
+                    max_distance_m: float, min_samples: int = 8) -> EntryModel:
+    """Fit eq. 7 per region by least squares on (D(s), entered) samples with
+    D <= ``max_distance_m``, then average c0 and c1 over the regions (§3.2).
+
+    ``distances`` and ``entered`` are ``(S, T)``: sample poses x regions.
+    """
+    c0s, c1s = [], []
+    for t in range(distances.shape[1]):
+        sel = distances[:, t] <= max_distance_m
+        if sel.sum() < min_samples:
+            continue
+        x, y = distances[sel, t], entered[sel, t].astype(float)
+        if np.ptp(x) <= 0:
+            continue
+        c1, c0 = np.polyfit(x, y, 1)
+        c0s.append(c0)
+        c1s.append(c1)
+    if not c0s:
+        raise InvalidInput("too few samples near the regions to fit P(R|s)", field="samples")
+    return EntryModel(float(np.mean(c0s)), float(np.mean(c1s)))
+
+
+def heading_error(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.abs(wrap_angle(np.asarray(a) - np.asarray(b)))

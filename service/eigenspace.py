@@ -1,0 +1,303 @@
+"""Eigenspace localization in the service: learning jobs, one-turn localization,
+multi-stop sessions and the movement strategy's next move.
+
+Flow: ``numeric.eigenspace`` computes; the knowledge base receives the learning
+points, triplets and candidate-multiple sets as facts (``eigenspace_facts``) and
+decides every X / Y^(m) / Z transition by the Fig. 4 rules in
+``prolog/eigenspace.pl`` (``eigenspace_transition``).  Analyses and sessions are
+stored in SQLite, so both survive a restart; a learning job still running at a
+restart is lost (its result was not stored) and must be posted again.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import uuid
+from concurrent.futures import Executor
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from numeric.camera import Camera, CameraConfig
+from numeric.eigenspace.analysis import EigenspaceAnalysis, EigenspaceConfig, analyse
+from numeric.eigenspace.localization import (
+    Session,
+    session_from_dict,
+    session_to_dict,
+    turn_candidates,
+)
+from numeric.eigenspace.movement_strategy import (
+    StateBelief,
+    choose_action,
+    initial_samples,
+)
+from numeric.errors import InvalidInput
+from numeric.geometry import compose
+from service.kb import KnowledgeBase
+from service.store import Store
+from service.worlds import Conflict, NotFound, WorldService
+
+log = logging.getLogger(__name__)
+ARTIFACT = "eigenspace"
+
+
+@dataclass
+class Job:
+    id: str
+    world: str
+    status: str = "queued"  # queued | running | done | failed
+    stage: str = "queued"
+    progress: float = 0.0
+    summary: dict[str, Any] | None = None
+    error: dict[str, Any] | None = None
+
+    def public(self) -> dict[str, Any]:
+        return {"id": self.id, "world": self.world, "status": self.status, "stage": self.stage,
+                "progress": self.progress, "summary": self.summary, "error": self.error}
+
+
+@dataclass
+class SessionState:
+    world: str
+    session: Session
+    state: dict[str, Any] = field(default_factory=lambda: {"state": "x"})
+    history: list[dict[str, Any]] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"session": session_to_dict(self.session), "state": self.state,
+                "history": self.history}
+
+    @staticmethod
+    def from_dict(world: str, d: dict[str, Any]) -> SessionState:
+        return SessionState(world, session_from_dict(d["session"]), d["state"], d["history"])
+
+
+def facts_call(world: str, a: EigenspaceAnalysis) -> dict[str, Any]:
+    """Knowledge-base arguments that assert an analysis as facts."""
+    t = a.triplets
+    return {"world": world, "points": a.model.points.tolist(),
+            "triplets": [{"points": t.point_idx[i].tolist(),
+                          "directions_rad": a.model.directions[t.dir_idx[i]].tolist(),
+                          "area_m2": float(t.area[i])} for i in range(len(t))],
+            "candidate_sets": a.candidate_sets}
+
+
+class EigenspaceService:
+    def __init__(self, store: Store, kb: KnowledgeBase, worlds: WorldService,
+                 executor: Executor | None = None) -> None:
+        self.store, self.kb, self.worlds = store, kb, worlds
+        self.executor = executor  # for the Monte Carlo strategy; None = in-process
+        self._analyses: dict[str, EigenspaceAnalysis] = {}
+        self._jobs: dict[str, Job] = {}
+        self._tasks: set[asyncio.Task[None]] = set()
+        self._session_lock = asyncio.Lock()
+
+    def restore(self) -> int:
+        """Load stored analyses and assert their facts (start-up)."""
+        n = 0
+        for name in self.worlds.names():
+            blob = self.store.artifact(name, ARTIFACT)
+            if blob is None:
+                continue
+            a = EigenspaceAnalysis.from_bytes(blob)
+            self.kb.call("eigenspace_facts", **facts_call(name, a))
+            self._analyses[name] = a
+            n += 1
+        return n
+
+    def analysis(self, world: str) -> EigenspaceAnalysis:
+        self.worlds.model(world)
+        a = self._analyses.get(world)
+        if a is None:
+            blob = self.store.artifact(world, ARTIFACT)
+            if blob is None:
+                raise NotFound(f"world {world!r} has no eigenspace yet; POST "
+                               f"/worlds/{world}/eigenspace first", field="world")
+            a = self._analyses[world] = EigenspaceAnalysis.from_bytes(blob)
+        return a
+
+    # -- learning -----------------------------------------------------------------------
+    def start_learning(self, world: str, config: EigenspaceConfig) -> Job:
+        self.worlds.model(world)
+        if any(j.world == world and j.status in ("queued", "running")
+               for j in self._jobs.values()):
+            raise Conflict(f"a learning job for world {world!r} is already running",
+                           field="world")
+        job = Job(uuid.uuid4().hex, world)
+        self._jobs[job.id] = job
+        task = asyncio.get_running_loop().create_task(self._learn(job, config))
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+        return job
+
+    def job(self, world: str, job_id: str) -> Job:
+        j = self._jobs.get(job_id)
+        if j is None or j.world != world:
+            raise NotFound(f"no learning job {job_id!r} for world {world!r}", field="job")
+        return j
+
+    async def _learn(self, job: Job, config: EigenspaceConfig) -> None:
+        job.status = "running"
+
+        def progress(stage: str, frac: float) -> None:
+            job.stage, job.progress = stage, frac
+
+        try:
+            w = self.worlds.model(job.world)
+            a = await asyncio.to_thread(analyse, w, config, None, progress)
+            async with self.worlds._write:  # same writer lock as every other mutation
+                self.worlds.model(job.world)  # deleted meanwhile -> NotFound
+                await self.kb.acall("eigenspace_facts", **facts_call(job.world, a))
+                with self.store.transaction() as conn:
+                    self.store.put_artifact(conn, job.world, ARTIFACT, a.to_bytes())
+                self._analyses[job.world] = a
+            job.summary = a.summary(w)
+            job.status, job.stage, job.progress = "done", "done", 1.0
+        except InvalidInput as e:
+            job.status, job.error = "failed", {"detail": str(e), "field": e.field}
+        except Exception as e:  # noqa: BLE001 - reported on the job, logged here
+            log.exception("learning job %s failed", job.id)
+            job.status, job.error = "failed", {"detail": f"{type(e).__name__}: {e}",
+                                               "field": None}
+
+    def summary(self, world: str) -> dict[str, Any]:
+        return self.analysis(world).summary(self.worlds.model(world))
+
+    # -- localization ---------------------------------------------------------------------
+    def _check_turn(self, a: EigenspaceAnalysis, images: np.ndarray) -> np.ndarray:
+        n = len(a.model.directions)
+        if images.ndim != 3 or len(images) != n:
+            raise InvalidInput(f"one full turn is {n} images (relative headings 2*pi*j/{n}); "
+                               f"got {len(images) if images.ndim else 0}", field="images")
+        return a.model.check_images(images)
+
+    async def _transition(self, world: str, state: dict[str, Any], triplets: list[int],
+                          unique: bool) -> dict[str, Any]:
+        r = await self.kb.acall("eigenspace_transition", world=world, state=state,
+                                triplets=triplets, unique=unique)
+        return dict(r)
+
+    def _report(self, a: EigenspaceAnalysis, st: SessionState, state: dict[str, Any],
+                outcome: str) -> dict[str, Any]:
+        s = st.session
+        vote = s.vote()
+        cands = []
+        for cluster in vote.clusters[:10]:
+            best = max(cluster, key=lambda i: s.weight[i])
+            p = s.current_pose(best)
+            cands.append({"pose": {"x": float(p[0]), "y": float(p[1]), "theta": float(p[2])},
+                          "votes": float(vote.votes[best]), "triplet": s.triplet[best],
+                          "members": len(cluster)})
+        pose = None
+        if state.get("state") == "z" and vote.winner is not None:
+            p = s.current_pose(vote.winner)
+            pose = {"x": float(p[0]), "y": float(p[1]), "theta": float(p[2])}
+        return {"state": state, "outcome": outcome, "pose": pose, "stops": s.stops,
+                "unique": vote.unique, "candidates": cands}
+
+    async def localize(self, world: str, images: np.ndarray) -> dict[str, Any]:
+        """One stop from state X: state, pose (when Z) and candidates."""
+        a = self.analysis(world)
+        imgs = self._check_turn(a, images)
+        st = SessionState(world, Session(a.config.localization))
+        cands = await asyncio.to_thread(turn_candidates, a.regions, imgs)
+        st.session.add_stop(cands, a.config.regions.d_thd_m)
+        vote = st.session.vote()
+        r = await self._transition(world, st.state, st.session.stop_triplets(0), vote.unique)
+        return self._report(a, st, r["state"], r["outcome"])
+
+    async def create_session(self, world: str) -> dict[str, Any]:
+        a = self.analysis(world)
+        st = SessionState(world, Session(a.config.localization))
+        sid = uuid.uuid4().hex
+        async with self._session_lock:
+            with self.store.transaction() as conn:
+                self.store.put_session(conn, sid, world, st.to_dict())
+        return {"id": sid, "world": world, "state": st.state, "stops": 0}
+
+    def _session(self, world: str, sid: str) -> SessionState:
+        self.worlds.model(world)
+        row = self.store.session(sid)
+        if row is None or row[0] != world:
+            raise NotFound(f"no localization session {sid!r} in world {world!r}",
+                           field="session")
+        return SessionState.from_dict(world, row[1])
+
+    async def session(self, world: str, sid: str) -> dict[str, Any]:
+        st = self._session(world, sid)
+        out = self._report(self.analysis(world), st, st.state,
+                           st.history[-1]["outcome"] if st.history else "none")
+        return {"id": sid, **out}
+
+    async def add_stop(self, world: str, sid: str, images: np.ndarray,
+                       motion: np.ndarray | None) -> dict[str, Any]:
+        """A stop: images of one full turn and the odometry (dx, dy, dtheta) since the
+        previous stop's start, in that stop's frame."""
+        a = self.analysis(world)
+        imgs = self._check_turn(a, images)
+        cands = await asyncio.to_thread(turn_candidates, a.regions, imgs)
+        async with self._session_lock:  # read-modify-write of one session at a time
+            st = self._session(world, sid)
+            if st.session.stops > 0 and motion is None:
+                raise InvalidInput("odometry since the previous stop is required after the "
+                                   "first stop", field="odometry")
+            st.session.add_stop(cands, a.config.regions.d_thd_m, motion)
+            vote = st.session.vote()
+            k = st.session.stops - 1
+            r = await self._transition(world, st.state, st.session.stop_triplets(k),
+                                       vote.unique)
+            st.state = r["state"]
+            st.history.append({"stop": k, "outcome": r["outcome"], "state": r["state"]})
+            with self.store.transaction() as conn:
+                self.store.put_session(conn, sid, world, st.to_dict())
+        return {"id": sid, **self._report(a, st, st.state, r["outcome"])}
+
+    async def next_move(self, world: str, sid: str) -> dict[str, Any]:
+        """The movement strategy's action (alpha, l, beta) and its Q(Z) (§3.5)."""
+        a = self.analysis(world)
+        st = self._session(world, sid)
+        w = self.worlds.model(world)
+        if st.state.get("state") == "z":
+            return {"state": st.state, "action": None, "q_z": 1.0}
+        cfg = a.config.strategy
+        layout = a.layout(w)
+        s = st.session
+        if st.state.get("state") == "x" or not s.pose0:
+            # samples of where stop 0 may have been, weighted by having stayed in X so far
+            poses0 = initial_samples(w.sample_free, cfg.n_samples,
+                                     np.random.default_rng(a.config.seed + 11))
+            weight = np.ones(len(poses0))
+            for o in s.odometry:
+                weight *= np.prod(1.0 - layout.entry_probabilities(compose(poses0, o)[:, :2]),
+                                  axis=1)
+            if weight.sum() <= 0:
+                weight = np.ones(len(poses0))
+            now = compose(poses0, s.odometry[-1]) if s.odometry else poses0
+            belief = StateBelief.start(len(now), layout.n_sets, weight)
+        else:
+            vote = s.vote()
+            reps = [max(c, key=lambda i: s.weight[i]) for c in vote.clusters]
+            now = np.array([s.current_pose(i) for i in reps])
+            belief = StateBelief.start(len(now), layout.n_sets, vote.votes[reps])
+            m = st.state.get("set")
+            if isinstance(m, int) and 1 <= m <= layout.n_sets:
+                belief.x[:] = 0.0
+                belief.y[:, m - 1] = 1.0
+        dec = await asyncio.to_thread(choose_action, now, belief, layout, cfg, self.executor)
+        return {"state": st.state,
+                "action": {"alpha_rad": float(dec.action[0]), "l_m": float(dec.action[1]),
+                           "beta_rad": float(dec.action[2])}, "q_z": dec.q_z}
+
+    # -- camera -------------------------------------------------------------------------
+    def render(self, world: str, pose: np.ndarray, config: CameraConfig | None,
+               turn: int | None) -> np.ndarray:
+        w = self.worlds.model(world)
+        if config is None:
+            a = self._analyses.get(world)
+            config = a.config.camera if a is not None else CameraConfig()
+        cam = Camera(w, config)
+        if turn is None:
+            return cam.render(pose)[None]
+        return cam.render_turn(pose[:2], float(pose[2]), turn)

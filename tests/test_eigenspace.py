@@ -1,0 +1,232 @@
+"""Eigenspace localization (numeric): camera, eqs. 1-7, triplets, states, strategies."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from numeric.camera import Camera, CameraConfig
+from numeric.eigenspace.analysis import EigenspaceAnalysis, EigenspaceConfig, analyse
+from numeric.eigenspace.interpolation import affine_weights, interpolate_pose
+from numeric.eigenspace.learning import f_d
+from numeric.eigenspace.learning_strategy import hypothetical_gain
+from numeric.eigenspace.localization import LocalizationConfig, Session, turn_candidates
+from numeric.eigenspace.movement_strategy import (
+    RegionLayout,
+    StateBelief,
+    StrategyConfig,
+    apply_action,
+    choose_action,
+    transition,
+)
+from numeric.eigenspace.regions import EntryModel, fit_c_a, fit_entry_model
+from numeric.eigenspace.triplets import TripletConfig
+from numeric.geometry import compose, relative, wrap_angle
+from numeric.world import Wall, World, WorldDescription
+from numeric.worlds import room_a, room_b, room_c, room_d
+
+SMALL = {"camera": {"width_px": 32, "height_px": 16}, "learning": {"k": 12},
+         "entry": {"samples": 30}, "regions": {"calibration_per_triplet": 2}}
+
+
+@pytest.fixture(scope="module")
+def room() -> World:
+    return World(room_a())
+
+
+@pytest.fixture(scope="module")
+def analysis(room: World) -> EigenspaceAnalysis:
+    return analyse(room, EigenspaceConfig.model_validate(SMALL))
+
+
+# -- camera ---------------------------------------------------------------------------------
+def corridor(texture: str = "camera") -> World:
+    return World(WorldDescription(name="c", walls=[
+        Wall(a=(10, -5), b=(10, 5), texture=texture), Wall(a=(0, -5), b=(0, 5)),
+        Wall(a=(0, -5), b=(10, -5)), Wall(a=(0, 5), b=(10, 5))]))
+
+
+def wall_rows(img: np.ndarray, cfg: CameraConfig) -> int:
+    """Rows of the centre column that show neither floor nor ceiling."""
+    col = img[:, img.shape[1] // 2]
+    return int(np.sum((np.abs(col - cfg.floor_level) > 1e-6)
+                      & (np.abs(col - cfg.ceiling_level) > 1e-6)))
+
+
+def test_camera_perspective_scales_with_inverse_distance() -> None:
+    cfg = CameraConfig(width_px=64, height_px=64, supersample=1, wall_height_m=1.5,
+                       camera_height_m=0.75, hfov_rad=np.deg2rad(90))
+    cam = Camera(corridor(), cfg)
+    near = wall_rows(cam.render(np.array([6.0, 0.0, 0.0])), cfg)   # 4 m from the wall
+    far = wall_rows(cam.render(np.array([2.0, 0.0, 0.0])), cfg)    # 8 m
+    assert far > 0
+    assert near / far == pytest.approx(2.0, rel=0.15)
+
+
+def test_camera_images_in_range_and_deterministic(room: World) -> None:
+    cam = Camera(room)
+    a = cam.render_turn(np.array([3.0, 3.0]), 0.2, 8)
+    b = cam.render_many(np.column_stack([np.full(8, 3.0), np.full(8, 3.0),
+                                         0.2 + 2 * np.pi * np.arange(8) / 8]))
+    assert a.shape == (8, 32, 64) and 0 <= a.min() and a.max() <= 1
+    np.testing.assert_allclose(a, b)
+    assert np.std(a[0]) > 0.05  # a photograph, not a flat wall
+
+
+def test_camera_sees_objects_and_lighting() -> None:
+    a, d = World(room_a()), World(room_d())
+    pose = np.array([5.0, 5.0, np.pi / 2])  # looking at the north wall (poster in D)
+    ia, id_ = Camera(a).render(pose), Camera(d).render(pose)
+    assert np.abs(ia - id_).mean() > 0.02
+    for f in (room_b, room_c):
+        assert len(World(f()).surfaces.a) > len(a.surfaces.a)
+
+
+def test_unknown_texture_rejected() -> None:
+    with pytest.raises(ValueError, match="unknown texture"):
+        Wall(a=(0, 0), b=(1, 0), texture="no_such_photo")
+
+
+# -- eqs. 1-5 -------------------------------------------------------------------------------
+def test_eq2_difference_is_rms_of_projection_difference() -> None:
+    a, b = np.zeros(4), np.array([2.0, 0, 0, 0])
+    assert f_d(a, b, 16) == pytest.approx(2.0 / 4.0)
+
+
+def test_learning_projection_reproduces_stored_projections(analysis: EigenspaceAnalysis,
+                                                           room: World) -> None:
+    m = analysis.model
+    cam = Camera(room, analysis.config.camera)
+    imgs = cam.render_turn(m.points[3], 0.0, len(m.directions))
+    np.testing.assert_allclose(m.project(imgs), m.projections[3], atol=1e-9)
+
+
+def test_interpolation_recovers_affine_weights_and_wraps_theta() -> None:
+    rng = np.random.default_rng(0)
+    x3 = rng.normal(size=(3, 6))
+    k = np.array([0.2, 0.5, 0.3])
+    x = k @ x3 + 0.0
+    np.testing.assert_allclose(affine_weights(x, x3), k, atol=1e-9)
+    s3 = np.array([[0, 0, np.pi - 0.1], [1, 0, -np.pi + 0.1], [0, 1, np.pi - 0.1]])
+    s = interpolate_pose(np.array([0.25, 0.5, 0.25]), s3)
+    assert s[0] == pytest.approx(0.5) and s[1] == pytest.approx(0.25)
+    assert abs(wrap_angle(s[2] - np.pi)) < 1e-9  # the mean of +-(pi - 0.1) is pi, not 0
+
+
+def test_compose_and_relative_are_inverse() -> None:
+    p, d = np.array([1.0, 2.0, 2.5]), np.array([0.5, -0.3, 1.0])
+    np.testing.assert_allclose(relative(p, compose(p, d)), d, atol=1e-12)
+
+
+# -- §2.3 triplets, §2.4 regions --------------------------------------------------------------
+def test_triplets_satisfy_the_search_conditions(analysis: EigenspaceAnalysis) -> None:
+    m, t = analysis.model, analysis.triplets
+    cfg = TripletConfig()
+    assert len(t) > 10
+    for i in range(len(t)):
+        pts, th = m.points[t.point_idx[i]], m.directions[t.dir_idx[i]]
+        dmax = max(np.linalg.norm(pts[a] - pts[b]) for a in range(3) for b in range(3))
+        assert dmax <= cfg.neighbour_max_m + 1e-9
+        # all three rays pass within D_alpha of the common target, in front of the points
+        for p, a in zip(pts, th, strict=True):
+            u = np.array([np.cos(a), np.sin(a)])
+            v = t.target[i] - p
+            assert v @ u > 0
+            assert abs(u[0] * v[1] - u[1] * v[0]) <= cfg.d_alpha_m
+        assert max(abs(wrap_angle(th[0] - th[1])), abs(wrap_angle(th[0] - th[2]))) \
+            < cfg.theta_alpha_rad
+
+
+def test_learning_image_of_a_triplet_lies_in_its_region(analysis: EigenspaceAnalysis) -> None:
+    m, t = analysis.model, analysis.triplets
+    w, j = t.point_idx[0, 1], t.dir_idx[0, 1]
+    imgs_proj = m.projections[w]  # the learning turn at w
+    from numeric.eigenspace.regions import region_candidates
+
+    c = region_candidates(m, t, imgs_proj, analysis.c_a, analysis.config.regions.d_thd_m)
+    hit = (c.t == 0) & (c.m == j)
+    assert hit.any() and c.d[hit][0] == pytest.approx(0.0, abs=1e-9)
+    np.testing.assert_allclose(c.pose[hit][0], [*m.points[w], m.directions[j]], atol=1e-6)
+
+
+def test_fits_recover_known_constants() -> None:
+    rng = np.random.default_rng(1)
+    d, area = rng.uniform(0, 0.1, 200), rng.uniform(1, 4, 200)
+    assert fit_c_a(d, area, 5.0 * d / np.sqrt(area)) == pytest.approx(5.0)
+    dist = rng.uniform(0, 3, (400, 3))
+    entered = rng.random((400, 3)) < np.clip(0.8 - 0.3 * dist, 0, 1)
+    e = fit_entry_model(dist, entered, 3.0)
+    assert e.c0 == pytest.approx(0.8, abs=0.12) and e.c1 == pytest.approx(-0.3, abs=0.08)
+
+
+# -- §2.5 localization ------------------------------------------------------------------------
+def test_multi_stop_localization_in_room_a(analysis: EigenspaceAnalysis, room: World) -> None:
+    """Seeded trials: the voted pose is close to the truth when the vote is unique."""
+    rng = np.random.default_rng(3)
+    cam = Camera(room, analysis.config.camera.model_copy(update={"noise_sigma": 0.01}), rng=rng)
+    n = len(analysis.model.directions)
+    errors = []
+    for p in room.sample_free(12, rng, clearance_m=0.8):
+        pose = np.array([*p, rng.uniform(-np.pi, np.pi)])
+        s = Session(LocalizationConfig())
+        for _stop in range(3):
+            c = turn_candidates(analysis.regions, cam.render_turn(pose[:2], pose[2], n))
+            s.add_stop(c, analysis.config.regions.d_thd_m, motion=None if s.stops == 0
+                       else relative(prev, pose))  # noqa: F821 - prev set below
+            v = s.vote()
+            if v.unique and v.winner is not None:
+                errors.append(np.linalg.norm(s.current_pose(v.winner)[:2] - pose[:2]))
+                break
+            prev = pose.copy()
+            pose = apply_action(pose[None], np.array([0.0, 1.0, 0.0]),
+                                (room.surfaces.a, room.surfaces.b), 0.3)[0]
+    assert len(errors) >= 6
+    assert np.median(errors) < 1.0
+
+
+# -- §3.5 movement strategy -------------------------------------------------------------------
+def layout_one_region(xy: tuple[float, float], walls: World,
+                      entry: EntryModel = EntryModel(1.0, -1.0)) -> RegionLayout:
+    pts = np.array([[xy, (xy[0] + 0.5, xy[1]), (xy[0], xy[1] + 0.5)]], dtype=float)
+    return RegionLayout(entry, pts, np.array([-1]),
+                        (walls.surfaces.a, walls.surfaces.b))
+
+
+def test_state_probabilities_sum_to_one_and_z_absorbs(room: World) -> None:
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(1, 9, (6, 3, 2))
+    lay = RegionLayout(EntryModel(0.6, -0.3), pts, np.array([0, 0, 1, 1, -1, -1]),
+                       (room.surfaces.a, room.surfaces.b))
+    b = StateBelief.start(50, lay.n_sets)
+    for _ in range(3):
+        b = transition(b, lay.entry_probabilities(rng.uniform(1, 9, (50, 2))), lay)
+        np.testing.assert_allclose(b.x + b.y.sum(axis=1) + b.z, 1.0, atol=1e-12)
+    z = StateBelief(np.zeros(5), np.zeros((5, 2)), np.ones(5), np.full(5, 0.2))
+    assert transition(z, np.zeros((5, 6)), lay).p_z() == pytest.approx(1.0)
+    x = StateBelief.start(5, 2)
+    assert transition(x, np.zeros((5, 6)), lay).p_z() == pytest.approx(0.0)
+
+
+def test_strategy_drives_towards_the_only_region(room: World) -> None:
+    lay = layout_one_region((6.3, 5.0), room)
+    poses = np.array([[2.0, 5.0, np.pi / 2]])  # facing north; the region is east
+    dec = choose_action(poses, StateBelief.start(1, 0), lay, StrategyConfig())
+    assert dec.action[0] == pytest.approx(-np.pi / 2)  # turn right ...
+    assert dec.action[1] == pytest.approx(4.0)          # ... and drive as far as allowed
+    assert 0.0 < dec.q_z < 1.0
+
+
+def test_hypothetical_gain_prefers_uncovered_space(room: World) -> None:
+    lay = layout_one_region((2.0, 2.0), room, EntryModel(1.0, -0.25))  # 2 m radius
+    pts = np.array([[1, 1], [3, 1], [1, 3], [3, 3], [7, 7], [9, 7], [7, 9]], dtype=float)
+    grid = np.array([(x, y) for x in np.arange(0.5, 10, 0.5) for y in np.arange(0.5, 10, 0.5)])
+    g = hypothetical_gain(lay, pts, np.array([[2.0, 2.0], [8.0, 8.0], [5.0, 0.5]]), grid,
+                          2.9, 0.05)
+    assert g[1] > g[0] > 0  # around (2, 2) much is covered already
+    assert g[2] == 0  # (5, 0.5) has no neighbour pair within 2.9 m
+
+
+def test_analysis_roundtrip(analysis: EigenspaceAnalysis, room: World) -> None:
+    b = EigenspaceAnalysis.from_bytes(analysis.to_bytes())
+    assert b.summary(room)["triplets"] == analysis.summary(room)["triplets"]
+    np.testing.assert_array_equal(b.model.projections, analysis.model.projections)
