@@ -35,6 +35,7 @@ test: install
 
 bench: install
 	$(PY) tests/bench/run.py
+	$(PY) tests/bench/eigenspace.py
 
 lint: install
 	$(VENV)/bin/ruff check numeric service tests

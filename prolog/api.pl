@@ -20,6 +20,7 @@
 :- use_module(params).
 :- use_module(qualitative).
 :- use_module(drm).
+:- use_module(eigenspace).
 :- use_module(query).
 :- use_module(loader, [message_text/2]).
 
@@ -176,10 +177,43 @@ run(params, Args, _{rule_probabilities:RPs, parameters:Ps}) :-
 run(facts, Args, Facts) :-
     existing_world(Args, W), world_module(W, M),
     findall(S, ( member(N/A, [landmark/1, rec/2, frec/3, lr/3, align/4, rea/2,
-                              rule_probability/2, parameter/2]),
+                              rule_probability/2, parameter/2,
+                              eig_point/3, eig_triplet/4, eig_candidate_set/2]),
                  functor(H, N, A), M:H,
                  format(string(S), "~k", [H]) ),
             Facts).
+
+run(eigenspace_facts, Args, _{world:W, points:NP, triplets:NT, candidate_sets:NS}) :-
+    existing_world(Args, W),
+    arg_(points, Args, Ps0), json_list(Ps0, points),
+    foldl(eig_point_item, Ps0, Ps, 0, NP),
+    arg_(triplets, Args, Ts0), json_list(Ts0, triplets),
+    foldl(eig_triplet_item(NP), Ts0, Ts, 0, NT),
+    arg_(candidate_sets, Args, Ss0), json_list(Ss0, candidate_sets),
+    foldl(eig_set_item(NT), Ss0, Sss, 0, NS),
+    append(Sss, MFs),
+    foldl(eig_set_disjoint, MFs, [], _),
+    pairs_keys(MFs, Ms),
+    append([Ps, Ts, Ms], Facts),
+    replace_eigenspace_facts(W, Facts).
+
+run(eigenspace_transition, Args, _{outcome:ON, sets:Sets, state:SJ}) :-
+    existing_world(Args, W),
+    arg_(state, Args, SJ0), json_state(W, SJ0, Prev),
+    arg_(triplets, Args, Ts),
+    arg_(unique, Args, U),
+    stop_outcome(W, Ts, U, Outcome),
+    next_state(Prev, Outcome, Next),
+    outcome_json(Outcome, ON, Sets),
+    state_json(Next, SJ).
+
+run(eigenspace_covering, Args, Cs) :-
+    existing_world(Args, W),
+    arg_(x, Args, X), finite_number(X, x),
+    arg_(y, Args, Y), finite_number(Y, y),
+    findall(_{triplet:T, distance_m:D},
+            ( covers(W, T, X, Y), triplet_distance(W, T, X, Y, D) ),
+            Cs).
 
 dict_pairs_or_empty(Args, Key, Pairs) :-
     (   get_dict(Key, Args, D), is_dict(D) -> dict_pairs(D, _, Pairs) ; Pairs = [] ).
@@ -191,7 +225,10 @@ seen_item(W, At, S, seen(L, Fs), I0, I) :-
     (   L == At -> throw(chizu_error(self_observation(L), F)) ; true ),
     (   get_dict(features, S, Fs0) -> true ; Fs0 = [] ),
     field("seen[~d].features", [I0], FF),
-    maplist([T, A]>>id_field(T, FF, A), Fs0, Fs).
+    maplist(feature_id(FF), Fs0, Fs).
+
+%   Not a yall lambda: a compiled lambda would not see the bound FF.
+feature_id(Field, Text, Id) :- id_field(Text, Field, Id).
 
 angle_item(W, At, [T1, T2, D], angle(L1, At, L2, D)) :-
     known_landmark(W, T1, angles, L1), known_landmark(W, T2, angles, L2),
@@ -199,6 +236,102 @@ angle_item(W, At, [T1, T2, D], angle(L1, At, L2, D)) :-
 distance_item(W, At, [T, D], distance(At, L, D)) :-
     known_landmark(W, T, distances, L),
     (   number(D) -> true ; throw(chizu_error(invalid_distance(D), distances)) ).
+
+json_list(L, Field) :-
+    (   is_list(L) -> true ; throw(chizu_error(invalid_list, Field)) ).
+
+finite_number(V, Field) :-
+    (   number(V), catch(F is float(V), _, fail), float_class(F, C),
+        memberchk(C, [zero, subnormal, normal])
+    ->  true
+    ;   throw(chizu_error(invalid_number(V), Field))
+    ).
+
+finite_float(Field, V, F) :-
+    finite_number(V, Field),
+    F is float(V).
+
+%   An index into a list of N items (JSON integers only, not 1.0).
+index_in(I, N, Unknown, Field) :-
+    (   integer(I), I >= 0 -> true ; throw(chizu_error(invalid_index(I), Field)) ),
+    (   I < N -> true ; E =.. [Unknown, I], throw(chizu_error(E, Field)) ).
+
+eig_point_item(P, eig_point(I, X, Y), I, I1) :-
+    I1 is I + 1,
+    field("points[~d]", [I], F),
+    (   P = [X0, Y0] -> true ; throw(chizu_error(invalid_point, F)) ),
+    finite_number(X0, F), finite_number(Y0, F),
+    X is float(X0), Y is float(Y0).
+
+eig_triplet_item(NP, D, eig_triplet(T, Ps, Ds, A), T, T1) :-
+    T1 is T + 1,
+    field("triplets[~d]", [T], F),
+    (   is_dict(D) -> true ; throw(chizu_error(invalid_triplet, F)) ),
+    field("triplets[~d].points", [T], FP),
+    field("triplets[~d].directions_rad", [T], FD),
+    field("triplets[~d].area_m2", [T], FA),
+    (   get_dict(points, D, Ps) -> true ; throw(chizu_error(missing(points), FP)) ),
+    (   is_list(Ps), length(Ps, 3) -> true ; throw(chizu_error(invalid_length(3), FP)) ),
+    forall(member(P, Ps), index_in(P, NP, unknown_point, FP)),
+    (   sort(Ps, [_, _, _]) -> true ; throw(chizu_error(duplicate_point, FP)) ),
+    (   get_dict(directions_rad, D, Ds0) -> true ; throw(chizu_error(missing(directions_rad), FD)) ),
+    (   is_list(Ds0), length(Ds0, 3) -> true ; throw(chizu_error(invalid_length(3), FD)) ),
+    maplist(finite_float(FD), Ds0, Ds),
+    (   get_dict(area_m2, D, A0) -> true ; throw(chizu_error(missing(area_m2), FA)) ),
+    finite_number(A0, FA),
+    (   A0 >= 0 -> A is float(A0) ; throw(chizu_error(invalid_area(A0), FA)) ).
+
+%   Set ids are list positions + 1.
+eig_set_item(NT, S, Facts, I, I1) :-
+    I1 is I + 1,
+    field("candidate_sets[~d]", [I], F),
+    (   is_list(S), S \== [] -> true ; throw(chizu_error(invalid_set, F)) ),
+    foldl(eig_set_member(NT, I), S, Facts, 0, _).
+
+eig_set_member(NT, I, T, eig_candidate_set(M, T)-F, J, J1) :-
+    J1 is J + 1,
+    M is I + 1,
+    field("candidate_sets[~d][~d]", [I, J], F),
+    index_in(T, NT, unknown_triplet, F).
+
+%   Every triplet is in at most one candidate set.
+eig_set_disjoint(eig_candidate_set(_, T)-F, Seen, [T|Seen]) :-
+    (   memberchk(T, Seen) -> throw(chizu_error(duplicate_triplet(T), F)) ; true ).
+
+%   {"state": "x"} | {"state": "y", "set": M | "unlisted"} | {"state": "z"}
+json_state(W, D, State) :-
+    (   is_dict(D), get_dict(state, D, K), string(K) -> true
+    ;   throw(chizu_error(invalid_state, state))
+    ),
+    (   K == "x" -> State = x, no_set(D)
+    ;   K == "z" -> State = z, no_set(D)
+    ;   K == "y"
+    ->  (   get_dict(set, D, S) -> true ; throw(chizu_error(missing(set), 'state.set')) ),
+        (   S == "unlisted"
+        ->  State = y(unlisted)
+        ;   integer(S), S >= 1
+        ->  world_module(W, M),
+            (   M:eig_candidate_set(S, _) -> State = y(S)
+            ;   throw(chizu_error(unknown_set(S), 'state.set'))
+            )
+        ;   throw(chizu_error(invalid_set(S), 'state.set'))
+        )
+    ;   throw(chizu_error(invalid_state(K), 'state.state'))
+    ).
+
+no_set(D) :-
+    (   get_dict(set, D, S), S \== null -> throw(chizu_error(unexpected(set), 'state.set')) ; true ).
+
+state_json(x, _{state:"x"}).
+state_json(z, _{state:"z"}).
+state_json(y(unlisted), _{state:"y", set:"unlisted"}) :- !.
+state_json(y(M), _{state:"y", set:M}).
+
+outcome_json(none, "none", []).
+outcome_json(unique, "unique", []).
+outcome_json(unlisted, "unlisted", []).
+outcome_json(in_set(M), "in_set", [M]).
+outcome_json(across(Ms), "across", Ms).
 
 relation_kind(rec).
 relation_kind(frec).

@@ -272,7 +272,13 @@ test(transition_op, [nondet, cleanup(drop_world(e26))]) :-
     R4.result = _{outcome:"across", sets:[1, 2], state:_{state:"z"}},
     call_api(eigenspace_transition, _{world:"e26", state:_{state:"y", set:2},
                                       triplets:[], unique:true}, R5),
-    R5.result = _{outcome:"none", sets:[], state:_{state:"y", set:2}}.
+    R5.result = _{outcome:"none", sets:[], state:_{state:"y", set:2}},
+    call_api(eigenspace_transition, _{world:"e26", state:_{state:"y", set:"unlisted"},
+                                      triplets:[], unique:false}, R6),
+    R6.result = _{outcome:"none", sets:[], state:_{state:"y", set:"unlisted"}},
+    call_api(eigenspace_transition, _{world:"e26", state:_{state:"z", set:null},
+                                      triplets:[4], unique:false}, R7),
+    R7.result = _{outcome:"unlisted", sets:[], state:_{state:"z"}}.
 test(transition_op_errors, [nondet, cleanup(drop_world(e27))]) :-
     fixture(e27),
     T = _{world:"e27", state:_{state:"x"}, triplets:[0], unique:false},

@@ -93,6 +93,7 @@ class EigenspaceService:
         self._jobs: dict[str, Job] = {}
         self._tasks: set[asyncio.Task[None]] = set()
         self._session_lock = asyncio.Lock()
+        worlds.on_delete.append(lambda name: self._analyses.pop(name, None))
 
     def restore(self) -> int:
         """Load stored analyses and assert their facts (start-up)."""
@@ -150,8 +151,16 @@ class EigenspaceService:
             async with self.worlds._write:  # same writer lock as every other mutation
                 self.worlds.model(job.world)  # deleted meanwhile -> NotFound
                 await self.kb.acall("eigenspace_facts", **facts_call(job.world, a))
-                with self.store.transaction() as conn:
-                    self.store.put_artifact(conn, job.world, ARTIFACT, a.to_bytes())
+                try:
+                    with self.store.transaction() as conn:
+                        self.store.put_artifact(conn, job.world, ARTIFACT, a.to_bytes())
+                except BaseException:  # keep the knowledge base in step with the store
+                    old = self._analyses.get(job.world)
+                    await self.kb.acall("eigenspace_facts", **(
+                        facts_call(job.world, old) if old is not None else
+                        {"world": job.world, "points": [], "triplets": [],
+                         "candidate_sets": []}))
+                    raise
                 self._analyses[job.world] = a
             job.summary = a.summary(w)
             job.status, job.stage, job.progress = "done", "done", 1.0
@@ -289,6 +298,10 @@ class EigenspaceService:
         return {"state": st.state,
                 "action": {"alpha_rad": float(dec.action[0]), "l_m": float(dec.action[1]),
                            "beta_rad": float(dec.action[2])}, "q_z": dec.q_z}
+
+    async def covering(self, world: str, x: float, y: float) -> list[dict[str, Any]]:
+        self.analysis(world)
+        return list(await self.kb.acall("eigenspace_covering", world=world, x=x, y=y))
 
     # -- camera -------------------------------------------------------------------------
     def render(self, world: str, pose: np.ndarray, config: CameraConfig | None,

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+from collections.abc import Callable
 from typing import Any
 
 import networkx as nx
@@ -60,7 +61,8 @@ def resolve_description(desc: WorldDescription) -> WorldDescription:
 
 
 _READ_ONLY = frozenset({"worlds", "landmarks", "relations", "drm", "facts", "params",
-                        "engine", "query"})
+                        "engine", "query", "eigenspace_transition",
+                        "eigenspace_covering"})
 
 
 class WorldService:
@@ -71,6 +73,8 @@ class WorldService:
         # DRM graphs per world, tagged with the world's version (bumped on every change)
         self._drm_graphs: dict[str, tuple[int, nx.DiGraph]] = {}
         self._versions: dict[str, int] = {}
+        #: called with the world's name after it is deleted (caches elsewhere drop it)
+        self.on_delete: list[Callable[[str], None]] = []
 
     # -- start-up ----------------------------------------------------------------------
     def restore(self) -> int:
@@ -158,6 +162,8 @@ class WorldService:
             with self.store.transaction() as conn:
                 self.store.delete_world(conn, name)
             self._models.pop(name, None)
+            for hook in self.on_delete:
+                hook(name)
             try:
                 await self._kb("drop_world", {"world": name})
             except KbError:

@@ -5,10 +5,10 @@ from __future__ import annotations
 import base64
 import binascii
 import io
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
-from fastapi import APIRouter, Response, status
+from fastapi import APIRouter, Query, Response, status
 from PIL import Image, UnidentifiedImageError
 
 from numeric.eigenspace.analysis import EigenspaceConfig
@@ -74,6 +74,14 @@ async def get_job(world: WorldName, job_id: str, eig: EigenspaceDep) -> dict[str
 async def get_eigenspace(world: WorldName, eig: EigenspaceDep) -> dict[str, Any]:
     """Summary of the learned eigenspace: images, K, triplets, region coverage."""
     return eig.summary(world)
+
+
+@router.get("/eigenspace/covering")
+async def get_covering(world: WorldName, eig: EigenspaceDep,
+                       x: Annotated[float, Query(allow_inf_nan=False)],
+                       y: Annotated[float, Query(allow_inf_nan=False)]) -> list[dict[str, Any]]:
+    """Triplets whose triangle of learning points covers (x, y), with D(s) (Prolog rules)."""
+    return await eig.covering(world, x, y)
 
 
 @router.post("/localize")

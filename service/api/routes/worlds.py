@@ -29,3 +29,9 @@ async def get_world(world: WorldName, worlds: WorldsDep) -> WorldDescription:
 @router.delete("/{world}", status_code=status.HTTP_204_NO_CONTENT)
 async def delete_world(world: WorldName, worlds: WorldsDep) -> None:
     await worlds.delete(world)
+
+
+@router.get("/{world}/facts")
+async def get_facts(world: WorldName, worlds: WorldsDep) -> list[str]:
+    """Every fact the knowledge base holds for the world (as Prolog text)."""
+    return await worlds.facts(world)

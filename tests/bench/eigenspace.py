@@ -1,0 +1,278 @@
+"""Eigenspace localization benchmark: the paper's Table 1, Table 2, Fig. 6 and §5.4 in the
+simulator, plus speed ratios.  Writes bench-out/eigenspace.md and bench-out/fig6.png.
+
+    .venv/bin/python tests/bench/eigenspace.py [--quick]
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from numeric.camera import Camera, CameraConfig  # noqa: E402
+from numeric.eigenspace.analysis import (  # noqa: E402
+    EigenspaceAnalysis,
+    EigenspaceConfig,
+    analyse,
+)
+from numeric.eigenspace.learning import LearningConfig, learn, learning_grid  # noqa: E402
+from numeric.eigenspace.learning_strategy import (  # noqa: E402
+    LearningStrategyConfig,
+    learning_strategy,
+)
+from numeric.eigenspace.localization import Session, turn_candidates  # noqa: E402
+from numeric.eigenspace.movement_strategy import (  # noqa: E402
+    StateBelief,
+    apply_action,
+    choose_action,
+    initial_samples,
+)
+from numeric.eigenspace.regions import heading_error, region_candidates  # noqa: E402
+from numeric.geometry import compose, relative, wrap_angle  # noqa: E402
+from numeric.world import World  # noqa: E402
+from numeric.worlds import room_a, room_b, room_c, room_d  # noqa: E402
+
+OUT = Path("bench-out")
+QUICK = "--quick" in sys.argv
+NOISE = 0.01
+
+
+def table1(cfg: EigenspaceConfig, a: EigenspaceAnalysis, rng: np.random.Generator) -> list[str]:
+    """Share of region-entering images whose candidates contain a correct one."""
+    rows = ["| env | triplets | D_thd 0.2 m: success (entered images) | "
+            "D_thd 0.3 m: success (entered images) | per stop, D_thd 0.2 m |", "|---|---|---|---|---|"]
+    n_obs = 20 if QUICK else 60
+    loc = cfg.localization
+    for name, f in (("A", room_a), ("B", room_b), ("C", room_c), ("D", room_d)):
+        w = World(f())
+        if name in "BC":  # own learning, c_a from A (the paper fixes D_thd in A)
+            m = analyse(w, cfg.model_copy(update={"regions": cfg.regions.model_copy(
+                update={"c_a": a.c_a})}))
+            model, tr = m.model, m.triplets
+        else:             # D: learned in A, observed after the changes
+            model, tr = a.model, a.triplets
+        cam = Camera(w, cfg.camera.model_copy(update={"noise_sigma": NOISE}), rng=rng)
+        n = len(model.directions)
+        res = {0.2: [0, 0], 0.3: [0, 0]}
+        stop_ok = [0, 0]
+        for p in w.sample_free(n_obs, rng):
+            th0 = rng.uniform(-np.pi, np.pi)
+            q = model.project(cam.render_turn(p, th0, n))
+            for thd in res:
+                c = region_candidates(model, tr, q, a.c_a, thd)
+                head = th0 + 2 * np.pi * c.m / n
+                ok = ((np.linalg.norm(c.pose[:, :2] - p, axis=1) <= loc.same_position_m)
+                      & (heading_error(c.pose[:, 2], head) <= loc.same_heading_rad))
+                for mi in np.unique(c.m):
+                    res[thd][0] += 1
+                    res[thd][1] += bool(ok[c.m == mi].any())
+                if thd == 0.2 and len(c):
+                    stop_ok[0] += 1
+                    stop_ok[1] += bool(ok.any())
+        cells = [f"{100 * s / max(e, 1):.0f} % ({e}/{n_obs * n})" for e, s in res.values()]
+        rows.append(f"| {name} | {len(tr)} | {cells[0]} | {cells[1]} | "
+                    f"{100 * stop_ok[1] / max(stop_ok[0], 1):.0f} % of {stop_ok[0]} stops |")
+    return rows
+
+
+def run_trial(a: EigenspaceAnalysis, w: World, cam: Camera, pose: np.ndarray,
+              policy: str, rng: np.random.Generator, max_obs: int
+              ) -> tuple[list[bool], np.ndarray | None, dict[str, float]]:
+    """One localization run: entered-yet per observation, final estimate, baseline."""
+    n = len(a.model.directions)
+    s = Session(a.config.localization)
+    lay = a.layout(w)
+    walls = (w.surfaces.a, w.surfaces.b)
+    entered, est = [], None
+    samples0 = initial_samples(w.sample_free, 150, np.random.default_rng(5))
+    prev = pose.copy()
+    base: dict[str, float] = {}
+    for k in range(max_obs):
+        imgs = cam.render_turn(pose[:2], pose[2], n)
+        c = turn_candidates(a.regions, imgs)
+        s.add_stop(c, a.config.regions.d_thd_m, None if k == 0 else relative(prev, pose))
+        entered.append(len(s.pose0) > 0)
+        v = s.vote()
+        if v.unique and v.winner is not None:
+            est = s.current_pose(v.winner)
+            # baseline: the most similar learning image names the position (refs [10, 11])
+            q = a.model.project(imgs)
+            d = np.linalg.norm(a.model.projections[:, :, None, :] - q[None, None], axis=-1)
+            wi, ji, mi = np.unravel_index(np.argmin(d), d.shape)
+            base = {"x": a.model.points[wi][0], "y": a.model.points[wi][1],
+                    "theta": float(wrap_angle(a.model.directions[ji] - 2 * np.pi * mi / n))}
+            break
+        if policy == "strategy":
+            now = compose(samples0, s.odometry[-1])
+            wt = np.ones(len(now))
+            for o in s.odometry:
+                wt *= np.prod(1 - lay.entry_probabilities(compose(samples0, o)[:, :2]), axis=1)
+            if s.pose0:  # in Y: the candidates are the samples
+                reps = [max(cl, key=lambda i: s.weight[i]) for cl in v.clusters]
+                now = np.array([s.current_pose(i) for i in reps])
+                wt = v.votes[reps]
+            act = choose_action(now, StateBelief.start(len(now), lay.n_sets, wt + 1e-12), lay,
+                                a.config.strategy).action
+        else:
+            act = np.array([rng.uniform(-np.pi, np.pi), rng.uniform(0.5, 4.0), 0.0])
+        prev = pose.copy()
+        pose = apply_action(pose[None], act, walls, 0.3)[0]
+    return entered, (None if est is None else np.append(est, 0)[:3]), {**base, "x_true": pose[0],
+                                                                       "y_true": pose[1],
+                                                                       "t_true": pose[2]}
+
+
+def table2_fig6(a: EigenspaceAnalysis, w: World, rng: np.random.Generator
+                ) -> tuple[list[str], list[str]]:
+    cam = Camera(w, a.config.camera.model_copy(update={"noise_sigma": NOISE}), rng=rng)
+    seeds = 2 if QUICK else 3
+    trials = 15 if QUICK else 40
+    max_obs = 5
+    curves: dict[str, list[np.ndarray]] = {"strategy": [], "random": []}
+    errs: list[tuple[float, float, float, float]] = []
+    for seed in range(seeds):
+        r = np.random.default_rng(100 + seed)
+        starts = [np.array([*p, r.uniform(-np.pi, np.pi)]) for p in w.sample_free(trials, r)]
+        for policy in ("strategy", "random"):
+            hits = np.zeros(max_obs)
+            for p0 in starts:
+                entered, est, info = run_trial(a, w, cam, p0.copy(), policy, r, max_obs)
+                e = np.array(entered + [entered[-1]] * (max_obs - len(entered)), dtype=float)
+                hits += np.maximum.accumulate(e)
+                if est is not None and policy == "strategy":
+                    truth = np.array([info["x_true"], info["y_true"], info["t_true"]])
+                    errs.append((float(np.linalg.norm(est[:2] - truth[:2])),
+                                 float(np.hypot(info["x"] - truth[0], info["y"] - truth[1])),
+                                 float(np.rad2deg(heading_error(est[2], truth[2]))),
+                                 float(np.rad2deg(heading_error(info["theta"], truth[2])))))
+            curves[policy].append(hits / len(starts))
+    e = np.array(errs)
+    ratio = e[:, 0].mean() / e[:, 1].mean()
+    t2 = ["| method | position error [m] | direction error [deg] |", "|---|---|---|",
+          f"| nearest learning image | {e[:, 1].mean():.3f} ± {e[:, 1].std():.3f} | "
+          f"{e[:, 3].mean():.1f} ± {e[:, 3].std():.1f} |",
+          f"| proposed (interpolation in the voted triplet) | {e[:, 0].mean():.3f} ± "
+          f"{e[:, 0].std():.3f} | {e[:, 2].mean():.1f} ± {e[:, 2].std():.1f} |",
+          "", f"{len(e)} localized runs; position-error ratio proposed/nearest = {ratio:.2f} "
+          f"(goal <= 0.45; paper 0.53); learning points {len(a.model.points)}."]
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    x = np.arange(1, max_obs + 1)
+    for policy, style in (("strategy", "o-"), ("random", "s--")):
+        c = np.array(curves[policy])
+        ax.errorbar(x, c.mean(axis=0), yerr=c.std(axis=0), fmt=style, capsize=3, label=policy)
+    ax.set_xlabel("observations")
+    ax.set_ylabel("P(entered a localizable region)")
+    ax.set_ylim(0, 1.05)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(OUT / "fig6.png", dpi=120)
+    f6 = ["| observations | " + " | ".join(str(i) for i in x) + " |",
+          "|---|" + "---|" * max_obs]
+    for policy in ("strategy", "random"):
+        c = np.array(curves[policy])
+        f6.append(f"| {policy} | " + " | ".join(f"{m:.2f} ± {sd:.2f}" for m, sd in
+                                                 zip(c.mean(0), c.std(0), strict=True)) + " |")
+    return t2, f6
+
+
+def section54(cfg: EigenspaceConfig, w: World) -> list[str]:
+    """Learning points added by the strategy vs at random, from a sparse 3 m grid."""
+    sparse = cfg.model_copy(update={
+        "learning": cfg.learning.model_copy(update={"spacing_m": 3.0}),
+        "triplets": cfg.triplets.model_copy(update={"neighbour_max_m": 4.3})})
+    base = analyse(w, sparse)
+    lcfg = LearningStrategyConfig(max_additions=6 if QUICK else 10)
+    rows = ["| method | points added | P(Z within 5) at the end | trace of P(Z within 5) |",
+            "|---|---|---|---|"]
+    for label, rnd in (("strategy", False), ("random (mean of 3 seeds)", True)):
+        outs = []
+        for seed in range(1 if not rnd else 3):
+            r = learning_strategy(base, w, lcfg, np.random.default_rng(seed), random_additions=rnd)
+            outs.append(r)
+        adds = [o.additions for o in outs]
+        last = [o.steps[-1].p_z[-1] for o in outs]
+        trace = " → ".join(f"{s.p_z[-1]:.2f}" for s in outs[0].steps)
+        rows.append(f"| {label} | {np.mean(adds):.1f} {adds} | {np.mean(last):.2f} | {trace} |")
+    rows.append(f"\nStart: {len(base.model.points)} points on a 3 m grid, "
+                f"{len(base.triplets)} triplets; target P(Z) >= 0.9 within 5 observations.")
+    return rows
+
+
+def speed(cfg: EigenspaceConfig, a: EigenspaceAnalysis, w: World) -> list[str]:
+    cam = Camera(w, cfg.camera)
+    pts = learning_grid(w, 2.0, 1.0)
+    rows = ["| step | time | ratio to peer | peer |", "|---|---|---|---|"]
+    for nt in (36, 72):
+        t0 = time.perf_counter()
+        learn(cam, pts, LearningConfig(n_directions=nt))
+        dt = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        cam.render_turn(pts[0], 0.0, nt)
+        one = time.perf_counter() - t0
+        rows.append(f"| learn {len(pts)} points x {nt} directions | {dt:.2f} s | "
+                    f"{dt / (one * len(pts)):.2f} | rendering those images alone |")
+    imgs = cam.render_turn(np.array([4.2, 5.1]), 0.3, len(a.model.directions))
+    reps = 50
+    t0 = time.perf_counter()
+    for _ in range(reps):
+        turn_candidates(a.regions, imgs)
+    loc = (time.perf_counter() - t0) / reps
+    q = a.model.project(imgs)
+    t0 = time.perf_counter()
+    for _ in range(reps):
+        np.argmin(np.linalg.norm(a.model.projections[:, :, None, :] - q[None, None], axis=-1))
+    nn = (time.perf_counter() - t0) / reps
+    rows.append(f"| localize one turn ({len(imgs)} images) | {loc * 1e3:.2f} ms | "
+                f"{loc / nn:.2f} | nearest-learning-image lookup {nn * 1e3:.2f} ms |")
+    lay = a.layout(w)
+    poses = initial_samples(w.sample_free, cfg.strategy.n_samples, np.random.default_rng(0))
+    b = StateBelief.start(len(poses), lay.n_sets)
+    t0 = time.perf_counter()
+    choose_action(poses, b, lay, cfg.strategy)
+    inproc = time.perf_counter() - t0
+    with ProcessPoolExecutor(2) as ex:
+        choose_action(poses, b, lay, cfg.strategy, ex)  # warm the workers
+        t0 = time.perf_counter()
+        choose_action(poses, b, lay, cfg.strategy, ex)
+        par = time.perf_counter() - t0
+    rows.append(f"| strategy: Q(Z) of {len(cfg.strategy.actions())} actions x "
+                f"{len(poses)} samples, 2 processes | {par:.2f} s | {par / inproc:.2f} | "
+                f"in-process {inproc:.2f} s |")
+    return rows
+
+
+def main() -> None:
+    OUT.mkdir(exist_ok=True)
+    rng = np.random.default_rng(0)
+    cfg = EigenspaceConfig()
+    w = World(room_a())
+    t0 = time.perf_counter()
+    a = analyse(w, cfg)
+    print("analysis of A", a.summary(w), f"{time.perf_counter() - t0:.1f} s", flush=True)
+    parts = ["# Eigenspace localization benchmark", "",
+             f"Command: `.venv/bin/python tests/bench/eigenspace.py{' --quick' if QUICK else ''}`"
+             f"; pixel noise sigma {NOISE}; correct = within "
+             f"{cfg.localization.same_position_m} m and "
+             f"{np.rad2deg(cfg.localization.same_heading_rad):.0f} deg.", "",
+             f"Analysis of A: {a.summary(w)}", ""]
+    for title, fn in (("Speed", lambda: speed(cfg, a, w)),
+                      ("Table 1", lambda: table1(cfg, a, rng)),
+                      ("Table 2 and Fig. 6", lambda: sum(table2_fig6(a, w, rng), [])),
+                      ("§5.4 learning strategy", lambda: section54(cfg, w))):
+        t0 = time.perf_counter()
+        rows = fn()
+        parts += [f"## {title}", "", *rows, "", f"({time.perf_counter() - t0:.0f} s)", ""]
+        print("\n".join(parts[-len(rows) - 4:]), flush=True)
+        (OUT / "eigenspace.md").write_text("\n".join(parts))
+
+
+if __name__ == "__main__":
+    main()

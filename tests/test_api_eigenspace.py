@@ -1,0 +1,176 @@
+"""Eigenspace API contract: learning job, camera, localize, sessions, next move, bad input."""
+
+from __future__ import annotations
+
+import base64
+import io
+import time
+from typing import Any
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from PIL import Image
+
+from service.app import create_app
+from service.settings import Settings
+
+SMALL = {"camera": {"width_px": 32, "height_px": 16}, "learning": {"k": 12},
+         "entry": {"samples": 30}, "regions": {"calibration_per_triplet": 2},
+         "strategy": {"n_samples": 60}}
+PROBLEM = "application/problem+json"
+
+
+def wait_job(client: TestClient, location: str) -> dict[str, Any]:
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        j = client.get(location).json()
+        if j["status"] in ("done", "failed"):
+            return j
+        time.sleep(0.2)
+    raise AssertionError("learning job did not finish")
+
+
+@pytest.fixture(scope="module")
+def learned(client: TestClient) -> str:
+    assert client.post("/worlds", json={"name": "eig_a", "template": "room_a"}).status_code == 201
+    r = client.post("/worlds/eig_a/eigenspace", json=SMALL)
+    assert r.status_code == 202, r.text
+    job = wait_job(client, r.headers["location"])
+    assert job["status"] == "done", job
+    return "eig_a"
+
+
+def turn(client: TestClient, world: str, x: float, y: float, theta: float,
+         n: int = 72, fmt: str = "list") -> dict[str, Any]:
+    r = client.post(f"/worlds/{world}/camera", json={
+        "pose": {"x": x, "y": y, "theta": theta}, "turn": n, "format": fmt})
+    assert r.status_code == 200, r.text
+    return r.json()  # type: ignore[no-any-return]
+
+
+def assert_problem(r: Any, status: int, field: str | None = None) -> None:
+    assert r.status_code == status, r.text
+    assert r.headers["content-type"].startswith(PROBLEM)
+    if field is not None:
+        assert field in (r.json().get("field") or "") + str(r.json().get("errors", "")), r.json()
+
+
+def test_learning_summary_and_facts(client: TestClient, learned: str) -> None:
+    s = client.get(f"/worlds/{learned}/eigenspace").json()
+    assert s["learning_points"] == 25 and s["directions"] == 72 and s["k"] == 12
+    assert s["triplets"] > 10 and 0 <= s["region_coverage"] <= 1
+    facts = client.get(f"/worlds/{learned}/facts").json()
+    assert any("eig_triplet" in f for f in facts)
+
+
+def test_camera_list_and_png_agree(client: TestClient, learned: str) -> None:
+    a = np.array(turn(client, learned, 3.0, 4.0, 0.5, n=2)["images"])
+    p = turn(client, learned, 3.0, 4.0, 0.5, n=2, fmt="png")["images_png"]
+    assert a.shape == (2, 16, 32)
+    b = np.asarray(Image.open(io.BytesIO(base64.b64decode(p[1]))), dtype=float) / 255
+    np.testing.assert_allclose(a[1], b, atol=1 / 255 + 1e-4)
+
+
+def test_localize_at_a_learning_point(client: TestClient, learned: str) -> None:
+    imgs = turn(client, learned, 3.0, 5.0, 0.0)["images"]
+    r = client.post(f"/worlds/{learned}/localize", json={"images": imgs})
+    assert r.status_code == 200, r.text
+    out = r.json()
+    assert out["state"]["state"] in ("y", "z") and out["candidates"]
+    if out["state"]["state"] == "z":
+        assert np.hypot(out["pose"]["x"] - 3.0, out["pose"]["y"] - 5.0) < 1.0
+    # the same turn as PNG gives the same answer
+    png = turn(client, learned, 3.0, 5.0, 0.0, fmt="png")["images_png"]
+    r2 = client.post(f"/worlds/{learned}/localize", json={"images_png": png})
+    assert r2.json()["state"] == out["state"]
+
+
+def test_session_stops_and_next_move(client: TestClient, learned: str) -> None:
+    r = client.post(f"/worlds/{learned}/localization-sessions")
+    assert r.status_code == 201
+    sid = r.json()["id"]
+    base = f"/worlds/{learned}/localization-sessions/{sid}"
+    mv = client.get(base + "/next-move").json()
+    assert 0 <= mv["q_z"] <= 1 and set(mv["action"]) == {"alpha_rad", "l_m", "beta_rad"}
+    s1 = client.post(base + "/stops", json={"images": turn(client, learned, 4.2, 4.7, 0.3)
+                                            ["images"]})
+    assert s1.status_code == 200 and s1.json()["stops"] == 1
+    # a second stop needs the odometry
+    imgs2 = turn(client, learned, 5.2, 4.7, 0.3)["images"]
+    assert_problem(client.post(base + "/stops", json={"images": imgs2}), 422, "odometry")
+    odo = {"dx": float(np.cos(0.3)), "dy": float(-np.sin(0.3)), "dtheta": 0.0}
+    s2 = client.post(base + "/stops", json={"images": imgs2, "odometry": odo})
+    assert s2.status_code == 200 and s2.json()["stops"] == 2
+    order = {"x": 0, "y": 1, "z": 2}
+    assert order[s2.json()["state"]["state"]] >= order[s1.json()["state"]["state"]]
+    got = client.get(base).json()
+    assert got["stops"] == 2 and got["state"] == s2.json()["state"]
+
+
+def test_bad_images(client: TestClient, learned: str) -> None:
+    url = f"/worlds/{learned}/localize"
+    imgs = turn(client, learned, 3.0, 5.0, 0.0)["images"]
+    assert_problem(client.post(url, json={"images": imgs[:71]}), 422, "images")
+    assert_problem(client.post(url, json={"images": [np.zeros((8, 8)).tolist()] * 72}),
+                   422, "images")
+    too_bright = np.array(imgs)
+    too_bright[0, 0, 0] = 2.0
+    assert_problem(client.post(url, json={"images": too_bright.tolist()}), 422, "images")
+    ragged = [r[:] for r in imgs[0]]
+    ragged[3] = ragged[3][:-1]
+    assert_problem(client.post(url, json={"images": [ragged] + imgs[1:]}), 422, "images")
+    raw = ('{"images": [[[NaN' + ", 0.5" * 31 + "]" + "]" * 2 + "}").encode()
+    assert_problem(client.post(url, content=raw, headers={"content-type": "application/json"}),
+                   422, "images")
+    assert_problem(client.post(url, json={"images_png": ["not base64!"]}), 422, "images_png")
+    assert_problem(client.post(url, json={"images": [], "images_png": []}), 422)
+    assert_problem(client.post(url, json={}), 422)
+
+
+def test_unknowns_and_limits(client: TestClient, learned: str) -> None:
+    assert_problem(client.post("/worlds/nowhere/localize", json={"images": [[[0.5]]]}), 404,
+                   "world")
+    assert client.post("/worlds", json={"name": "eig_empty", "template": "room_b"}
+                       ).status_code == 201
+    assert_problem(client.post("/worlds/eig_empty/localize", json={"images": [[[0.5]]]}), 404,
+                   "world")
+    assert_problem(client.get(f"/worlds/{learned}/localization-sessions/abc"), 404, "session")
+    assert_problem(client.get(f"/worlds/{learned}/eigenspace/jobs/abc"), 404, "job")
+    assert_problem(client.post(f"/worlds/{learned}/camera",
+                               json={"pose": {"x": 1, "y": 1}, "turn": 100000}), 422, "turn")
+    assert_problem(client.post(f"/worlds/{learned}/camera", content=b'{"pose": {"x": Infinity, '
+                               b'"y": 1}}', headers={"content-type": "application/json"}),
+                   422, "pose")
+    assert_problem(client.post(f"/worlds/{learned}/eigenspace",
+                               json={"learning": {"k": 0}}), 422, "learning")
+    huge = b'{"images": [' + b"0.5," * 3_000_000 + b"0.5]}"
+    assert_problem(client.post(f"/worlds/{learned}/localize", content=huge,
+                               headers={"content-type": "application/json"}), 413)
+
+
+def test_failed_learning_job_reports_the_field(client: TestClient) -> None:
+    assert client.post("/worlds", json={"name": "eig_bare"}).status_code == 201
+    r = client.post("/worlds/eig_bare/eigenspace", json=SMALL)
+    job = wait_job(client, r.headers["location"])
+    assert job["status"] == "failed" and job["error"]["field"] == "world"
+    assert_problem(client.get("/worlds/eig_bare/eigenspace"), 404, "world")
+
+
+def test_analysis_and_session_survive_restart(tmp_path: Any) -> None:
+    settings = Settings(data_dir=tmp_path, demo_world="")
+    with TestClient(create_app(settings)) as c:
+        c.post("/worlds", json={"name": "eig_r", "template": "room_a"})
+        job = wait_job(c, c.post("/worlds/eig_r/eigenspace", json=SMALL).headers["location"])
+        assert job["status"] == "done"
+        sid = c.post("/worlds/eig_r/localization-sessions").json()["id"]
+        imgs = turn(c, "eig_r", 3.0, 5.0, 0.0)["images"]
+        before = c.post(f"/worlds/eig_r/localization-sessions/{sid}/stops",
+                        json={"images": imgs}).json()
+        summary = c.get("/worlds/eig_r/eigenspace").json()
+    with TestClient(create_app(settings)) as c:
+        assert c.get("/worlds/eig_r/eigenspace").json()["triplets"] == summary["triplets"]
+        after = c.get(f"/worlds/eig_r/localization-sessions/{sid}").json()
+        assert after["state"] == before["state"] and after["stops"] == 1
+        facts = c.get("/worlds/eig_r/facts").json()
+        assert sum("eig_triplet" in f for f in facts) == summary["triplets"]
