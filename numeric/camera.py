@@ -137,7 +137,7 @@ class Camera:
             top = np.minimum(surf.top_m[np.maximum(k, 0)], c.wall_height_m)
             on = hit[None, :] & (h >= 0.0) & (h <= top[None, :]) & (t[None, :] < depth_drawn)
             kk = np.maximum(k, 0)
-            a, b = surf.a[kk], surf.b[kk]
+            a = surf.a[kk]
             d = np.stack([np.cos(angles), np.sin(angles)], axis=1)
             hitp = xy[None, :] + np.where(hit, t, 0.0)[:, None] * d
             along = np.linalg.norm(hitp - a, axis=1)  # metres from the surface start

@@ -8,7 +8,7 @@ wall and small images do not alias (SPEC §7).
 from __future__ import annotations
 
 from collections.abc import Callable
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 from skimage import color, data, transform
@@ -38,7 +38,7 @@ BASE_TEXELS = 256
 LEVELS = 6
 
 
-@lru_cache(maxsize=None)
+@cache
 def pyramid(name: str) -> tuple[np.ndarray, ...]:
     """Mip levels of texture ``name``: ``LEVELS`` grey arrays in [0, 1], finest first.
 

@@ -37,8 +37,9 @@ def _known_texture(name: str) -> str:
 
 Texture = Annotated[str, Field(max_length=64, description="a built-in texture id"),
                     AfterValidator(_known_texture)]
-Brightness = Annotated[float, Field(gt=0.0, le=4.0, allow_inf_nan=False,
-                                    description="lighting gain on the texture (1 = as photographed)")]
+Brightness = Annotated[float, Field(
+    gt=0.0, le=4.0, allow_inf_nan=False,
+    description="lighting gain on the texture (1 = as photographed)")]
 
 
 class Wall(BaseModel):

@@ -93,7 +93,10 @@ class EigenspaceService:
         self._jobs: dict[str, Job] = {}
         self._tasks: set[asyncio.Task[None]] = set()
         self._session_lock = asyncio.Lock()
-        worlds.on_delete.append(lambda name: self._analyses.pop(name, None))
+        worlds.on_delete.append(self._forget)
+
+    def _forget(self, world: str) -> None:
+        self._analyses.pop(world, None)
 
     def restore(self) -> int:
         """Load stored analyses and assert their facts (start-up)."""

@@ -169,10 +169,10 @@ def test_multi_stop_localization_in_room_a(analysis: EigenspaceAnalysis, room: W
     for p in room.sample_free(12, rng, clearance_m=0.8):
         pose = np.array([*p, rng.uniform(-np.pi, np.pi)])
         s = Session(LocalizationConfig())
+        prev = pose.copy()
         for _stop in range(3):
             c = turn_candidates(analysis.regions, cam.render_turn(pose[:2], pose[2], n))
-            s.add_stop(c, analysis.config.regions.d_thd_m, motion=None if s.stops == 0
-                       else relative(prev, pose))  # noqa: F821 - prev set below
+            s.add_stop(c, analysis.config.regions.d_thd_m, motion=relative(prev, pose))
             v = s.vote()
             if v.unique and v.winner is not None:
                 errors.append(np.linalg.norm(s.current_pose(v.winner)[:2] - pose[:2]))
@@ -185,8 +185,11 @@ def test_multi_stop_localization_in_room_a(analysis: EigenspaceAnalysis, room: W
 
 
 # -- §3.5 movement strategy -------------------------------------------------------------------
+UNIT_ENTRY = EntryModel(1.0, -1.0)
+
+
 def layout_one_region(xy: tuple[float, float], walls: World,
-                      entry: EntryModel = EntryModel(1.0, -1.0)) -> RegionLayout:
+                      entry: EntryModel = UNIT_ENTRY) -> RegionLayout:
     pts = np.array([[xy, (xy[0] + 0.5, xy[1]), (xy[0], xy[1] + 0.5)]], dtype=float)
     return RegionLayout(entry, pts, np.array([-1]),
                         (walls.surfaces.a, walls.surfaces.b))

@@ -41,7 +41,7 @@ class StrategyConfig(BaseModel):
     def actions(self) -> np.ndarray:
         """The action grid ``(A, 3)``: (alpha, l, beta), ordered so ties prefer small
         turns and short drives."""
-        grid = np.array([(a, l, b) for a in self.alphas_rad for l in self.lengths_m
+        grid = np.array([(a, d, b) for a in self.alphas_rad for d in self.lengths_m
                          for b in self.betas_rad], dtype=float)
         order = np.lexsort((np.abs(wrap_angle(grid[:, 2])), grid[:, 1],
                             np.abs(wrap_angle(grid[:, 0]))))

@@ -17,7 +17,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from numeric.camera import Camera, CameraConfig  # noqa: E402
+from numeric.camera import Camera  # noqa: E402
 from numeric.eigenspace.analysis import (  # noqa: E402
     EigenspaceAnalysis,
     EigenspaceConfig,
@@ -48,7 +48,8 @@ NOISE = 0.01
 def table1(cfg: EigenspaceConfig, a: EigenspaceAnalysis, rng: np.random.Generator) -> list[str]:
     """Share of region-entering images whose candidates contain a correct one."""
     rows = ["| env | triplets | D_thd 0.2 m: success (entered images) | "
-            "D_thd 0.3 m: success (entered images) | per stop, D_thd 0.2 m |", "|---|---|---|---|---|"]
+            "D_thd 0.3 m: success (entered images) | per stop, D_thd 0.2 m |",
+            "|---|---|---|---|---|"]
     n_obs = 20 if QUICK else 60
     loc = cfg.localization
     for name, f in (("A", room_a), ("B", room_b), ("C", room_c), ("D", room_d)):

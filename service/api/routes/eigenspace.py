@@ -36,10 +36,10 @@ def decode_turn(body: TurnIn) -> np.ndarray:
     for i, s in enumerate(body.images_png or []):
         try:
             raw = base64.b64decode(s, validate=True)
-            with Image.open(io.BytesIO(raw)) as im:
-                if im.format != "PNG":
+            with Image.open(io.BytesIO(raw)) as png:
+                if png.format != "PNG":
                     raise InvalidInput("not a PNG file", field=f"images_png[{i}]")
-                out.append(np.asarray(im.convert("L"), dtype=float) / 255.0)
+                out.append(np.asarray(png.convert("L"), dtype=np.float64) / 255.0)
         except (binascii.Error, ValueError, UnidentifiedImageError, OSError) as e:
             raise InvalidInput(f"not a base64 PNG image: {e}", field=f"images_png[{i}]") from e
     if len({a.shape for a in out}) != 1:
