@@ -21,7 +21,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from scipy import ndimage
 
-from numeric.geometry import ray_cast, wrap_angle
+from numeric.geometry import ray_cast
 from numeric.textures import BASE_TEXELS, LEVELS, pyramid
 from numeric.world import World
 
@@ -118,7 +118,7 @@ class Camera:
         is_wall = ~np.isfinite(surf.top_m)
         img = np.where(self._tan_elev[:, None] > 0, c.ceiling_level, c.floor_level)
         img = np.broadcast_to(img, (hs, r)).copy()
-        layers: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        depth_drawn = np.full((hs, r), np.inf)
         # walls first, then objects drawn over them where they are nearer
         for mask in (is_wall, ~is_wall):
             if not mask.any():
@@ -126,9 +126,6 @@ class Camera:
             sel = np.flatnonzero(mask)
             t, k = ray_cast(xy, angles, surf.a[sel], surf.b[sel])
             k = np.where(k >= 0, sel[np.maximum(k, 0)], -1)
-            layers.append((t, k, mask))
-        depth_drawn = np.full((hs, r), np.inf)
-        for t, k, _ in layers:
             hit = k >= 0
             if not hit.any():
                 continue
@@ -168,7 +165,3 @@ class Camera:
                 depth_drawn[rows, cols] = t[cols]
         return img
 
-
-def turn_headings(theta0: float, n: int) -> np.ndarray:
-    """Headings (n,) of a full turn starting at ``theta0``, wrapped to (-pi, pi]."""
-    return wrap_angle(theta0 + 2.0 * np.pi * np.arange(n) / n)

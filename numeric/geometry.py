@@ -75,20 +75,11 @@ def ray_cast(
     ``angles`` (M,) are world-frame directions. Rays that hit nothing within
     ``max_range`` return ``inf`` and index -1.
     """
-    o = np.asarray(origin, dtype=float)
     ang = np.atleast_1d(np.asarray(angles, dtype=float))
     m = len(ang)
     if len(wall_a) == 0:
         return np.full(m, np.inf), np.full(m, -1, dtype=np.intp)
-    r = np.stack([np.cos(ang), np.sin(ang)], axis=1)[:, None, :]  # (M,1,2)
-    s = (wall_b - wall_a)[None, :, :]
-    qp = (wall_a - o)[None, :, :]
-    denom = r[..., 0] * s[..., 1] - r[..., 1] * s[..., 0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (qp[..., 0] * s[..., 1] - qp[..., 1] * s[..., 0]) / denom
-        u = (qp[..., 0] * r[..., 1] - qp[..., 1] * r[..., 0]) / denom
-    ok = (np.abs(denom) > _EPS) & (t > 0) & (u >= 0) & (u <= 1) & (t <= max_range)
-    t = np.where(ok, t, np.inf)
+    t = _ray_wall_distances(np.asarray(origin, dtype=float), ang, wall_a, wall_b, max_range)
     idx = np.argmin(t, axis=1)
     dist = t[np.arange(m), idx]
     idx = np.where(np.isfinite(dist), idx, -1)
@@ -152,12 +143,21 @@ def free_distance(origins: ArrayLike, angles: ArrayLike, wall_a: FloatArray,
     ang = np.asarray(angles, dtype=float).reshape(-1)
     if len(wall_a) == 0:
         return np.full(len(o), np.inf)
-    r = np.stack([np.cos(ang), np.sin(ang)], axis=1)[:, None, :]
+    return np.asarray(_ray_wall_distances(o, ang, wall_a, wall_b).min(axis=1))
+
+
+def _ray_wall_distances(origin: FloatArray, angles: FloatArray, wall_a: FloatArray,
+                        wall_b: FloatArray, max_range: float = np.inf) -> FloatArray:
+    """Distance ``(M, W)`` along each ray to each wall (``inf`` where it misses).
+
+    ``origin`` is one point ``(2,)`` shared by all rays or one per ray ``(M, 2)``.
+    """
+    r = np.stack([np.cos(angles), np.sin(angles)], axis=1)[:, None, :]  # (M,1,2)
     s = (wall_b - wall_a)[None, :, :]
-    qp = wall_a[None, :, :] - o[:, None, :]
+    qp = wall_a[None, :, :] - np.atleast_2d(origin)[:, None, :]  # (1|M, W, 2)
     denom = r[..., 0] * s[..., 1] - r[..., 1] * s[..., 0]
     with np.errstate(divide="ignore", invalid="ignore"):
         t = (qp[..., 0] * s[..., 1] - qp[..., 1] * s[..., 0]) / denom
         u = (qp[..., 0] * r[..., 1] - qp[..., 1] * r[..., 0]) / denom
-    ok = (np.abs(denom) > _EPS) & (t > 0) & (u >= 0) & (u <= 1)
-    return np.asarray(np.where(ok, t, np.inf).min(axis=1))
+    ok = (np.abs(denom) > _EPS) & (t > 0) & (u >= 0) & (u <= 1) & (t <= max_range)
+    return np.asarray(np.where(ok, t, np.inf))

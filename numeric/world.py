@@ -214,15 +214,20 @@ class World:
         in_object = ray_crossings(xy, surf.a[~walls], surf.b[~walls]) % 2 == 1
         return np.asarray((near >= clearance_m) & inside & ~in_object)
 
-    def sample_free(self, n: int, rng: np.random.Generator,
-                    clearance_m: float = 0.3) -> np.ndarray:
-        """``n`` positions ``(n, 2)`` drawn uniformly from the free space (rejection
-        sampling in the walls' bounding box)."""
+    @cached_property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper corners ``(2,)`` of the bounding box of all surfaces."""
         surf = self.surfaces
         if len(surf.a) == 0:
             raise InvalidInput("the world has no walls", field="world")
         pts = np.vstack([surf.a, surf.b])
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        return pts.min(axis=0), pts.max(axis=0)
+
+    def sample_free(self, n: int, rng: np.random.Generator,
+                    clearance_m: float = 0.3) -> np.ndarray:
+        """``n`` positions ``(n, 2)`` drawn uniformly from the free space (rejection
+        sampling in the walls' bounding box)."""
+        lo, hi = self.bounds
         out: list[np.ndarray] = []
         got = 0
         for _ in range(1000):

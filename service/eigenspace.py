@@ -29,12 +29,11 @@ from numeric.eigenspace.localization import (
     turn_candidates,
 )
 from numeric.eigenspace.movement_strategy import (
-    StateBelief,
     choose_action,
     initial_samples,
+    session_belief,
 )
 from numeric.errors import InvalidInput
-from numeric.geometry import compose
 from service.kb import KnowledgeBase
 from service.store import Store
 from service.worlds import Conflict, NotFound, WorldService
@@ -196,8 +195,7 @@ class EigenspaceService:
         s = st.session
         vote = s.vote()
         cands = []
-        for cluster in vote.clusters[:10]:
-            best = max(cluster, key=lambda i: s.weight[i])
+        for cluster, best in list(zip(vote.clusters, s.representatives(vote), strict=True))[:10]:
             p = s.current_pose(best)
             cands.append({"pose": {"x": float(p[0]), "y": float(p[1]), "theta": float(p[2])},
                           "votes": float(vote.votes[best]), "triplet": s.triplet[best],
@@ -275,28 +273,12 @@ class EigenspaceService:
             return {"state": st.state, "action": None, "q_z": 1.0}
         cfg = a.config.strategy
         layout = a.layout(w)
-        s = st.session
-        if st.state.get("state") == "x" or not s.pose0:
-            # samples of where stop 0 may have been, weighted by having stayed in X so far
-            poses0 = initial_samples(w.sample_free, cfg.n_samples,
-                                     np.random.default_rng(a.config.seed + 11))
-            weight = np.ones(len(poses0))
-            for o in s.odometry:
-                weight *= np.prod(1.0 - layout.entry_probabilities(compose(poses0, o)[:, :2]),
-                                  axis=1)
-            if weight.sum() <= 0:
-                weight = np.ones(len(poses0))
-            now = compose(poses0, s.odometry[-1]) if s.odometry else poses0
-            belief = StateBelief.start(len(now), layout.n_sets, weight)
-        else:
-            vote = s.vote()
-            reps = [max(c, key=lambda i: s.weight[i]) for c in vote.clusters]
-            now = np.array([s.current_pose(i) for i in reps])
-            belief = StateBelief.start(len(now), layout.n_sets, vote.votes[reps])
-            m = st.state.get("set")
-            if isinstance(m, int) and 1 <= m <= layout.n_sets:
-                belief.x[:] = 0.0
-                belief.y[:, m - 1] = 1.0
+        # samples of where stop 0 may have been (used while the state is X)
+        samples0 = initial_samples(w.sample_free, cfg.n_samples,
+                                   np.random.default_rng(a.config.seed + 11))
+        m = st.state.get("set")
+        now, belief = session_belief(st.session, layout, samples0,
+                                     m if isinstance(m, int) else None)
         dec = await asyncio.to_thread(choose_action, now, belief, layout, cfg, self.executor)
         return {"state": st.state,
                 "action": {"alpha_rad": float(dec.action[0]), "l_m": float(dec.action[1]),

@@ -23,6 +23,7 @@ from numeric.eigenspace.learning import (
 from numeric.eigenspace.localization import (
     LocalizationConfig,
     RegionModel,
+    agrees,
     candidate_multiple_sets,
 )
 from numeric.eigenspace.movement_strategy import RegionLayout, StrategyConfig
@@ -32,7 +33,6 @@ from numeric.eigenspace.regions import (
     calibration_observations,
     fit_c_a,
     fit_entry_model,
-    heading_error,
     real_world_distance,
     region_candidates,
 )
@@ -135,9 +135,7 @@ class EigenspaceAnalysis:
 
 
 def free_grid(world: World, cell_m: float) -> np.ndarray:
-    surf = world.surfaces
-    pts = np.vstack([surf.a, surf.b])
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    lo, hi = world.bounds
     xs = np.arange(lo[0] + cell_m / 2, hi[0], cell_m)
     ys = np.arange(lo[1] + cell_m / 2, hi[1], cell_m)
     g = np.array([(x, y) for y in ys for x in xs]).reshape(-1, 2)
@@ -160,9 +158,8 @@ def fit_entry(world: World, camera: Camera, model: EigenspaceModel, triplets: Tr
         th0 = rng.uniform(-np.pi, np.pi)
         q = model.project(camera.render_turn(p, th0, n))
         c = region_candidates(model, triplets, q, c_a, config.regions.d_thd_m)
-        heading = th0 + 2.0 * np.pi * c.m / n
-        ok = ((np.linalg.norm(c.pose[:, :2] - p, axis=1) <= loc.same_position_m)
-              & (heading_error(c.pose[:, 2], heading) <= loc.same_heading_rad))
+        truth = np.column_stack([np.broadcast_to(p, (len(c), 2)), th0 + 2.0 * np.pi * c.m / n])
+        ok = agrees(c.pose, truth, loc.same_position_m, loc.same_heading_rad)
         entered[i, c.t[ok]] = True
     dist = real_world_distance(model, triplets, xy)
     return fit_entry_model(dist, entered, config.entry.max_distance_m)
@@ -205,7 +202,7 @@ def analyse(world: World, config: EigenspaceConfig, points: np.ndarray | None = 
     report("candidate sets", 0.9)
     t0 = time.perf_counter()
     regions = RegionModel(model, triplets, c_a, config.regions.d_thd_m)
-    sets = candidate_multiple_sets(regions, config.localization)
+    sets = candidate_multiple_sets(regions)
     timings["candidate_sets"] = time.perf_counter() - t0
     report("done", 1.0)
     return EigenspaceAnalysis(config, model, triplets, c_a, entry, sets, timings)
@@ -221,6 +218,6 @@ def with_learning_point(analysis: EigenspaceAnalysis, world: World,
     new = find_localizable_triplets(model, cfg.triplets, only_with={len(model.points) - 1})
     triplets = merge(analysis.triplets, new)
     regions = RegionModel(model, triplets, analysis.c_a, cfg.regions.d_thd_m)
-    sets = candidate_multiple_sets(regions, cfg.localization)
+    sets = candidate_multiple_sets(regions)
     return EigenspaceAnalysis(cfg, model, triplets, analysis.c_a, analysis.entry, sets,
                               dict(analysis.timings_s))

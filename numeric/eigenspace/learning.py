@@ -78,14 +78,6 @@ class EigenspaceModel:
         """Eq. 2: f_d between projections (broadcast over leading axes)."""
         return f_d(a, b, self.n_pixels)
 
-    def learning_poses(self) -> np.ndarray:
-        """s_ij = (x_i, y_i, theta_j) as ``(Nw, Nt, 3)``."""
-        nw, nt = len(self.points), len(self.directions)
-        s = np.empty((nw, nt, 3))
-        s[..., :2] = self.points[:, None, :]
-        s[..., 2] = self.directions[None, :]
-        return s
-
     def with_points(self, points: np.ndarray, projections: np.ndarray) -> EigenspaceModel:
         return EigenspaceModel(points=points, directions=self.directions, mean=self.mean,
                                basis=self.basis, projections=projections,
@@ -115,11 +107,8 @@ def learning_grid(world: World, spacing_m: float, margin_m: float) -> np.ndarray
     Points closer than 0.3 m to a surface are dropped (the robot cannot stand there).
     A 10 m room with 2 m spacing and a 1 m margin gives the paper's 25 points.
     """
-    surf = world.surfaces
-    if len(surf.a) == 0:
-        raise InvalidInput("the world has no walls to learn from", field="world")
-    pts = np.vstack([surf.a, surf.b])
-    lo, hi = pts.min(axis=0) + margin_m, pts.max(axis=0) - margin_m
+    lo, hi = world.bounds
+    lo, hi = lo + margin_m, hi - margin_m
     if np.any(hi < lo):
         raise InvalidInput("margin_m leaves no room inside the walls", field="margin_m")
     xs = np.arange(lo[0], hi[0] + 1e-9, spacing_m)

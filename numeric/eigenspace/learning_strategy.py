@@ -59,10 +59,6 @@ class LearningResult:
     def additions(self) -> int:
         return sum(1 for s in self.steps if s.added is not None)
 
-    @property
-    def reached(self) -> bool:
-        return bool(self.steps and self.steps[-1].p_z[-1] >= 0)
-
 
 def hypothetical_gain(layout: RegionLayout, points: np.ndarray, candidates: np.ndarray,
                       grid: np.ndarray, neighbour_max_m: float, min_area_m2: float

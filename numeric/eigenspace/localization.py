@@ -34,6 +34,15 @@ class LocalizationConfig(BaseModel):
                                description="winner/rival vote ratio that makes a stop unique")
 
 
+def agrees(poses: np.ndarray, reference: np.ndarray, position_m: float,
+           heading_rad: float) -> np.ndarray:
+    """Which poses ``(n, 3)`` lie within ``position_m`` and ``heading_rad`` of
+    ``reference`` (``(3,)`` or ``(n, 3)``): the identification test of §2.5."""
+    p, q = np.asarray(poses, dtype=float), np.asarray(reference, dtype=float)
+    return np.asarray((np.linalg.norm(p[:, :2] - q[..., :2], axis=-1) <= position_m)
+                      & (np.abs(wrap_angle(p[:, 2] - q[..., 2])) <= heading_rad))
+
+
 @dataclass
 class RegionModel:
     """What localization needs from the analysis: the eigenspace, the triplets and the
@@ -123,8 +132,7 @@ class Session:
     def same(self, p: np.ndarray, q: np.ndarray) -> np.ndarray:
         """Whether candidates at stop-0 poses ``p (n,3)`` and ``q (3,)`` are identified."""
         tol = self.config.same_position_m + self.config.odometry_slack_ratio * self.travelled_m
-        return np.asarray((np.linalg.norm(p[:, :2] - q[:2], axis=1) <= tol)
-                          & (np.abs(wrap_angle(p[:, 2] - q[2])) <= self.config.same_heading_rad))
+        return agrees(p, q, tol, self.config.same_heading_rad)
 
     def vote(self) -> Vote:
         """Mutual voting of §2.5 over every candidate so far."""
@@ -147,6 +155,10 @@ class Session:
                 left[members] = False
         return Vote(bool(unique), win, votes, clusters)
 
+    def representatives(self, vote: Vote) -> list[int]:
+        """The strongest candidate (largest weight) of each identified group."""
+        return [max(cluster, key=lambda i: self.weight[i]) for cluster in vote.clusters]
+
     def current_pose(self, candidate: int) -> np.ndarray:
         """Pose at the start of the latest stop implied by a pooled candidate."""
         if self.stop_of[candidate] == self.stops - 1:
@@ -158,8 +170,7 @@ class Session:
         return sorted({t for s, t in zip(self.stop_of, self.triplet, strict=True) if s == k})
 
 
-def candidate_multiple_sets(regions: RegionModel,
-                            config: LocalizationConfig) -> list[list[int]]:
+def candidate_multiple_sets(regions: RegionModel) -> list[list[int]]:
     """§3.3: groups of triplets that a robot standing at their learning points cannot
     tell apart.
 

@@ -23,8 +23,9 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from numeric.eigenspace.localization import Session
 from numeric.eigenspace.regions import EntryModel
-from numeric.geometry import free_distance, wrap_angle
+from numeric.geometry import compose, free_distance, wrap_angle
 
 
 class StrategyConfig(BaseModel):
@@ -91,9 +92,6 @@ class StateBelief:
 
     def p_z(self) -> float:
         return float(np.dot(self.weight, self.z))
-
-    def p_not_x(self) -> float:
-        return float(np.dot(self.weight, 1.0 - self.x))
 
 
 def transition(belief: StateBelief, p: np.ndarray, layout: RegionLayout) -> StateBelief:
@@ -191,3 +189,33 @@ def p_z_curve(poses: np.ndarray, layout: RegionLayout, config: StrategyConfig,
         curve.append(belief.p_z())
         acts.append(dec.action)
     return curve, acts
+
+
+def session_belief(session: Session, layout: RegionLayout, samples0: np.ndarray,
+                   candidate_set: int | None = None) -> tuple[np.ndarray, StateBelief]:
+    """Where the robot may be now ``(I, 3)`` and its state distribution, to choose the
+    next move of a running localization.
+
+    While no region has been entered (state X): the initial samples ``samples0`` (poses
+    of stop 0) moved by the session's odometry, weighted by the chance of having stayed
+    in X at every stop so far.  Afterwards: the strongest candidate of every identified
+    group, weighted by its votes; with ``candidate_set`` m (1-based, state Y^(m)) the
+    belief starts in Y^(m).
+    """
+    if not session.pose0:
+        weight = np.ones(len(samples0))
+        for o in session.odometry:
+            moved = compose(samples0, o)
+            weight *= np.prod(1.0 - layout.entry_probabilities(moved[:, :2]), axis=1)
+        if weight.sum() <= 0:
+            weight = np.ones(len(samples0))
+        now = compose(samples0, session.odometry[-1]) if session.odometry else samples0
+        return now, StateBelief.start(len(now), layout.n_sets, weight)
+    vote = session.vote()
+    reps = session.representatives(vote)
+    now = np.array([session.current_pose(i) for i in reps])
+    belief = StateBelief.start(len(now), layout.n_sets, vote.votes[reps])
+    if candidate_set is not None and 1 <= candidate_set <= layout.n_sets:
+        belief.x[:] = 0.0
+        belief.y[:, candidate_set - 1] = 1.0
+    return now, belief

@@ -20,7 +20,7 @@ from numeric.eigenspace.interpolation import affine_weights, interpolate_pose
 from numeric.eigenspace.learning import EigenspaceModel, f_d
 from numeric.eigenspace.triplets import Triplets
 from numeric.errors import InvalidInput
-from numeric.geometry import bearing, wrap_angle
+from numeric.geometry import bearing
 from numeric.world import World
 
 
@@ -141,12 +141,6 @@ class EntryModel:
     def probability(self, distance_m: np.ndarray) -> np.ndarray:
         return np.clip(self.c0 + self.c1 * np.asarray(distance_m), 0.0, 1.0)
 
-    def radius_m(self, p: float = 0.5) -> float:
-        """Distance at which P(R|s) falls to ``p`` (the region's real-world radius)."""
-        if self.c1 >= 0:
-            return 0.0 if self.c0 < p else np.inf
-        return max(0.0, (p - self.c0) / self.c1)
-
 
 def fit_entry_model(distances: np.ndarray, entered: np.ndarray,
                     max_distance_m: float, min_samples: int = 8) -> EntryModel:
@@ -170,6 +164,3 @@ def fit_entry_model(distances: np.ndarray, entered: np.ndarray,
         raise InvalidInput("too few samples near the regions to fit P(R|s)", field="samples")
     return EntryModel(float(np.mean(c0s)), float(np.mean(c1s)))
 
-
-def heading_error(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.abs(wrap_angle(np.asarray(a) - np.asarray(b)))

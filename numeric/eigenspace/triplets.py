@@ -11,6 +11,7 @@ Every point of a triple takes the role of w_1 in turn; duplicates are merged.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from itertools import permutations
 
@@ -66,6 +67,15 @@ class Triplets:
 
     def subset(self, idx: np.ndarray) -> Triplets:
         return Triplets(self.point_idx[idx], self.dir_idx[idx], self.target[idx], self.area[idx])
+
+
+MemberKey = tuple[tuple[int, int], ...]
+
+
+def member_key(points: Sequence[int] | np.ndarray, dirs: Sequence[int] | np.ndarray
+               ) -> MemberKey:
+    """Order-free identity of a triplet: its sorted (point, direction) members."""
+    return tuple(sorted(zip((int(p) for p in points), (int(d) for d in dirs), strict=True)))
 
 
 def neighbour_triples(points: np.ndarray, max_dist: float, min_area: float) -> np.ndarray:
@@ -134,7 +144,7 @@ def find_localizable_triplets(model: EigenspaceModel, config: TripletConfig,
             cache[(a, b)] = best_partner_directions(model, a, b, config)
         return cache[(a, b)]
 
-    seen: set[tuple[tuple[int, int], ...]] = set()
+    seen: set[MemberKey] = set()
     pidx, didx, target, area = [], [], [], []
     for tri in triples:
         a_m2 = triangle_area(model.points[tri])
@@ -153,7 +163,7 @@ def find_localizable_triplets(model: EigenspaceModel, config: TripletConfig,
             close &= ~(same_line & (b2 == b3))
             for j1 in np.flatnonzero(close):
                 members = ((w1, int(j1)), (w2, int(b2[j1])), (w3, int(b3[j1])))
-                key = tuple(sorted(members))
+                key = member_key([m[0] for m in members], [m[1] for m in members])
                 if key in seen:
                     continue
                 seen.add(key)
@@ -169,10 +179,9 @@ def find_localizable_triplets(model: EigenspaceModel, config: TripletConfig,
 
 def merge(a: Triplets, b: Triplets) -> Triplets:
     """Union of two triplet sets (duplicates dropped, ``a``'s order kept first)."""
-    seen = {tuple(sorted(zip(p.tolist(), d.tolist(), strict=True)))
-            for p, d in zip(a.point_idx, a.dir_idx, strict=True)}
+    seen = {member_key(p, d) for p, d in zip(a.point_idx, a.dir_idx, strict=True)}
     keep = [i for i, (p, d) in enumerate(zip(b.point_idx, b.dir_idx, strict=True))
-            if tuple(sorted(zip(p.tolist(), d.tolist(), strict=True))) not in seen]
+            if member_key(p, d) not in seen]
     bb = b.subset(np.array(keep, dtype=int))
     return Triplets(np.vstack([a.point_idx, bb.point_idx]), np.vstack([a.dir_idx, bb.dir_idx]),
                     np.vstack([a.target, bb.target]), np.concatenate([a.area, bb.area]))

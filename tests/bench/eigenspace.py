@@ -28,15 +28,16 @@ from numeric.eigenspace.learning_strategy import (  # noqa: E402
     LearningStrategyConfig,
     learning_strategy,
 )
-from numeric.eigenspace.localization import Session, turn_candidates  # noqa: E402
+from numeric.eigenspace.localization import Session, agrees, turn_candidates  # noqa: E402
 from numeric.eigenspace.movement_strategy import (  # noqa: E402
     StateBelief,
     apply_action,
     choose_action,
     initial_samples,
+    session_belief,
 )
-from numeric.eigenspace.regions import heading_error, region_candidates  # noqa: E402
-from numeric.geometry import compose, relative, wrap_angle  # noqa: E402
+from numeric.eigenspace.regions import region_candidates  # noqa: E402
+from numeric.geometry import relative, wrap_angle  # noqa: E402
 from numeric.world import World  # noqa: E402
 from numeric.worlds import room_a, room_b, room_c, room_d  # noqa: E402
 
@@ -70,8 +71,8 @@ def table1(cfg: EigenspaceConfig, a: EigenspaceAnalysis, rng: np.random.Generato
             for thd in res:
                 c = region_candidates(model, tr, q, a.c_a, thd)
                 head = th0 + 2 * np.pi * c.m / n
-                ok = ((np.linalg.norm(c.pose[:, :2] - p, axis=1) <= loc.same_position_m)
-                      & (heading_error(c.pose[:, 2], head) <= loc.same_heading_rad))
+                truth = np.column_stack([np.broadcast_to(p, (len(c), 2)), head])
+                ok = agrees(c.pose, truth, loc.same_position_m, loc.same_heading_rad)
                 for mi in np.unique(c.m):
                     res[thd][0] += 1
                     res[thd][1] += bool(ok[c.m == mi].any())
@@ -112,16 +113,8 @@ def run_trial(a: EigenspaceAnalysis, w: World, cam: Camera, pose: np.ndarray,
                     "theta": float(wrap_angle(a.model.directions[ji] - 2 * np.pi * mi / n))}
             break
         if policy == "strategy":
-            now = compose(samples0, s.odometry[-1])
-            wt = np.ones(len(now))
-            for o in s.odometry:
-                wt *= np.prod(1 - lay.entry_probabilities(compose(samples0, o)[:, :2]), axis=1)
-            if s.pose0:  # in Y: the candidates are the samples
-                reps = [max(cl, key=lambda i: s.weight[i]) for cl in v.clusters]
-                now = np.array([s.current_pose(i) for i in reps])
-                wt = v.votes[reps]
-            act = choose_action(now, StateBelief.start(len(now), lay.n_sets, wt + 1e-12), lay,
-                                a.config.strategy).action
+            now, belief = session_belief(s, lay, samples0)
+            act = choose_action(now, belief, lay, a.config.strategy).action
         else:
             act = np.array([rng.uniform(-np.pi, np.pi), rng.uniform(0.5, 4.0), 0.0])
         prev = pose.copy()
@@ -152,8 +145,8 @@ def table2_fig6(a: EigenspaceAnalysis, w: World, rng: np.random.Generator
                     truth = np.array([info["x_true"], info["y_true"], info["t_true"]])
                     errs.append((float(np.linalg.norm(est[:2] - truth[:2])),
                                  float(np.hypot(info["x"] - truth[0], info["y"] - truth[1])),
-                                 float(np.rad2deg(heading_error(est[2], truth[2]))),
-                                 float(np.rad2deg(heading_error(info["theta"], truth[2])))))
+                                 float(np.rad2deg(abs(wrap_angle(est[2] - truth[2])))),
+                                 float(np.rad2deg(abs(wrap_angle(info["theta"] - truth[2]))))))
             curves[policy].append(hits / len(starts))
     e = np.array(errs)
     ratio = e[:, 0].mean() / e[:, 1].mean()
