@@ -123,6 +123,13 @@ def compose(pose: ArrayLike, delta: ArrayLike) -> FloatArray:
     return out
 
 
+def place(xy: ArrayLike, pose: ArrayLike) -> FloatArray:
+    """Points ``(N, 2)`` given in the frame of ``pose`` (3,), expressed in the world."""
+    p = np.asarray(pose, dtype=float)
+    c, s = np.cos(p[2]), np.sin(p[2])
+    return np.asarray(np.asarray(xy, dtype=float) @ np.array([[c, s], [-s, c]]) + p[:2])
+
+
 def relative(pose: ArrayLike, other: ArrayLike) -> FloatArray:
     """``pose (-) other``: ``other`` expressed in ``pose``'s frame (inverse of compose)."""
     p, o = np.asarray(pose, dtype=float), np.asarray(other, dtype=float)

@@ -1,6 +1,8 @@
 """The one simulator: a robot with noisy odometry and a landmark observer (SPEC §7).
 
-Later sensors (camera, laser) ray-cast against the same :class:`numeric.world.World`.
+The camera (:mod:`numeric.camera`) and the laser (:mod:`numeric.laser`) ray-cast against
+the same :class:`numeric.world.World`; :func:`follow_path` and :func:`odometry_along` drive
+the robot for recorded runs.
 """
 
 from __future__ import annotations
@@ -10,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydantic import BaseModel, Field
 
-from numeric.geometry import line_of_sight, segments_cross, wrap_angle
+from numeric.geometry import compose, line_of_sight, relative, segments_cross, wrap_angle
 from numeric.qualitative.observation import Observation, SeenLandmark
 from numeric.world import World
 
@@ -139,3 +141,47 @@ class Robot:
         o = self.odom_pose
         o[:2] += distance_m * np.array([np.cos(o[2]), np.sin(o[2])])
         return True
+
+
+def follow_path(waypoints: np.ndarray, speed_m_s: float, period_s: float,
+                turn_rate_rad_s: float = 1.0) -> np.ndarray:
+    """True poses ``(N, 3)`` every ``period_s`` of a robot that turns in place towards the
+    next waypoint (at ``turn_rate_rad_s``) and drives straight to it at ``speed_m_s``."""
+    wp = np.asarray(waypoints, dtype=float)
+    pose = np.array([wp[0, 0], wp[0, 1], 0.0])
+    if len(wp) > 1:
+        pose[2] = np.arctan2(*(wp[1] - wp[0])[::-1])
+    out = [pose.copy()]
+    for target in wp[1:]:
+        heading = float(np.arctan2(target[1] - pose[1], target[0] - pose[0]))
+        while abs(float(wrap_angle(heading - pose[2]))) > 1e-9:
+            d = float(wrap_angle(heading - pose[2]))
+            pose[2] = float(wrap_angle(pose[2] + np.clip(d, -turn_rate_rad_s * period_s,
+                                                         turn_rate_rad_s * period_s)))
+            out.append(pose.copy())
+        while True:
+            gap = target - pose[:2]
+            dist = float(np.hypot(*gap))
+            if dist < 1e-9:
+                break
+            pose[:2] += gap * min(1.0, speed_m_s * period_s / dist)
+            out.append(pose.copy())
+    return np.array(out)
+
+
+def odometry_along(truth: np.ndarray, config: OdometryConfig,
+                   rng: np.random.Generator) -> np.ndarray:
+    """Odometry poses ``(N, 3)`` for the true poses ``truth``: each true increment
+    (in the robot frame) is read with multiplicative distance and turn noise and a
+    random-walk heading drift (``heading_drift_rad_per_m`` per sqrt(m) of travel), and
+    the noisy increments are integrated from ``truth[0]``."""
+    inc = relative(truth[:-1], truth[1:])
+    dist = np.hypot(inc[:, 0], inc[:, 1])
+    noisy = inc.copy()
+    noisy[:, :2] *= (1 + rng.normal(0, config.distance_noise_ratio, len(inc)))[:, None]
+    noisy[:, 2] = (inc[:, 2] * (1 + rng.normal(0, config.turn_noise_ratio, len(inc)))
+                   + rng.normal(0, config.heading_drift_rad_per_m * np.sqrt(dist + 1e-12)))
+    odom = [truth[0].copy()]
+    for u in noisy:
+        odom.append(compose(odom[-1], u))
+    return np.array(odom)

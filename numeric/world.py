@@ -102,6 +102,7 @@ class WorldObject(BaseModel):
     ] = (0.4, 0.3, 0.5)
     texture: Texture = "coffee"
     brightness: Brightness = 1.0
+    reflectivity: Probability = 0.5
 
     def footprint(self) -> np.ndarray:
         """Corners (4, 2) of the cuboid's footprint, counter-clockwise."""
@@ -183,12 +184,14 @@ class World:
 
     @cached_property
     def surfaces(self) -> Surfaces:
-        """Everything the camera sees: walls, then the 4 side faces of every object."""
+        """Everything the camera and the laser see: walls, then the 4 side faces of every
+        object."""
         d = self.description
         a = [w.a for w in d.walls]
         b = [w.b for w in d.walls]
         tex = [w.texture for w in d.walls]
         gain = [w.brightness for w in d.walls]
+        refl = [w.reflectivity for w in d.walls]
         top = [np.inf] * len(d.walls)
         for o in d.objects:
             c = o.footprint()
@@ -197,11 +200,13 @@ class World:
                 b.append(tuple(c[(k + 1) % 4]))
                 tex.append(o.texture)
                 gain.append(o.brightness)
+                refl.append(o.reflectivity)
                 top.append(o.size_m[2])
         return Surfaces(a=np.array(a, dtype=float).reshape(-1, 2),
                         b=np.array(b, dtype=float).reshape(-1, 2),
                         texture=tex, brightness=np.array(gain, dtype=float),
-                        top_m=np.array(top, dtype=float))
+                        top_m=np.array(top, dtype=float),
+                        reflectivity=np.array(refl, dtype=float))
 
     def is_free(self, xy: np.ndarray, clearance_m: float = 0.3) -> np.ndarray:
         """True for positions ``(M, 2)`` inside the walls (even-odd rule), outside every
@@ -242,11 +247,12 @@ class World:
 
 @dataclass(frozen=True)
 class Surfaces:
-    """Vertical surfaces: segments a->b (S, 2), texture id, lighting gain and top height
-    (``inf`` for walls, which reach the ceiling)."""
+    """Vertical surfaces: segments a->b (S, 2), texture id, lighting gain, top height
+    (``inf`` for walls, which reach the ceiling) and laser reflectivity in [0, 1]."""
 
     a: np.ndarray
     b: np.ndarray
     texture: list[str]
     brightness: np.ndarray
     top_m: np.ndarray
+    reflectivity: np.ndarray

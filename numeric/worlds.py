@@ -1,7 +1,8 @@
 """Built-in worlds: the demo office floor (and a scalable generator for benchmarks), and
 the eigenspace paper's rooms A-D (Table 1): A a 10 m square room, B a room whose shape
 changes in complex ways, C a square room with many small bumps, D room A after a lighting
-change, a new poster and moved objects."""
+change, a new poster and moved objects; and the SLAM paper's featureless corridor with
+reflectivity stripes."""
 
 from __future__ import annotations
 
@@ -174,7 +175,30 @@ def room_d(name: str = "room_d") -> WorldDescription:
     return WorldDescription(name=name, walls=walls, objects=_boxes(_D_BOXES))
 
 
+def stripe_corridor(name: str = "corridor", length_m: float = 40.0, width_m: float = 2.0,
+                    stripe_m: tuple[float, float] = (0.3, 1.2),
+                    reflectivity: tuple[float, float] = (0.15, 0.9),
+                    seed: int = 7) -> WorldDescription:
+    """The SLAM paper's hard case (SPEC §6): a straight corridor with no geometric
+    feature along its length -- its ends lie beyond a URG's 5.6 m when the robot is in
+    the middle -- but with stripes of alternating dark and bright material (random
+    widths in ``stripe_m``) on both walls."""
+    rng = np.random.default_rng(seed)
+    walls: list[Wall] = []
+    for y, side in ((0.0, 0), (width_m, 1)):
+        x, k = 0.0, side
+        while x < length_m - 1e-9:
+            nxt = min(length_m, x + float(rng.uniform(*stripe_m)))
+            a, b = ((x, y), (nxt, y)) if side == 0 else ((nxt, y), (x, y))
+            walls.append(Wall(a=a, b=b, texture="gravel", reflectivity=reflectivity[k % 2]))
+            x, k = nxt, k + 1
+    walls.append(Wall(a=(length_m, 0.0), b=(length_m, width_m), reflectivity=0.5))
+    walls.append(Wall(a=(0.0, width_m), b=(0.0, 0.0), reflectivity=0.5))
+    return WorldDescription(name=name, walls=walls)
+
+
 TEMPLATES: dict[str, Callable[[str], WorldDescription]] = {
+    "corridor": stripe_corridor,
     "demo": lambda name: office_world(name=name),
     "office": lambda name: office_world(name=name),
     "room_a": room_a,

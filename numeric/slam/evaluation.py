@@ -1,0 +1,82 @@
+"""The relation metric of Kümmerle et al. 2009, "On measuring the accuracy of SLAM
+algorithms".
+
+For every relation (t1, t2, delta_ref) the estimated relation is
+``delta_est = inv(X_t1) X_t2`` from the trajectory's poses at t1 and t2 (nearest stamp
+within ``max_dt_s``) and the error is ``E = inv(delta_ref) delta_est``; the
+translational error is ``|t(E)|`` (m), the rotational ``|angle(E)|`` (reported in
+degrees, as the published tables are). Means and sample standard deviations (n - 1) of
+the absolute and squared errors are returned, like the Freiburg metricEvaluator and
+Cartographer's ``compute_relations_metrics``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from numeric.errors import InvalidInput
+from numeric.geometry import compose, relative
+
+
+@dataclass(frozen=True)
+class RelationErrors:
+    """Mean ± std of the per-relation errors (m, m², deg, deg²) and how many relations
+    were evaluated (``n``) or had no pose within the time tolerance (``missing``)."""
+
+    n: int
+    missing: int
+    trans_m: float
+    trans_std_m: float
+    trans_sq_m2: float
+    trans_sq_std_m2: float
+    rot_deg: float
+    rot_std_deg: float
+    rot_sq_deg2: float
+    rot_sq_std_deg2: float
+
+    def as_dict(self) -> dict[str, float | int]:
+        return asdict(self)
+
+
+def _mean_std(v: np.ndarray) -> tuple[float, float]:
+    return float(np.mean(v)), float(np.std(v, ddof=1)) if len(v) > 1 else 0.0
+
+
+def poses_at(times: np.ndarray, poses: np.ndarray, query: np.ndarray,
+             max_dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Poses ``(Q, 3)`` of the trajectory at the nearest stamp to each query time and a
+    mask of queries that had a stamp within ``max_dt_s``."""
+    order = np.argsort(times, kind="stable")
+    ts = times[order]
+    i = np.clip(np.searchsorted(ts, query), 1, max(len(ts) - 1, 1))
+    left = np.clip(i - 1, 0, len(ts) - 1)
+    right = np.clip(i, 0, len(ts) - 1)
+    pick = np.where(np.abs(ts[left] - query) <= np.abs(ts[right] - query), left, right)
+    ok = np.abs(ts[pick] - query) <= max_dt_s
+    return poses[order][pick], ok
+
+
+def relation_errors(times: np.ndarray, poses: np.ndarray, rel_times: np.ndarray,
+                    rel_delta: np.ndarray, max_dt_s: float = 0.1) -> RelationErrors:
+    """Errors of the trajectory (``times (N,)``, ``poses (N, 3)``) on the relations
+    (``rel_times (R, 2)``, ``rel_delta (R, 3)``)."""
+    if len(times) == 0 or len(times) != len(poses):
+        raise InvalidInput("the trajectory is empty or its times and poses differ in length",
+                           field="trajectory")
+    p1, ok1 = poses_at(times, poses, rel_times[:, 0], max_dt_s)
+    p2, ok2 = poses_at(times, poses, rel_times[:, 1], max_dt_s)
+    ok = ok1 & ok2
+    if not np.any(ok):
+        raise InvalidInput("no relation falls on the trajectory's time stamps "
+                           f"(tolerance {max_dt_s} s)", field="relations")
+    est = relative(p1[ok], p2[ok])
+    err = compose(relative(rel_delta[ok], np.zeros(3)), est)  # inv(ref) * est
+    trans = np.hypot(err[:, 0], err[:, 1])
+    rot = np.degrees(np.abs(err[:, 2]))
+    tm, ts = _mean_std(trans)
+    tq, tqs = _mean_std(trans**2)
+    rm, rs = _mean_std(rot)
+    rq, rqs = _mean_std(rot**2)
+    return RelationErrors(int(ok.sum()), int((~ok).sum()), tm, ts, tq, tqs, rm, rs, rq, rqs)

@@ -1,0 +1,193 @@
+"""The map the matchers match against: keyframe scans.
+
+The paper's reference scan is "the previous scan plus the map points inside the sensor
+range at the current estimate" (§4). chizu keeps the map as keyframes -- scans taken
+whenever the robot has moved far enough -- whose points stay in their own robot frame;
+a map is the keyframes placed at their poses. The single-hypothesis methods own one pose
+per keyframe; every RBPF particle owns its own keyframe poses (§7.3: "each particle keeps
+its own map") while the scan data are shared, so resampling copies indices, never maps.
+
+:class:`LikelihoodField` precomputes, per keyframe and per intensity band, the distance
+to the nearest keyframe point and that point's intensity on a grid, so the RBPF can
+evaluate eq. 9 for hundreds of particles with array lookups.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydantic import BaseModel, Field
+from scipy import ndimage
+
+from numeric.geometry import place
+
+
+class MapConfig(BaseModel):
+    """When to match and when to add a keyframe, and which keyframes form a reference."""
+
+    update_linear_m: float = Field(0.1, ge=0, description="match after this much travel")
+    update_angular_rad: float = Field(0.1, ge=0, description="... or this much turn")
+    keyframe_linear_m: float = Field(0.3, ge=0)
+    keyframe_angular_rad: float = Field(0.2, ge=0)
+    recent_keyframes: int = Field(8, ge=1, description="always part of the reference")
+    nearby_radius_m: float = Field(6.0, ge=0, description="older keyframes this close join")
+    nearby_keyframes: int = Field(12, ge=0, description="... at most this many of them")
+    voxel_m: float = Field(0.05, gt=0, description="reference down-sampling")
+    max_points_m: float = Field(15.0, gt=0, description="keyframe points farther are dropped")
+
+
+def moved(a: np.ndarray, b: np.ndarray, linear_m: float, angular_rad: float) -> bool:
+    """True when pose ``b`` is at least ``linear_m`` or ``angular_rad`` away from ``a``."""
+    d = np.hypot(b[0] - a[0], b[1] - a[1])
+    t = abs((b[2] - a[2] + np.pi) % (2 * np.pi) - np.pi)
+    return bool(d >= linear_m or t >= angular_rad)
+
+
+def voxel_downsample(xy: np.ndarray, intensity: np.ndarray | None, voxel_m: float,
+                     ) -> tuple[np.ndarray, np.ndarray | None]:
+    """One point (the first) per ``voxel_m`` cell."""
+    if len(xy) == 0:
+        return xy, intensity
+    keys = np.floor(xy / voxel_m).astype(np.int64)
+    _, first = np.unique(keys[:, 0] * 4_000_003 + keys[:, 1], return_index=True)
+    return xy[first], None if intensity is None else intensity[first]
+
+
+@dataclass
+class Keyframe:
+    """Scan data of one keyframe in its own robot frame (shared by every hypothesis)."""
+
+    scan_index: int
+    xy: np.ndarray
+    intensity: np.ndarray | None
+
+
+@dataclass
+class Keyframes:
+    """The keyframe scans of a run; poses live with the hypotheses that place them."""
+
+    config: MapConfig
+    frames: list[Keyframe] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def add(self, scan_index: int, xy: np.ndarray, intensity: np.ndarray | None) -> int:
+        near = np.hypot(xy[:, 0], xy[:, 1]) <= self.config.max_points_m
+        xy, intensity = xy[near], None if intensity is None else intensity[near]
+        xy, intensity = voxel_downsample(xy, intensity, self.config.voxel_m)
+        self.frames.append(Keyframe(scan_index, xy, intensity))
+        return len(self.frames) - 1
+
+    def select(self, pose: np.ndarray, kf_xy: np.ndarray) -> np.ndarray:
+        """Keyframes forming the reference at ``pose``: the ``recent_keyframes`` last ones
+        and up to ``nearby_keyframes`` older ones within ``nearby_radius_m`` (``kf_xy`` =
+        the keyframe positions of the hypothesis)."""
+        n = len(self.frames)
+        cfg = self.config
+        recent = np.arange(max(0, n - cfg.recent_keyframes), n)
+        old = n - len(recent)
+        if old == 0 or cfg.nearby_keyframes == 0:
+            return recent
+        d = np.hypot(kf_xy[:old, 0] - pose[0], kf_xy[:old, 1] - pose[1])
+        cand = np.flatnonzero(d <= cfg.nearby_radius_m)
+        cand = cand[np.argsort(d[cand])[:cfg.nearby_keyframes]]
+        return np.concatenate([np.sort(cand), recent])
+
+    def reference(self, chosen: np.ndarray, poses: np.ndarray,
+                  ) -> tuple[np.ndarray, np.ndarray | None]:
+        """World points and intensities of keyframes ``chosen`` placed at ``poses``."""
+        xy = [place(self.frames[k].xy, poses[k]) for k in chosen]
+        has_i = all(self.frames[k].intensity is not None for k in chosen)
+        it = [self.frames[k].intensity for k in chosen] if has_i else None
+        pts = np.vstack(xy) if xy else np.zeros((0, 2))
+        inten = np.concatenate(it) if it else None  # type: ignore[arg-type]
+        return voxel_downsample(pts, inten, self.config.voxel_m)
+
+
+class FieldConfig(BaseModel):
+    """Grid of the likelihood fields (eq. 9 lookups)."""
+
+    resolution_m: float = Field(0.05, gt=0)
+    cutoff_m: float = Field(0.3, gt=0, description="residual cap: no correspondence beyond")
+    intensity_bands: int = Field(6, ge=1, le=32)
+    cache_size: int = Field(96, ge=1)
+
+
+class LikelihoodField:
+    """For one keyframe: per intensity band, the distance from every grid cell to the
+    nearest keyframe point of that band and that point's intensity.
+
+    With one band (no intensities, or alpha = 0) this is the classic likelihood field;
+    with several, ``min_b (d_b^2 + alpha (l_b - l_z)^2)`` approximates the augmented
+    nearest neighbour of eq. 1 (exact up to the spread of intensities inside a band).
+    """
+
+    def __init__(self, kf: Keyframe, config: FieldConfig, band_edges: np.ndarray | None) -> None:
+        res, cut = config.resolution_m, config.cutoff_m
+        self.res = res
+        self.cut2 = cut * cut
+        xy = kf.xy
+        self.origin = xy.min(axis=0) - cut - res
+        shape = np.ceil((xy.max(axis=0) + cut + res - self.origin) / res).astype(int) + 1
+        self.shape = (int(shape[0]), int(shape[1]))
+        cells = np.floor((xy - self.origin) / res).astype(int)
+        if band_edges is None or kf.intensity is None:
+            bands = np.zeros(len(xy), dtype=int)
+            n_bands = 1
+        else:
+            bands = np.clip(np.searchsorted(band_edges, kf.intensity) - 1, 0, len(band_edges) - 2)
+            n_bands = len(band_edges) - 1
+        self.dist2 = np.full((n_bands, *self.shape), self.cut2, dtype=np.float32)
+        self.inten = np.zeros((n_bands, *self.shape), dtype=np.float32)
+        for b in range(n_bands):
+            m = bands == b
+            if not np.any(m):
+                continue
+            occ = np.zeros(self.shape, dtype=bool)
+            occ[cells[m, 0], cells[m, 1]] = True
+            val = np.zeros(self.shape, dtype=np.float32)
+            if kf.intensity is not None:
+                val[cells[m, 0], cells[m, 1]] = kf.intensity[m]
+            d, (ix, iy) = ndimage.distance_transform_edt(~occ, return_indices=True)
+            self.dist2[b] = np.minimum((d * res) ** 2, self.cut2)
+            self.inten[b] = val[ix, iy]
+
+    def residual(self, xy: np.ndarray, intensity: np.ndarray | None, alpha: float) -> np.ndarray:
+        """Per point (any leading shape, last axis 2, keyframe frame) the capped
+        augmented squared residual ``min(cutoff^2, min_b d_b^2 + alpha (l_b - l)^2)``."""
+        c = np.floor((xy - self.origin) / self.res).astype(np.intp)
+        inside = ((c[..., 0] >= 0) & (c[..., 0] < self.shape[0])
+                  & (c[..., 1] >= 0) & (c[..., 1] < self.shape[1]))
+        cx = np.where(inside, c[..., 0], 0)
+        cy = np.where(inside, c[..., 1], 0)
+        d2 = self.dist2[:, cx, cy]  # (bands, ...)
+        if alpha > 0 and intensity is not None:
+            d2 = d2 + alpha * (self.inten[:, cx, cy] - intensity) ** 2
+        best = d2.min(axis=0)
+        return np.where(inside, np.minimum(best, self.cut2), self.cut2)
+
+
+class FieldCache:
+    """Likelihood fields of the keyframes in use (least recently used dropped)."""
+
+    def __init__(self, keyframes: Keyframes, config: FieldConfig,
+                 band_edges: np.ndarray | None) -> None:
+        self.keyframes = keyframes
+        self.config = config
+        self.band_edges = band_edges
+        self._cache: OrderedDict[int, LikelihoodField] = OrderedDict()
+
+    def get(self, k: int) -> LikelihoodField:
+        f = self._cache.get(k)
+        if f is None:
+            f = LikelihoodField(self.keyframes.frames[k], self.config, self.band_edges)
+            self._cache[k] = f
+            if len(self._cache) > self.config.cache_size:
+                self._cache.popitem(last=False)
+        else:
+            self._cache.move_to_end(k)
+        return f
+

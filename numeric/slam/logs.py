@@ -1,0 +1,243 @@
+"""Readers for recorded laser logs and writers for trajectories.
+
+- CARMEN logs (``.clf``/``.log``): ``FLASER``, ``ROBOTLASER1`` and ``RAWLASER1`` lines
+  with their embedded odometry; the format of the Freiburg / Radish SLAM benchmark data.
+- ROS 1 / ROS 2 bags: ``sensor_msgs/LaserScan`` plus ``nav_msgs/Odometry`` (read with the
+  pure-Python ``rosbags`` package), odometry interpolated to each scan's stamp and the
+  laser mount read from ``/tf_static``.
+- TUM trajectories (``t x y z qx qy qz qw``), as evo and most SLAM tools read them.
+- Relation files of Kümmerle et al. 2009 (``t1 t2 x y z roll pitch yaw``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+import numpy as np
+
+from numeric.errors import InvalidInput
+from numeric.geometry import relative, wrap_angle
+from numeric.slam.scan import LaserLog, Scan, beam_angles
+
+#: Usable range cap for the benchmark logs: their no-return codes are 50-82 m and the
+#: SICK LMS beams beyond ~40 m are mostly spurious.
+DEFAULT_MAX_RANGE_M = 40.0
+
+
+def _flaser_angles(n: int) -> np.ndarray:
+    """CARMEN FLASER convention: 180 (360) beams at 1 (0.5) degree from -90 degrees;
+    181 (361) beams spread evenly over [-90, +90] degrees."""
+    step = np.pi / (n - (n % 2)) if n > 1 else 0.0
+    return beam_angles(n, -np.pi / 2, step)
+
+
+def read_carmen(path: str | Path, max_range_m: float = DEFAULT_MAX_RANGE_M,
+                limit: int | None = None) -> LaserLog:
+    """Scans of a CARMEN log in file order (``FLASER``, ``ROBOTLASER1``, ``RAWLASER1``).
+
+    The odometry of each scan is the pose embedded in its line (``odom_x odom_y
+    odom_theta`` of FLASER, the robot pose of ROBOTLASER1); for ROBOTLASER1 the laser
+    mount is the laser pose relative to the robot pose. RAWLASER1 lines carry no pose and
+    take the latest ODOM line's. Remissions become intensities when there is one per beam.
+    """
+    path = Path(path)
+    scans: list[Scan] = []
+    last_odom = np.zeros(3)
+    angle_cache: dict[int, np.ndarray] = {}
+    with path.open("r", encoding="ascii", errors="replace") as fh:
+        for lineno, line in enumerate(fh, 1):
+            if limit is not None and len(scans) >= limit:
+                break
+            tag, _, rest = line.partition(" ")
+            if tag not in ("FLASER", "ROBOTLASER1", "RAWLASER1", "ODOM"):
+                continue
+            try:
+                tok = rest.split()
+                if tag == "ODOM":
+                    last_odom = np.array(tok[0:3], dtype=float)
+                    continue
+                if tag == "FLASER":
+                    n = int(tok[0])
+                    ranges = np.array(tok[1:1 + n], dtype=float)
+                    odom = np.array(tok[n + 4:n + 7], dtype=float)
+                    t = float(tok[n + 7])
+                    if n not in angle_cache:
+                        angle_cache[n] = _flaser_angles(n)
+                    scans.append(Scan(t=t, ranges=ranges, angles=angle_cache[n], odom=odom,
+                                      max_range_m=max_range_m))
+                    continue
+                start, _fov, res, maxr = (float(v) for v in tok[1:5])
+                n = int(tok[7])
+                ranges = np.array(tok[8:8 + n], dtype=float)
+                k = 8 + n
+                n_rem = int(tok[k])
+                rem = np.array(tok[k + 1:k + 1 + n_rem], dtype=float)
+                k += 1 + n_rem
+                intens = rem if n_rem == n else None
+                cap = min(max_range_m, maxr) if maxr > 0 else max_range_m
+                angles = beam_angles(n, start, res)
+                if tag == "ROBOTLASER1":
+                    laser = np.array(tok[k:k + 3], dtype=float)
+                    robot = np.array(tok[k + 3:k + 6], dtype=float)
+                    t = float(tok[k + 11])
+                    scans.append(Scan(t=t, ranges=ranges, angles=angles, odom=robot,
+                                      intensities=intens, max_range_m=cap,
+                                      sensor_pose=relative(robot, laser)))
+                else:
+                    t = float(tok[k])
+                    scans.append(Scan(t=t, ranges=ranges, angles=angles,
+                                      odom=last_odom.copy(), intensities=intens,
+                                      max_range_m=cap))
+            except (ValueError, IndexError) as exc:
+                raise InvalidInput(f"{path.name}:{lineno}: malformed {tag} line ({exc})",
+                                   field="log") from None
+    if not scans:
+        raise InvalidInput(f"{path.name}: no FLASER/ROBOTLASER1/RAWLASER1 lines", field="log")
+    return LaserLog(path.stem.split(".")[0], scans)
+
+
+def _yaw(q: object) -> float:
+    x, y, z, w = (float(getattr(q, k)) for k in ("x", "y", "z", "w"))
+    return float(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
+
+
+def _stamp(header: object) -> float:
+    st = header.stamp  # type: ignore[attr-defined]
+    return float(st.sec) + 1e-9 * float(st.nanosec)
+
+
+def read_ros_bag(path: str | Path, scan_topic: str | None = None,
+                 odom_topic: str | None = None, max_range_m: float = DEFAULT_MAX_RANGE_M,
+                 limit: int | None = None) -> LaserLog:
+    """Scans of a ROS 1 bag (file) or ROS 2 bag (directory) with ``sensor_msgs/LaserScan``
+    and ``nav_msgs/Odometry``. Odometry is interpolated to each scan stamp (held at the
+    ends); the laser mount comes from a ``/tf_static`` transform to the scan's frame."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    path = Path(path)
+    store = get_typestore(Stores.ROS1_NOETIC)
+    raw_scans: list[tuple[float, object]] = []
+    odo_t: list[float] = []
+    odo_p: list[tuple[float, float, float]] = []
+    mounts: dict[str, np.ndarray] = {}
+    try:
+        reader = AnyReader([path], default_typestore=store)
+    except Exception as exc:  # rosbags raises its own error types per format
+        raise InvalidInput(f"{path.name}: not a readable ROS bag ({exc})", field="log") from None
+    with reader:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        scan_topic = scan_topic or next((k for k, v in types.items()
+                                         if v == "sensor_msgs/msg/LaserScan"), None)
+        odom_topic = odom_topic or next((k for k, v in types.items()
+                                         if v == "nav_msgs/msg/Odometry"), None)
+        if scan_topic is None or types.get(scan_topic) != "sensor_msgs/msg/LaserScan":
+            raise InvalidInput(f"{path.name}: no sensor_msgs/LaserScan topic", field="scan_topic")
+        if odom_topic is None or types.get(odom_topic) != "nav_msgs/msg/Odometry":
+            raise InvalidInput(f"{path.name}: no nav_msgs/Odometry topic", field="odom_topic")
+        wanted = [c for c in reader.connections
+                  if c.topic in (scan_topic, odom_topic, "/tf_static")]
+        for con, _t, raw in reader.messages(connections=wanted):
+            msg = reader.deserialize(raw, con.msgtype)
+            if con.topic == scan_topic:
+                if limit is None or len(raw_scans) < limit:
+                    raw_scans.append((_stamp(msg.header), msg))
+            elif con.topic == odom_topic:
+                p = msg.pose.pose
+                odo_t.append(_stamp(msg.header))
+                odo_p.append((p.position.x, p.position.y, _yaw(p.orientation)))
+            else:
+                for tr in msg.transforms:
+                    tt = tr.transform
+                    mounts[tr.child_frame_id] = np.array(
+                        [tt.translation.x, tt.translation.y, _yaw(tt.rotation)])
+    if not raw_scans:
+        raise InvalidInput(f"{path.name}: no scans on {scan_topic}", field="log")
+    if not odo_t:
+        raise InvalidInput(f"{path.name}: no odometry on {odom_topic}", field="log")
+    order = np.argsort(odo_t, kind="stable")
+    ot = np.asarray(odo_t)[order]
+    op = np.asarray(odo_p)[order]
+    unwrapped = np.unwrap(op[:, 2])
+    scans: list[Scan] = []
+    for t, m in sorted(raw_scans, key=lambda s: s[0]):
+        odom = np.array([np.interp(t, ot, op[:, 0]), np.interp(t, ot, op[:, 1]),
+                         float(wrap_angle(np.interp(t, ot, unwrapped)))])
+        ranges = np.asarray(m.ranges, dtype=float)  # type: ignore[attr-defined]
+        n = len(ranges)
+        ranges = np.where(np.isfinite(ranges), ranges, np.inf)
+        intens = np.asarray(m.intensities, dtype=float)  # type: ignore[attr-defined]
+        cap = min(max_range_m, float(m.range_max))  # type: ignore[attr-defined]
+        ranges = np.minimum(ranges, cap)  # inf (no return) -> the cap, i.e. a miss
+        scans.append(Scan(
+            t=t, ranges=ranges, odom=odom,
+            angles=beam_angles(n, float(m.angle_min),  # type: ignore[attr-defined]
+                               float(m.angle_increment)),  # type: ignore[attr-defined]
+            intensities=intens if len(intens) == n else None,
+            min_range_m=max(0.0, float(m.range_min)),  # type: ignore[attr-defined]
+            max_range_m=cap,
+            sensor_pose=mounts.get(m.header.frame_id, np.zeros(3))))  # type: ignore[attr-defined]
+    return LaserLog(path.stem.split(".")[0], scans)
+
+
+def read_log(path: str | Path, max_range_m: float = DEFAULT_MAX_RANGE_M,
+             limit: int | None = None) -> LaserLog:
+    """A CARMEN log or a ROS bag, chosen by the file name (``.bag``, ``.db3``, ``.mcap``
+    or a directory = bag)."""
+    p = Path(path)
+    if not p.exists():
+        raise InvalidInput(f"{p}: no such file", field="log")
+    if p.is_dir() or p.suffix in (".bag", ".db3", ".mcap"):
+        return read_ros_bag(p, max_range_m=max_range_m, limit=limit)
+    return read_carmen(p, max_range_m=max_range_m, limit=limit)
+
+
+def write_tum(path: str | Path, times: np.ndarray, poses: np.ndarray) -> None:
+    """One line ``t x y z qx qy qz qw`` per pose (planar: z = qx = qy = 0)."""
+    half = 0.5 * poses[:, 2]
+    rows = np.column_stack([times, poses[:, 0], poses[:, 1], np.zeros(len(poses)),
+                            np.zeros(len(poses)), np.zeros(len(poses)),
+                            np.sin(half), np.cos(half)])
+    tmp = Path(str(path) + ".tmp")
+    np.savetxt(tmp, rows, fmt=["%.6f"] + ["%.6f"] * 7)
+    tmp.replace(path)
+
+
+def read_tum(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Times ``(N,)`` and planar poses ``(N, 3)`` of a TUM trajectory file."""
+    try:
+        a = np.loadtxt(path, comments="#", ndmin=2)
+    except (OSError, ValueError) as exc:
+        raise InvalidInput(f"{path}: not a TUM trajectory ({exc})", field="trajectory") from None
+    if a.shape[1] != 8 or len(a) == 0:
+        raise InvalidInput(f"{path}: expected 8 columns 't x y z qx qy qz qw'",
+                           field="trajectory")
+    qx, qy, qz, qw = a[:, 4], a[:, 5], a[:, 6], a[:, 7]
+    yaw = np.arctan2(2 * (qw * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))
+    return a[:, 0], np.column_stack([a[:, 1], a[:, 2], yaw])
+
+
+def read_relations(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Time pairs ``(R, 2)`` and relative poses ``(R, 3)`` (pose(t2) in the frame of
+    pose(t1)) of a Kümmerle et al. relations file."""
+    try:
+        a = np.loadtxt(path, comments="#", ndmin=2)
+    except (OSError, ValueError) as exc:
+        raise InvalidInput(f"{path}: not a relations file ({exc})", field="relations") from None
+    if a.shape[1] != 8:
+        raise InvalidInput(f"{path}: expected 8 columns 't1 t2 x y z roll pitch yaw'",
+                           field="relations")
+    return a[:, 0:2], a[:, [2, 3, 7]]
+
+
+def iter_batches(items: Iterable[Scan], size: int) -> Iterator[list[Scan]]:
+    """``items`` in lists of at most ``size``."""
+    batch: list[Scan] = []
+    for it in items:
+        batch.append(it)
+        if len(batch) == size:
+            yield batch
+            batch = []
+    if batch:
+        yield batch
