@@ -32,6 +32,8 @@ class OdometryConfig(BaseModel):
     distance_noise_ratio: float = Field(0.02, ge=0)
     turn_noise_ratio: float = Field(0.02, ge=0)
     heading_drift_rad_per_m: float = Field(0.005, ge=0)
+    distance_bias_ratio: float = Field(0.0, ge=-0.5, le=0.5,
+                                       description="systematic scale error (wheel slip)")
 
 
 class LandmarkObserver:
@@ -172,13 +174,15 @@ def follow_path(waypoints: np.ndarray, speed_m_s: float, period_s: float,
 def odometry_along(truth: np.ndarray, config: OdometryConfig,
                    rng: np.random.Generator) -> np.ndarray:
     """Odometry poses ``(N, 3)`` for the true poses ``truth``: each true increment
-    (in the robot frame) is read with multiplicative distance and turn noise and a
+    (in the robot frame) is read with a distance scale error, multiplicative distance and
+    turn noise and a
     random-walk heading drift (``heading_drift_rad_per_m`` per sqrt(m) of travel), and
     the noisy increments are integrated from ``truth[0]``."""
     inc = relative(truth[:-1], truth[1:])
     dist = np.hypot(inc[:, 0], inc[:, 1])
     noisy = inc.copy()
-    noisy[:, :2] *= (1 + rng.normal(0, config.distance_noise_ratio, len(inc)))[:, None]
+    noisy[:, :2] *= (1 + config.distance_bias_ratio
+                     + rng.normal(0, config.distance_noise_ratio, len(inc)))[:, None]
     noisy[:, 2] = (inc[:, 2] * (1 + rng.normal(0, config.turn_noise_ratio, len(inc)))
                    + rng.normal(0, config.heading_drift_rad_per_m * np.sqrt(dist + 1e-12)))
     odom = [truth[0].copy()]

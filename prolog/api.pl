@@ -21,6 +21,7 @@
 :- use_module(qualitative).
 :- use_module(drm).
 :- use_module(eigenspace).
+:- use_module(slam).
 :- use_module(query).
 :- use_module(loader, [message_text/2]).
 
@@ -178,7 +179,9 @@ run(facts, Args, Facts) :-
     existing_world(Args, W), world_module(W, M),
     findall(S, ( member(N/A, [landmark/1, rec/2, frec/3, lr/3, align/4, rea/2,
                               rule_probability/2, parameter/2,
-                              eig_point/3, eig_triplet/4, eig_candidate_set/2]),
+                              eig_point/3, eig_triplet/4, eig_candidate_set/2,
+                              map_pose/5, map_info/5, unknown_region/5,
+                              committed_map/1]),
                  functor(H, N, A), M:H,
                  format(string(S), "~k", [H]) ),
             Facts).
@@ -214,6 +217,44 @@ run(eigenspace_covering, Args, Cs) :-
     findall(_{triplet:T, distance_m:D},
             ( covers(W, T, X, Y), triplet_distance(W, T, X, Y, D) ),
             Cs).
+
+run(slam_facts, Args, _{world:W, run:Run, poses:NP, regions:NR}) :-
+    existing_world(Args, W),
+    arg_(run, Args, RunText), run_field(RunText, run, Run),
+    arg_(poses, Args, Ps0), json_list(Ps0, poses),
+    foldl(slam_pose_item(Run), Ps0, Ps, 0, NP),
+    arg_(info, Args, Info0), slam_info(Run, Info0, Info),
+    arg_(regions, Args, Rs0), json_list(Rs0, regions),
+    foldl(slam_region_item(Run), Rs0, Rs, 0, NR),
+    append([[committed_map(Run), Info], Ps, Rs], Facts),
+    replace_slam_facts(W, Facts).
+
+run(slam_summary, Args, _{run:Run, explored_fraction:F, path_length_m:L, resolution_m:Res,
+                         free_m2:Free, occupied_m2:Occ, unknown_m2:Unk, regions:Regions}) :-
+    existing_world(Args, W),
+    committed_map_run(W, Run),
+    world_module(W, M),
+    M:map_info(Run, Res, Free, Occ, Unk),
+    explored_fraction(W, F),
+    map_path_length(W, L),
+    findall(Id-_{id:Id, x:X, y:Y, area_m2:A}, M:unknown_region(Run, Id, X, Y, A), Rs0),
+    keysort(Rs0, Rs),
+    pairs_values(Rs, Regions).
+
+run(slam_regions_near, Args, Regions) :-
+    existing_world(Args, W),
+    arg_(x, Args, X), finite_number(X, x),
+    arg_(y, Args, Y), finite_number(Y, y),
+    arg_(radius, Args, R), finite_number(R, radius),
+    (   R >= 0 -> true ; throw(chizu_error(invalid_radius(R), radius)) ),
+    committed_map_run(W, Run),
+    world_module(W, M),
+    findall((D-Id)-_{id:Id, x:RX, y:RY, area_m2:A, distance:D},
+            ( unknown_region_within(W, X, Y, R, Id, D),
+              M:unknown_region(Run, Id, RX, RY, A) ),
+            Rs0),
+    keysort(Rs0, Rs),
+    pairs_values(Rs, Regions).
 
 dict_pairs_or_empty(Args, Key, Pairs) :-
     (   get_dict(Key, Args, D), is_dict(D) -> dict_pairs(D, _, Pairs) ; Pairs = [] ).
@@ -297,6 +338,48 @@ eig_set_member(NT, I, T, eig_candidate_set(M, T)-F, J, J1) :-
 %   Every triplet is in at most one candidate set.
 eig_set_disjoint(eig_candidate_set(_, T)-F, Seen, [T|Seen]) :-
     (   memberchk(T, Seen) -> throw(chizu_error(duplicate_triplet(T), F)) ; true ).
+
+%   A SLAM run id (^r[0-9a-f]{1,64}$); the atom is made only after the check.
+run_field(Text, Field, Run) :-
+    (   valid_run_id(Text) -> atom_string(Run, Text) ; throw(chizu_error(invalid_run_id(Text), Field)) ).
+
+%   The world's committed SLAM run; a world without one has no map to read.
+committed_map_run(W, Run) :-
+    (   committed_run(W, Run) -> true ; throw(chizu_error(unknown_map(W), world)) ).
+
+%   Pose indices are list positions.
+slam_pose_item(Run, P, map_pose(Run, I, X, Y, Th), I, I1) :-
+    I1 is I + 1,
+    field("poses[~d]", [I], F),
+    (   is_list(P), P = [X0, Y0, Th0] -> true ; throw(chizu_error(invalid_pose, F)) ),
+    maplist(finite_float(F), [X0, Y0, Th0], [X, Y, Th]).
+
+slam_info(Run, D, map_info(Run, Res, Free, Occ, Unk)) :-
+    (   is_dict(D) -> true ; throw(chizu_error(invalid_info, info)) ),
+    maplist(slam_info_value(D), [resolution_m, free_m2, occupied_m2, unknown_m2],
+            [Res, Free, Occ, Unk]).
+
+slam_info_value(D, Key, V) :-
+    field("info.~w", [Key], F),
+    (   get_dict(Key, D, V0) -> true ; throw(chizu_error(missing(Key), F)) ),
+    nonneg_float(F, V0, V).
+
+nonneg_float(Field, V0, V) :-
+    finite_float(Field, V0, V),
+    (   V >= 0 -> true ; throw(chizu_error(invalid_number(V0), Field)) ).
+
+%   Region ids are list positions.
+slam_region_item(Run, D, unknown_region(Run, I, X, Y, A), I, I1) :-
+    I1 is I + 1,
+    field("regions[~d]", [I], F),
+    (   is_dict(D) -> true ; throw(chizu_error(invalid_region, F)) ),
+    slam_region_value(D, I, x, FX, X0), finite_float(FX, X0, X),
+    slam_region_value(D, I, y, FY, Y0), finite_float(FY, Y0, Y),
+    slam_region_value(D, I, area_m2, FA, A0), nonneg_float(FA, A0, A).
+
+slam_region_value(D, I, Key, F, V) :-
+    field("regions[~d].~w", [I, Key], F),
+    (   get_dict(Key, D, V0) -> V = V0 ; throw(chizu_error(missing(Key), F)) ).
 
 %   {"state": "x"} | {"state": "y", "set": M | "unlisted"} | {"state": "z"}
 json_state(W, D, State) :-

@@ -10,6 +10,10 @@
       - the eigenspace facts and rules (eigenspace.pl), world filled in:
         eig_point/3, eig_triplet/4, eig_candidate_set/2, stop_outcome/3,
         next_state/3, state_after/2, covers/3, triplet_distance/4
+      - the SLAM map facts and rules (slam.pl), world filled in:
+        map_pose/5, map_info/5, unknown_region/5, committed_map/1,
+        explored_fraction/1, unknown_region_within/5,
+        largest_unknown_region/2, map_path_length/1
       - comparison: =, \=, ==, \==, and <, >, =<, >=, =:= on numbers or
         variables only (no arithmetic expressions, so no arithmetic bombs)
       - member/2, memberchk/2
@@ -25,6 +29,7 @@
 :- use_module(qualitative).
 :- use_module(drm).
 :- use_module(eigenspace).
+:- use_module(slam).
 
 %!  world_query(+World, +Text, +MaxSolutions, -Solutions, -Truncated) is det.
 %
@@ -96,6 +101,15 @@ relation_goal(_, next_state(S0, O, S), eigenspace:next_state(S0, O, S)).
 relation_goal(W, state_after(Stops, S), eigenspace:state_after(W, Stops, S)).
 relation_goal(W, covers(T, X, Y), eigenspace:covers(W, T, X, Y)).
 relation_goal(W, triplet_distance(T, X, Y, D), eigenspace:triplet_distance(W, T, X, Y, D)).
+relation_goal(W, map_pose(Run, I, X, Y, Th), M:map_pose(Run, I, X, Y, Th)) :- world_module(W, M).
+relation_goal(W, map_info(Run, Res, F, O, U), M:map_info(Run, Res, F, O, U)) :- world_module(W, M).
+relation_goal(W, unknown_region(Run, Id, X, Y, A), M:unknown_region(Run, Id, X, Y, A)) :-
+    world_module(W, M).
+relation_goal(W, committed_map(Run), M:committed_map(Run)) :- world_module(W, M).
+relation_goal(W, explored_fraction(F), slam:explored_fraction(W, F)).
+relation_goal(W, unknown_region_within(X, Y, R, Id, D), slam:unknown_region_within(W, X, Y, R, Id, D)).
+relation_goal(W, largest_unknown_region(Id, A), slam:largest_unknown_region(W, Id, A)).
+relation_goal(W, map_path_length(L), slam:map_path_length(W, L)).
 
 comparison(G) :-
     G =.. [Op, _, _],

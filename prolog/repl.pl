@@ -1,6 +1,9 @@
 /*  REPL conveniences: `chizu repl WORLD` loads a world's facts and makes the
     world current, so that the paper's relations can be asked without the
     world argument:  ?- reachable(a, c, P, M).
+    Eigenspace helpers: eig_state_after/2, covers/3, ...; SLAM map helpers:
+    explored_fraction(F), largest_unknown_region(Id, A),
+    unknown_region_within(X, Y, R, Id, D), map_path_length(L).
 */
 :- module(repl,
           [ use_world/1,            % +World
@@ -15,6 +18,10 @@
             eig_state_after/2,      % +Stops, -State
             covers/3,               % ?T, +X, +Y
             triplet_distance/4,     % ?T, +X, +Y, -D
+            explored_fraction/1,    % -F
+            largest_unknown_region/2, % -Id, -Area
+            unknown_region_within/5, % +X, +Y, +R, ?Id, -D
+            map_path_length/1,      % -L
             main/0
           ]).
 :- use_module(library(main), [argv_options/3]).
@@ -22,6 +29,7 @@
 :- use_module(qualitative, []).
 :- use_module(drm, []).
 :- use_module(eigenspace, []).
+:- use_module(slam, []).
 
 :- dynamic current_world/1.
 
@@ -68,6 +76,13 @@ eig_next_state(S0, O, S) :- eigenspace:next_state(S0, O, S).
 eig_state_after(Stops, S) :- w(W), eigenspace:state_after(W, Stops, S).
 covers(T, X, Y) :- w(W), eigenspace:covers(W, T, X, Y).
 triplet_distance(T, X, Y, D) :- w(W), eigenspace:triplet_distance(W, T, X, Y, D).
+
+%   The committed SLAM map (slam.pl), e.g.
+%   ?- explored_fraction(F), largest_unknown_region(Id, A).
+explored_fraction(F) :- w(W), slam:explored_fraction(W, F).
+largest_unknown_region(Id, A) :- w(W), slam:largest_unknown_region(W, Id, A).
+unknown_region_within(X, Y, R, Id, D) :- w(W), slam:unknown_region_within(W, X, Y, R, Id, D).
+map_path_length(L) :- w(W), slam:map_path_length(W, L).
 
 %!  main is det.
 %

@@ -37,6 +37,10 @@ world_fact(d_rec/3).                % materialised rec with probability
 world_fact(eig_point/3).            % eig_point(I, X, Y): eigenspace learning point
 world_fact(eig_triplet/4).          % eig_triplet(T, Points, Directions, Area)
 world_fact(eig_candidate_set/2).    % eig_candidate_set(M, T): T in candidate set M
+world_fact(map_pose/5).             % map_pose(Run, I, X, Y, Th): SLAM keyframe pose
+world_fact(map_info/5).             % map_info(Run, Res, Free, Occupied, Unknown)
+world_fact(unknown_region/5).       % unknown_region(Run, Id, X, Y, Area)
+world_fact(committed_map/1).        % committed_map(Run): the world's current map
 
 %!  valid_id(+Text) is semidet.
 %

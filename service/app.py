@@ -13,10 +13,11 @@ from numeric.qualitative.survey import survey
 from numeric.simulator import ObserverConfig
 from numeric.world import WorldDescription
 from service import errors
-from service.api.routes import eigenspace, health, qualitative, worlds
+from service.api.routes import eigenspace, health, qualitative, slam, worlds
 from service.eigenspace import EigenspaceService
 from service.kb import KnowledgeBase
 from service.settings import Settings, get_settings
+from service.slam import SlamService
 from service.store import Store
 from service.worlds import WorldService
 
@@ -49,6 +50,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         log.info("restored %d eigenspace analys(e)s", m)
         app.state.store, app.state.kb, app.state.worlds = store, kb, service
         app.state.eigenspace = eig
+        sl = SlamService(store, kb, service)
+        k = await asyncio.to_thread(sl.restore)
+        log.info("restored %d committed SLAM map(s)", k)
+        app.state.slam = sl
         try:
             yield
         finally:
@@ -61,6 +66,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(worlds.router)
     app.include_router(qualitative.router)
     app.include_router(eigenspace.router)
+    app.include_router(slam.router)
     errors.install(app)
     app.add_middleware(errors.BodySizeLimit, max_bytes=settings.max_body_bytes)
     return app

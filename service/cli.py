@@ -1,4 +1,4 @@
-"""The ``chizu`` command line: serve, repl, path."""
+"""The ``chizu`` command line: serve, repl, path, slam, slam-eval, slam-sim."""
 
 from __future__ import annotations
 
@@ -98,6 +98,108 @@ def repl(world: str) -> None:
     argv = [swipl, "-g", "repl:main", load, "--", f"--world={world}", f"--facts={name}"]
     sys.stdout.flush()
     os.execv(swipl, argv)
+
+
+def _slam_outputs(out: Path, times, poses, grid) -> None:  # type: ignore[no-untyped-def]
+    from numeric.slam.logs import write_tum
+
+    out.mkdir(parents=True, exist_ok=True)
+    write_tum(out / "trajectory.tum", times, poses)
+    (out / "map.png").write_bytes(grid.to_png())
+    (out / "map.pgm").write_bytes(grid.to_pgm())
+    (out / "map.yaml").write_text(grid.to_yaml("map.pgm"))
+
+
+@app.command()
+def slam(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .bag (or bag dir)"),
+         method: str = typer.Option("rbpf", help="odom | icp | gated | rbpf"),
+         particles: int = typer.Option(512, min=1, max=4096),
+         alpha: float = typer.Option(0.0, min=0.0, help="intensity weight (eqs. 1, 9)"),
+         proposal: str = typer.Option("odometry", help="RBPF proposal: odometry | gated-icp"),
+         max_range: float = typer.Option(40.0, min=0.1, help="usable range (m)"),
+         resolution: float = typer.Option(0.05, min=0.01, help="map cell size (m)"),
+         limit: int = typer.Option(0, min=0, help="only the first N scans (0: all)"),
+         seed: int = typer.Option(0, min=0),
+         out: str = typer.Option("slam-out", help="output directory")) -> None:
+    """Run SLAM over LOG; write OUT/trajectory.tum (TUM, the log's stamps), map.png
+    (intensity-coloured), map.pgm + map.yaml (ROS map_server)."""
+    from pydantic import ValidationError
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from numeric.errors import InvalidInput
+    from numeric.slam.logs import read_log
+    from numeric.slam.runner import SlamOptions, run_log
+
+    try:
+        opts = SlamOptions(method=method, particles=particles, alpha=alpha,  # type: ignore[arg-type]
+                           proposal=proposal, map_resolution_m=resolution,  # type: ignore[arg-type]
+                           seed=seed)
+        data = read_log(Path(log), max_range_m=max_range, limit=limit or None)
+    except (ValidationError, InvalidInput) as e:
+        console.print(f"[red]{e}[/red]")
+        raise typer.Exit(2) from None
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(),
+                  TextColumn("{task.completed}/{task.total} scans"), TimeRemainingColumn(),
+                  console=console, transient=True) as bar:
+        task = bar.add_task(f"{opts.method} {data.name}", total=len(data))
+        try:
+            _, res = run_log(data, opts, lambda i: bar.update(task, completed=i))
+        except InvalidInput as e:
+            console.print(f"[red]{e}[/red]")
+            raise typer.Exit(2) from None
+    _slam_outputs(Path(out), res.times, res.poses, res.map)
+    console.print(f"{opts.method}: {len(data)} scans ({data.duration_s:.0f} s of log) in "
+                  f"{res.seconds:.1f} s = {data.duration_s / max(res.seconds, 1e-9):.1f}x real "
+                  f"time; wrote {out}/trajectory.tum, map.png, map.pgm, map.yaml")
+
+
+@app.command("slam-eval")
+def slam_eval(trajectory: Path, relations: Path,
+              max_dt: float = typer.Option(0.1, help="pose-to-relation time tolerance (s)"),
+              ) -> None:
+    """Relation errors (Kümmerle et al. 2009) of a TUM TRAJECTORY against RELATIONS."""
+    from numeric.errors import InvalidInput
+    from numeric.slam.evaluation import relation_errors
+    from numeric.slam.logs import read_relations, read_tum
+
+    try:
+        t, p = read_tum(trajectory)
+        rt, rd = read_relations(relations)
+        e = relation_errors(t, p, rt, rd, max_dt)
+    except InvalidInput as exc:
+        console.print(f"[red]{exc}[/red]")
+        raise typer.Exit(2) from None
+    table = Table(title=f"{trajectory} vs {relations.name}: {e.n} relations"
+                        + (f" ({e.missing} without poses)" if e.missing else ""))
+    for col in ("error", "mean", "std"):
+        table.add_column(col)
+    table.add_row("abs trans (m)", f"{e.trans_m:.4f}", f"{e.trans_std_m:.4f}")
+    table.add_row("sq trans (m²)", f"{e.trans_sq_m2:.4f}", f"{e.trans_sq_std_m2:.4f}")
+    table.add_row("abs rot (deg)", f"{e.rot_deg:.3f}", f"{e.rot_std_deg:.3f}")
+    table.add_row("sq rot (deg²)", f"{e.rot_sq_deg2:.3f}", f"{e.rot_sq_std_deg2:.3f}")
+    console.print(table)
+
+
+@app.command("slam-sim")
+def slam_sim(template: str = typer.Argument("corridor", help="built-in world"),
+             out: str = typer.Option("sim.clf", help="CARMEN log to write"),
+             seed: int = typer.Option(0, min=0)) -> None:
+    """Record a simulated URG-04LX log (with intensities) in a built-in world as a
+    CARMEN ROBOTLASER1 log, plus OUT.truth.tum with the true poses."""
+    from numeric.errors import InvalidInput
+    from numeric.slam.logs import write_carmen, write_tum
+    from numeric.slam.simulate import TOURS, simulated_log
+
+    try:
+        log = simulated_log(template, seed=seed)
+    except (InvalidInput, KeyError) as e:
+        console.print(f"[red]no simulated tour for {template!r}; try one of {sorted(TOURS)}"
+                      f" ({e})[/red]")
+        raise typer.Exit(2) from None
+    write_carmen(out, log)
+    assert log.truth is not None
+    write_tum(Path(str(out) + ".truth.tum"), log.times, log.truth)
+    console.print(f"wrote {out} ({len(log)} scans) and {out}.truth.tum")
 
 
 if __name__ == "__main__":

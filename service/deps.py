@@ -9,6 +9,7 @@ from fastapi import Depends, Request
 from service.eigenspace import EigenspaceService
 from service.kb import KnowledgeBase
 from service.settings import Settings, get_settings
+from service.slam import SlamService
 from service.worlds import WorldService
 
 
@@ -20,6 +21,10 @@ def _eigenspace(request: Request) -> EigenspaceService:
     return request.app.state.eigenspace  # type: ignore[no-any-return]
 
 
+def _slam(request: Request) -> SlamService:
+    return request.app.state.slam  # type: ignore[no-any-return]
+
+
 def _kb(request: Request) -> KnowledgeBase:
     return request.app.state.kb  # type: ignore[no-any-return]
 
@@ -28,3 +33,4 @@ SettingsDep = Annotated[Settings, Depends(get_settings)]
 WorldsDep = Annotated[WorldService, Depends(_worlds)]
 KbDep = Annotated[KnowledgeBase, Depends(_kb)]
 EigenspaceDep = Annotated[EigenspaceService, Depends(_eigenspace)]
+SlamDep = Annotated[SlamService, Depends(_slam)]

@@ -20,6 +20,7 @@ PROBLEM = "application/problem+json"
 # knowledge-base error type -> HTTP status
 KB_STATUS = {
     "unknown_world": 404,
+    "unknown_map": 404,
     "limit": 503,
     "unavailable": 503,
     "internal": 500,

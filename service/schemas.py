@@ -141,3 +141,38 @@ class CameraIn(BaseModel):
         None, description="render a full turn of this many images instead of one")
     format: Literal["list", "png"] = "list"
     camera: CameraConfig | None = None
+
+
+NonNegFinite = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+MAX_BEAMS = 4096
+
+
+class ScanIn(BaseModel):
+    """One laser scan with the odometry pose at its time stamp (like a ROS
+    ``sensor_msgs/LaserScan`` plus ``nav_msgs/Odometry``). No-returns are ranges at or
+    beyond ``range_max`` (NaN is rejected)."""
+
+    model_config = ConfigDict(extra="forbid")
+    t: FiniteFloat = Field(description="time stamp (s), strictly increasing within a run")
+    ranges: Annotated[list[NonNegFinite], Field(min_length=1, max_length=MAX_BEAMS)]
+    intensities: Annotated[list[NonNegFinite], Field(max_length=MAX_BEAMS)] | None = None
+    angle_min: FiniteFloat = Field(description="direction of the first beam (rad)")
+    angle_increment: Annotated[float, Field(gt=0, le=1.0, allow_inf_nan=False)]
+    range_min: NonNegFinite = 0.02
+    range_max: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] = 30.0
+    odom: tuple[FiniteFloat, FiniteFloat, FiniteFloat] = Field(
+        description="odometry pose (x, y, theta) at t")
+
+    @model_validator(mode="after")
+    def _consistent(self) -> ScanIn:
+        if self.intensities is not None and len(self.intensities) != len(self.ranges):
+            raise ValueError(f"intensities has {len(self.intensities)} values for "
+                             f"{len(self.ranges)} ranges")
+        if self.range_min >= self.range_max:
+            raise ValueError("range_min must be below range_max")
+        return self
+
+
+class ScansIn(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    scans: Annotated[list[ScanIn], Field(min_length=1, max_length=500)]

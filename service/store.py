@@ -41,6 +41,18 @@ CREATE TABLE IF NOT EXISTS artifacts (
     created_at  REAL NOT NULL,
     PRIMARY KEY (world, kind)
 );
+CREATE TABLE IF NOT EXISTS slam_runs (
+    id          TEXT PRIMARY KEY,
+    world       TEXT NOT NULL REFERENCES worlds(name) ON DELETE CASCADE,
+    options     TEXT NOT NULL,
+    created_at  REAL NOT NULL
+);
+CREATE TABLE IF NOT EXISTS slam_scans (
+    run         TEXT NOT NULL REFERENCES slam_runs(id) ON DELETE CASCADE,
+    seq         INTEGER NOT NULL,
+    scan        TEXT NOT NULL,
+    PRIMARY KEY (run, seq)
+);
 CREATE TABLE IF NOT EXISTS sessions (
     id          TEXT PRIMARY KEY,
     world       TEXT NOT NULL REFERENCES worlds(name) ON DELETE CASCADE,
@@ -157,6 +169,36 @@ class Store:
             row = self._conn.execute("SELECT world, data FROM sessions WHERE id = ?",
                                      (sid,)).fetchone()
         return None if row is None else (row[0], json.loads(row[1]))
+
+    @staticmethod
+    def put_slam_run(conn: sqlite3.Connection, rid: str, world: str,
+                     options: dict[str, Any]) -> None:
+        conn.execute("INSERT INTO slam_runs (id, world, options, created_at) VALUES (?, ?, ?, ?)",
+                     (rid, world, json.dumps(options, allow_nan=False), time.time()))
+
+    @staticmethod
+    def delete_slam_run(conn: sqlite3.Connection, rid: str) -> None:
+        conn.execute("DELETE FROM slam_scans WHERE run = ?", (rid,))
+        conn.execute("DELETE FROM slam_runs WHERE id = ?", (rid,))
+
+    @staticmethod
+    def append_slam_scans(conn: sqlite3.Connection, rid: str, first_seq: int,
+                          scans: list[dict[str, Any]]) -> None:
+        conn.executemany("INSERT INTO slam_scans (run, seq, scan) VALUES (?, ?, ?)",
+                         [(rid, first_seq + i, json.dumps(s, allow_nan=False))
+                          for i, s in enumerate(scans)])
+
+    def slam_runs(self) -> list[tuple[str, str, dict[str, Any]]]:
+        with self._lock:
+            rows = self._conn.execute(
+                "SELECT id, world, options FROM slam_runs ORDER BY created_at").fetchall()
+        return [(r[0], r[1], json.loads(r[2])) for r in rows]
+
+    def slam_scans(self, rid: str) -> list[dict[str, Any]]:
+        with self._lock:
+            rows = self._conn.execute("SELECT scan FROM slam_scans WHERE run = ? ORDER BY seq",
+                                      (rid,)).fetchall()
+        return [json.loads(r[0]) for r in rows]
 
     def close(self) -> None:
         with self._lock:

@@ -35,11 +35,13 @@ class IcpConfig(BaseModel):
     (m² per intensity unit²: with the URG's 0-40 000 scale, 1e-9 makes a contrast of
     10 000 count as 0.32 m); 0 gives plain geometric ICP."""
 
+
     alpha: float = Field(0.0, ge=0, allow_inf_nan=False)
     metric: Literal["point", "line"] = "point"
     max_iterations: int = Field(40, ge=1, le=1000)
     max_correspondence_m: float = Field(1.0, gt=0)
-    trim_factor: float = Field(3.0, gt=0, description="reject pairs beyond k x median (augmented) distance")
+    trim_factor: float = Field(3.0, gt=0,
+                               description="reject pairs beyond k x median (augmented) distance")
     trim_floor_m: float = Field(0.05, ge=0, description="never trim pairs closer than this")
     tolerance_m: float = Field(1e-4, gt=0)
     tolerance_rad: float = Field(1e-4, gt=0)
@@ -145,8 +147,9 @@ def intensity_icp(reference: Reference, scan_xy: np.ndarray, scan_intensity: np.
     z1 = place(scan_xy, init)
     total = np.zeros(3)  # world-frame transform applied to z1 (eq. 3)
     cur = z1
-    converged, it, inl, resid = False, 0, 0, np.inf
+    converged, iterations, inl, resid = False, 0, 0, np.inf
     for it in range(1, config.max_iterations + 1):
+        iterations = it
         d, idx = reference.nearest(cur, scan_intensity, config.max_correspondence_m)
         ok = np.isfinite(d)
         if ok.sum() < config.min_inliers:
@@ -175,4 +178,4 @@ def intensity_icp(reference: Reference, scan_xy: np.ndarray, scan_intensity: np.
     c, s = np.cos(total[2]), np.sin(total[2])
     pose = np.array([c * init[0] - s * init[1] + total[0], s * init[0] + c * init[1] + total[1],
                      float(wrap_angle(init[2] + total[2]))])
-    return IcpResult(pose, relative(init, pose), converged, it, inl, resid)
+    return IcpResult(pose, relative(init, pose), converged, iterations, inl, resid)

@@ -13,11 +13,12 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from numeric.errors import InvalidInput
-from numeric.geometry import relative, wrap_angle
+from numeric.geometry import compose, relative, wrap_angle
 from numeric.slam.scan import LaserLog, Scan, beam_angles
 
 #: Usable range cap for the benchmark logs: their no-return codes are 50-82 m and the
@@ -102,8 +103,8 @@ def _yaw(q: object) -> float:
     return float(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
 
 
-def _stamp(header: object) -> float:
-    st = header.stamp  # type: ignore[attr-defined]
+def _stamp(header: Any) -> float:
+    st = header.stamp
     return float(st.sec) + 1e-9 * float(st.nanosec)
 
 
@@ -118,7 +119,7 @@ def read_ros_bag(path: str | Path, scan_topic: str | None = None,
 
     path = Path(path)
     store = get_typestore(Stores.ROS1_NOETIC)
-    raw_scans: list[tuple[float, object]] = []
+    raw_scans: list[tuple[float, Any]] = []
     odo_t: list[float] = []
     odo_p: list[tuple[float, float, float]] = []
     mounts: dict[str, np.ndarray] = {}
@@ -139,7 +140,7 @@ def read_ros_bag(path: str | Path, scan_topic: str | None = None,
         wanted = [c for c in reader.connections
                   if c.topic in (scan_topic, odom_topic, "/tf_static")]
         for con, _t, raw in reader.messages(connections=wanted):
-            msg = reader.deserialize(raw, con.msgtype)
+            msg: Any = reader.deserialize(raw, con.msgtype)
             if con.topic == scan_topic:
                 if limit is None or len(raw_scans) < limit:
                     raw_scans.append((_stamp(msg.header), msg))
@@ -164,20 +165,19 @@ def read_ros_bag(path: str | Path, scan_topic: str | None = None,
     for t, m in sorted(raw_scans, key=lambda s: s[0]):
         odom = np.array([np.interp(t, ot, op[:, 0]), np.interp(t, ot, op[:, 1]),
                          float(wrap_angle(np.interp(t, ot, unwrapped)))])
-        ranges = np.asarray(m.ranges, dtype=float)  # type: ignore[attr-defined]
+        ranges = np.asarray(m.ranges, dtype=float)
         n = len(ranges)
-        ranges = np.where(np.isfinite(ranges), ranges, np.inf)
-        intens = np.asarray(m.intensities, dtype=float)  # type: ignore[attr-defined]
-        cap = min(max_range_m, float(m.range_max))  # type: ignore[attr-defined]
-        ranges = np.minimum(ranges, cap)  # inf (no return) -> the cap, i.e. a miss
+        intens = np.asarray(m.intensities, dtype=float)
+        cap = min(max_range_m, float(m.range_max))
+        ranges = np.where(np.isfinite(ranges), ranges, cap)  # inf / NaN = no return: a miss
         scans.append(Scan(
             t=t, ranges=ranges, odom=odom,
-            angles=beam_angles(n, float(m.angle_min),  # type: ignore[attr-defined]
-                               float(m.angle_increment)),  # type: ignore[attr-defined]
+            angles=beam_angles(n, float(m.angle_min),
+                               float(m.angle_increment)),
             intensities=intens if len(intens) == n else None,
-            min_range_m=max(0.0, float(m.range_min)),  # type: ignore[attr-defined]
+            min_range_m=max(0.0, float(m.range_min)),
             max_range_m=cap,
-            sensor_pose=mounts.get(m.header.frame_id, np.zeros(3))))  # type: ignore[attr-defined]
+            sensor_pose=mounts.get(m.header.frame_id, np.zeros(3))))
     return LaserLog(path.stem.split(".")[0], scans)
 
 
@@ -229,6 +229,28 @@ def read_relations(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         raise InvalidInput(f"{path}: expected 8 columns 't1 t2 x y z roll pitch yaw'",
                            field="relations")
     return a[:, 0:2], a[:, [2, 3, 7]]
+
+
+def write_carmen(path: str | Path, log: LaserLog) -> None:
+    """``log`` as CARMEN ``ROBOTLASER1`` lines (with remissions when the scans have
+    intensities), readable by :func:`read_carmen` and CARMEN tools."""
+    lines = ["# chizu simulated log: ROBOTLASER1 laser_type start_angle fov angular_res "
+             "max_range accuracy remission_mode n ranges num_remissions remissions laser_x "
+             "laser_y laser_theta robot_x robot_y robot_theta tv rv fsd ssd turn_axis "
+             "ipc_timestamp ipc_hostname logger_timestamp"]
+    for s in log.scans:
+        n = len(s.ranges)
+        res = float(s.angles[1] - s.angles[0]) if n > 1 else 0.0
+        laser = compose(s.odom, s.sensor_pose)
+        rem = s.intensities if s.intensities is not None else np.zeros(0)
+        parts = ["ROBOTLASER1 0", f"{s.angles[0]:.9f}", f"{res * (n - 1):.9f}", f"{res:.9f}",
+                 f"{s.max_range_m:.3f}", "0.01", "0" if s.intensities is None else "1", str(n),
+                 " ".join(f"{r:.3f}" for r in s.ranges), str(len(rem)),
+                 " ".join(f"{v:.0f}" for v in rem),
+                 " ".join(f"{v:.6f}" for v in (*laser, *s.odom)), "0 0 0 0 0",
+                 f"{s.t:.6f} sim {s.t:.6f}"]
+        lines.append(" ".join(p for p in parts if p != ""))
+    Path(path).write_text("\n".join(lines) + "\n", encoding="ascii")
 
 
 def iter_batches(items: Iterable[Scan], size: int) -> Iterator[list[Scan]]:

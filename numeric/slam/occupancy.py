@@ -72,7 +72,8 @@ class OccupancyMap:
         img = np.full(rows.shape, 205, dtype=np.uint8)
         img[rows == FREE] = 254
         img[rows == OCCUPIED] = 0
-        head = f"P5\n# chizu map, {self.resolution_m} m/cell\n{img.shape[1]} {img.shape[0]}\n255\n"
+        h, w = rows.shape
+        head = f"P5\n# chizu map, {self.resolution_m} m/cell\n{w} {h}\n255\n"
         return head.encode("ascii") + img.tobytes()
 
     def to_yaml(self, image: str = "map.pgm") -> str:

@@ -57,7 +57,7 @@ class RbpfConfig(BaseModel):
 
     particles: int = Field(512, ge=1, le=10000)
     alpha: float = Field(0.0, ge=0, description="intensity weight of eq. 9 (as in eq. 1)")
-    sigma_z: float = Field(0.002, gt=0, description="sigma of eq. 8, in the units of d_t (m²)")
+    sigma_z: float = Field(0.0005, gt=0, description="sigma of eq. 8, in the units of d_t (m²)")
     likelihood: Literal["eq8", "linear"] = Field(
         "eq8", description="eq8: exp(-d_t^2 / 2 sigma_z^2) as printed; linear: "
                            "exp(-d_t / 2 sigma_z^2), a Gaussian on the residual with sigma_z in m")
@@ -73,8 +73,8 @@ class RbpfConfig(BaseModel):
     ess_threshold: float = Field(0.5, gt=0, le=1)
     intensity_max: float = Field(40000.0, gt=0, description="top of the intensity bands")
     motion: MotionNoise = Field(default_factory=MotionNoise)
-    map: MapConfig = Field(default_factory=lambda: MapConfig(recent_keyframes=4,
-                                                             nearby_keyframes=4))
+    map: MapConfig = Field(default_factory=lambda: MapConfig(recent_keyframes=8,
+                                                             nearby_keyframes=8))
     field: FieldConfig = Field(default_factory=FieldConfig)
     seed: int = 0
 
@@ -102,8 +102,9 @@ class RbpfSlam:
         self.rng = np.random.default_rng(cfg.seed)
         self.keyframes = Keyframes(cfg.map)
         use_i = cfg.alpha > 0 and cfg.field.intensity_bands > 1
-        edges = np.linspace(0.0, cfg.intensity_max, cfg.field.intensity_bands + 1) if use_i else None
-        if edges is not None:
+        edges = None
+        if use_i:
+            edges = np.linspace(0.0, cfg.intensity_max, cfg.field.intensity_bands + 1)
             edges[-1] = np.inf
             edges[0] = -np.inf
         self.fields = FieldCache(self.keyframes, cfg.field, edges)

@@ -1,0 +1,116 @@
+"""SLAM runs: create, stream scans, pose, trajectory, maps, commit to the world."""
+
+from __future__ import annotations
+
+import io
+from typing import Annotated, Any
+
+import numpy as np
+from fastapi import APIRouter, Query, Response, status
+
+from numeric.slam.runner import SlamOptions
+from service.api.routes.worlds import WorldName
+from service.deps import SlamDep
+from service.schemas import ScansIn
+
+router = APIRouter(prefix="/worlds/{world}", tags=["SLAM"])
+
+
+@router.post("/slam-runs", status_code=status.HTTP_201_CREATED)
+async def post_run(world: WorldName, options: SlamOptions, slam: SlamDep,
+                   response: Response) -> dict[str, Any]:
+    """Start a SLAM run (method odom | icp | gated | rbpf, particles, intensity weight
+    alpha, RBPF proposal and resampling, map resolution, seed)."""
+    run = await slam.create(world, options)
+    response.headers["Location"] = f"/worlds/{world}/slam-runs/{run['id']}"
+    return run
+
+
+@router.get("/slam-runs")
+async def get_runs(world: WorldName, slam: SlamDep) -> list[dict[str, Any]]:
+    return slam.list_runs(world)
+
+
+@router.get("/slam-runs/{rid}")
+async def get_run(world: WorldName, rid: str, slam: SlamDep) -> dict[str, Any]:
+    """Scans so far, keyframes, the current pose estimate."""
+    return await slam.status(world, rid)
+
+
+@router.delete("/slam-runs/{rid}", status_code=status.HTTP_204_NO_CONTENT)
+async def delete_run(world: WorldName, rid: str, slam: SlamDep) -> Response:
+    await slam.delete(world, rid)
+    return Response(status_code=status.HTTP_204_NO_CONTENT)
+
+
+@router.post("/slam-runs/{rid}/scans")
+async def post_scans(world: WorldName, rid: str, body: ScansIn, slam: SlamDep) -> dict[str, Any]:
+    """Stream up to 500 scans (each with its odometry) in increasing time order; the
+    batch is all-or-nothing. Returns the run's status with the new pose."""
+    return await slam.add_scans(world, rid, body.scans)
+
+
+@router.get("/slam-runs/{rid}/pose")
+async def get_pose(world: WorldName, rid: str, slam: SlamDep) -> dict[str, Any]:
+    st = await slam.status(world, rid)
+    return {"t": st["last_t"], "pose": st["pose"], "scans": st["scans"]}
+
+
+@router.get("/slam-runs/{rid}/trajectory", response_model=None)
+async def get_trajectory(world: WorldName, rid: str, slam: SlamDep,
+                         format: str = "json") -> Any:
+    """Pose per scan; ``format=tum`` gives a TUM file (``t x y z qx qy qz qw``)."""
+    t, p = await slam.trajectory(world, rid)
+    if format == "tum":
+        half = 0.5 * p[:, 2] if len(p) else np.zeros(0)
+        rows = np.column_stack([t, p[:, 0], p[:, 1], np.zeros((len(t), 3)), np.sin(half),
+                                np.cos(half)]) if len(t) else np.zeros((0, 8))
+        buf = io.StringIO()
+        np.savetxt(buf, rows, fmt="%.6f")
+        return Response(buf.getvalue(), media_type="text/plain")
+    return {"t": t.tolist(), "poses": np.round(p, 6).tolist()}
+
+
+@router.get("/slam-runs/{rid}/map.png", response_class=Response)
+async def get_map_png(world: WorldName, rid: str, slam: SlamDep) -> Response:
+    """The map of the best hypothesis: free white, unknown grey, walls coloured by
+    received intensity."""
+    return Response((await slam.grid(world, rid)).to_png(), media_type="image/png")
+
+
+@router.get("/slam-runs/{rid}/map.pgm", response_class=Response)
+async def get_map_pgm(world: WorldName, rid: str, slam: SlamDep) -> Response:
+    """ROS map_server image (0 occupied, 254 free, 205 unknown)."""
+    return Response((await slam.grid(world, rid)).to_pgm(),
+                    media_type="image/x-portable-graymap")
+
+
+@router.get("/slam-runs/{rid}/map.yaml", response_class=Response)
+async def get_map_yaml(world: WorldName, rid: str, slam: SlamDep) -> Response:
+    """ROS map_server metadata for map.pgm."""
+    return Response((await slam.grid(world, rid)).to_yaml("map.pgm"),
+                    media_type="application/yaml")
+
+
+@router.post("/slam-runs/{rid}/commit")
+async def post_commit(world: WorldName, rid: str, slam: SlamDep) -> dict[str, Any]:
+    """Make this run's map the world's map: keyframe poses, occupancy summary and
+    enclosed unknown regions become facts; the grid is stored for the planners."""
+    return await slam.commit(world, rid)
+
+
+@router.get("/map")
+async def get_world_map(world: WorldName, slam: SlamDep) -> Any:
+    """The world's committed map as the knowledge base sees it (Prolog rules)."""
+    return await slam.summary(world)
+
+
+@router.get("/map/unknown-regions")
+async def get_unknown_regions(world: WorldName, slam: SlamDep,
+                              x: Annotated[float, Query(allow_inf_nan=False)],
+                              y: Annotated[float, Query(allow_inf_nan=False)],
+                              radius: Annotated[float, Query(ge=0, le=1e4,
+                                                             allow_inf_nan=False)] = 5.0,
+                              ) -> Any:
+    """Unknown regions of the committed map within ``radius`` of (x, y), nearest first."""
+    return await slam.regions_near(world, x, y, radius)

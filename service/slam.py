@@ -1,0 +1,222 @@
+"""SLAM runs in the service: create a run in a world, stream scans (+ odometry) to it,
+read the pose and trajectory, fetch the map (PNG, PGM/YAML), commit it to the world.
+
+Flow: ``numeric.slam`` estimates; committing turns the best map into facts
+(``slam_facts``: keyframe poses, occupancy summary, enclosed unknown regions) in the
+world's knowledge base, where ``prolog/slam.pl`` rules answer questions about it, and
+stores the occupancy grid as the world's ``slam_map`` artifact for the planners.
+
+Every accepted scan is stored (SQLite) before the estimator sees it; estimators are
+seeded, so after a restart a run is rebuilt by replaying its scans (lazily, on first
+use) and ends in the same state. A batch is validated as a whole first: a malformed
+scan or a time stamp that does not increase rejects the batch and leaves the run as
+it was.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import uuid
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from numeric.errors import InvalidInput
+from numeric.slam.occupancy import OccupancyMap, build_occupancy
+from numeric.slam.runner import Slam, SlamOptions, create
+from numeric.slam.scan import Scan, beam_angles
+from service.kb import KnowledgeBase
+from service.schemas import ScanIn
+from service.store import Store
+from service.worlds import NotFound, WorldService
+
+log = logging.getLogger(__name__)
+MAP_ARTIFACT = "slam_map"
+FACTS_ARTIFACT = "slam_facts"
+MAX_SCANS_PER_RUN = 200_000
+UNKNOWN_REGION_MIN_M2 = 0.5
+
+
+def to_scan(s: ScanIn) -> Scan:
+    """The numeric scan of a request item (raises :class:`InvalidInput`)."""
+    r = np.asarray(s.ranges, dtype=float)
+    return Scan(t=s.t, ranges=r, angles=beam_angles(len(r), s.angle_min, s.angle_increment),
+                odom=np.asarray(s.odom, dtype=float),
+                intensities=None if s.intensities is None else np.asarray(s.intensities, float),
+                min_range_m=s.range_min, max_range_m=s.range_max)
+
+
+@dataclass
+class Run:
+    id: str
+    world: str
+    options: SlamOptions
+    slam: Slam
+    scans: int = 0
+    last_t: float = -np.inf
+    replayed: bool = True
+    lock: asyncio.Lock = field(default_factory=asyncio.Lock)
+    _map: tuple[int, OccupancyMap] | None = None
+
+    def status(self) -> dict[str, Any]:
+        pose = self.slam.pose
+        return {"id": self.id, "world": self.world, "options": self.options.model_dump(),
+                "scans": self.scans, "keyframes": len(self.slam.keyframes),
+                "last_t": None if self.scans == 0 else self.last_t,
+                "pose": None if self.scans == 0 else
+                {"x": float(pose[0]), "y": float(pose[1]), "theta": float(pose[2])}}
+
+
+class SlamService:
+    def __init__(self, store: Store, kb: KnowledgeBase, worlds: WorldService) -> None:
+        self.store, self.kb, self.worlds = store, kb, worlds
+        self.runs: dict[str, Run] = {}
+        worlds.on_delete.append(self._forget)
+
+    def _forget(self, world: str) -> None:
+        for rid in [r.id for r in self.runs.values() if r.world == world]:
+            del self.runs[rid]
+
+    def restore(self) -> int:
+        """Reload runs (replayed lazily) and re-assert committed maps' facts."""
+        for rid, world, opts in self.store.slam_runs():
+            o = SlamOptions.model_validate(opts)
+            self.runs[rid] = Run(rid, world, o, create(o), replayed=False)
+        n = 0
+        for name in self.worlds.names():
+            blob = self.store.artifact(name, FACTS_ARTIFACT)
+            if blob is not None:
+                self.kb.call("slam_facts", **json.loads(blob))
+                n += 1
+        return n
+
+    async def _run(self, world: str, rid: str) -> Run:
+        self.worlds.model(world)  # 404 for an unknown world
+        run = self.runs.get(rid)
+        if run is None or run.world != world:
+            raise NotFound(f"SLAM run {rid!r} does not exist in world {world!r}", field="run")
+        if not run.replayed:
+            async with run.lock:
+                if not run.replayed:
+                    rows = self.store.slam_scans(rid)
+                    await asyncio.to_thread(self._replay, run, rows)
+        return run
+
+    @staticmethod
+    def _replay(run: Run, rows: list[dict[str, Any]]) -> None:
+        for row in rows:
+            scan = to_scan(ScanIn.model_validate(row))
+            run.slam.process(scan)
+            run.scans += 1
+            run.last_t = scan.t
+        run.replayed = True
+
+    async def create(self, world: str, options: SlamOptions) -> dict[str, Any]:
+        self.worlds.model(world)
+        rid = "r" + uuid.uuid4().hex[:16]
+        run = Run(rid, world, options, create(options))
+        with self.store.transaction() as conn:
+            self.store.put_slam_run(conn, rid, world, options.model_dump())
+        self.runs[rid] = run
+        return run.status()
+
+    def list_runs(self, world: str) -> list[dict[str, Any]]:
+        self.worlds.model(world)
+        return [{"id": r.id, "method": r.options.method,
+                 "scans": r.scans if r.replayed else None}
+                for r in self.runs.values() if r.world == world]
+
+    async def status(self, world: str, rid: str) -> dict[str, Any]:
+        return (await self._run(world, rid)).status()
+
+    async def add_scans(self, world: str, rid: str, items: list[ScanIn]) -> dict[str, Any]:
+        run = await self._run(world, rid)
+        async with run.lock:
+            scans: list[Scan] = []
+            last = run.last_t
+            for i, item in enumerate(items):
+                try:
+                    scan = to_scan(item)
+                except InvalidInput as e:
+                    raise InvalidInput(str(e), field=f"scans[{i}].{e.field}") from None
+                if not scan.t > last:
+                    raise InvalidInput(f"time stamp {scan.t} does not follow {last} (scans must "
+                                       "arrive in increasing time order)", field=f"scans[{i}].t")
+                last = scan.t
+                scans.append(scan)
+            if run.scans + len(scans) > MAX_SCANS_PER_RUN:
+                raise InvalidInput(f"a run holds at most {MAX_SCANS_PER_RUN} scans",
+                                   field="scans")
+            with self.store.transaction() as conn:
+                self.store.append_slam_scans(conn, rid, run.scans,
+                                             [s.model_dump() for s in items])
+            await asyncio.to_thread(self._process, run, scans)
+            return run.status()
+
+    @staticmethod
+    def _process(run: Run, scans: list[Scan]) -> None:
+        for s in scans:
+            run.slam.process(s)
+            run.scans += 1
+            run.last_t = s.t
+
+    async def trajectory(self, world: str, rid: str) -> tuple[np.ndarray, np.ndarray]:
+        run = await self._run(world, rid)
+        async with run.lock:
+            return run.slam.trajectory()
+
+    async def grid(self, world: str, rid: str) -> OccupancyMap:
+        run = await self._run(world, rid)
+        async with run.lock:
+            if run.scans == 0:
+                raise InvalidInput("the run has no scans yet", field="run")
+            if run._map is None or run._map[0] != run.scans:
+                g = await asyncio.to_thread(build_occupancy, run.slam.keyframes,
+                                            run.slam.map_poses(), run.options.map_resolution_m)
+                run._map = (run.scans, g)
+            return run._map[1]
+
+    async def commit(self, world: str, rid: str) -> dict[str, Any]:
+        """Make the run's map the world's map: facts into the knowledge base, grid stored."""
+        run = await self._run(world, rid)
+        g = await self.grid(world, rid)
+        poses = run.slam.map_poses()
+        summary = g.summary()
+        regions = g.unknown_regions(UNKNOWN_REGION_MIN_M2)
+        call = {"world": world, "run": rid,
+                "poses": [[round(float(v), 6) for v in p] for p in poses],
+                "info": {k: summary[k] for k in ("resolution_m", "free_m2", "occupied_m2",
+                                                 "unknown_m2")},
+                "regions": regions}
+        async with self.worlds._write:
+            previous = self.store.artifact(world, FACTS_ARTIFACT)
+            reply = await self.kb.acall("slam_facts", **call)
+            try:
+                with self.store.transaction() as conn:
+                    self.store.put_artifact(conn, world, MAP_ARTIFACT, g.to_npz())
+                    self.store.put_artifact(conn, world, FACTS_ARTIFACT,
+                                            json.dumps(call).encode())
+            except Exception:
+                if previous is not None:  # keep the knowledge base in step with the store
+                    await self.kb.acall("slam_facts", **json.loads(previous))
+                raise
+        return {"world": world, "run": rid, "facts": reply, "map": summary,
+                "unknown_regions": regions}
+
+    async def summary(self, world: str) -> Any:
+        self.worlds.model(world)
+        return await self.kb.acall("slam_summary", world=world)
+
+    async def regions_near(self, world: str, x: float, y: float, radius: float) -> Any:
+        self.worlds.model(world)
+        return await self.kb.acall("slam_regions_near", world=world, x=x, y=y, radius=radius)
+
+    async def delete(self, world: str, rid: str) -> None:
+        run = await self._run(world, rid)
+        async with run.lock:
+            with self.store.transaction() as conn:
+                self.store.delete_slam_run(conn, rid)
+            self.runs.pop(rid, None)
