@@ -36,6 +36,7 @@ test: install
 bench: install
 	$(PY) tests/bench/run.py
 	$(PY) tests/bench/eigenspace.py
+	$(PY) tests/bench/slam.py
 
 lint: install
 	$(VENV)/bin/ruff check numeric service tests

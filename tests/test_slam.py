@@ -14,6 +14,7 @@ from typer.testing import CliRunner
 from numeric.errors import InvalidInput
 from numeric.geometry import compose, place, relative
 from numeric.laser import Laser, LaserConfig
+from numeric.slam.datasets import slam_data_dir
 from numeric.slam.evaluation import relation_errors
 from numeric.slam.gated import GateConfig, SingleHypothesisSlam, inside_gate
 from numeric.slam.intensity_icp import IcpConfig, Reference, intensity_icp
@@ -33,8 +34,9 @@ from numeric.world import World, WorldDescription
 from numeric.worlds import from_template
 from service.cli import app as cli
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "slam"
-needs_data = pytest.mark.skipif(not DATA.exists(), reason="benchmark logs not present")
+_DATA = slam_data_dir()
+DATA = _DATA or Path("/nonexistent")
+needs_data = pytest.mark.skipif(_DATA is None, reason="benchmark logs not present")
 
 
 @pytest.fixture(scope="module")

@@ -18,13 +18,14 @@ from pathlib import Path
 import numpy as np
 
 from numeric.geometry import compose, relative
+from numeric.slam.datasets import slam_data_dir
 from numeric.slam.evaluation import relation_errors
 from numeric.slam.intensity_icp import IcpConfig, Reference, intensity_icp
 from numeric.slam.logs import read_log, read_relations
 from numeric.slam.runner import SlamOptions, run_log
 from numeric.slam.simulate import simulated_log
 
-DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "slam"
+DATA = slam_data_dir() or Path("../shared/data/slam")
 LOGS = [("aces", "aces.recon.clf"), ("mit-csail", "mit-csail.clf"),
         ("fr079", "fr079.recon.clf"), ("fr-clinic", "fr-clinic.recon.clf")]
 #: SOURCES.md: abs trans (m) - SM / RBPF (GMapping) secondary source; Graph Mapping
