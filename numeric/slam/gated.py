@@ -107,8 +107,7 @@ class SingleHypothesisSlam:
             res = self._match(predicted, xy, inten)
             info.matched, info.icp = True, res
             self.matched += 1
-            good = res.inliers >= max(self.icp.min_inliers, 0.3 * len(xy))
-            if good and (self.method == "icp"
+            if res.usable(len(xy), self.icp) and (self.method == "icp"
                          or inside_gate(self._anchor_pose, res.pose, u, self.gate)):
                 pose = res.pose
                 info.accepted = True

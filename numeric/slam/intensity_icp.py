@@ -62,9 +62,10 @@ class IcpResult:
     inliers: int
     residual: float
 
-    @property
-    def ok(self) -> bool:
-        return self.converged and self.inliers > 0
+    def usable(self, scan_points: int, config: IcpConfig) -> bool:
+        """Enough of the scan found partners (at least 30 % and ``min_inliers``) for the
+        pose to be worth considering."""
+        return self.inliers >= max(config.min_inliers, 0.3 * scan_points)
 
 
 class Reference:

@@ -11,7 +11,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -252,14 +251,3 @@ def write_carmen(path: str | Path, log: LaserLog) -> None:
         lines.append(" ".join(p for p in parts if p != ""))
     Path(path).write_text("\n".join(lines) + "\n", encoding="ascii")
 
-
-def iter_batches(items: Iterable[Scan], size: int) -> Iterator[list[Scan]]:
-    """``items`` in lists of at most ``size``."""
-    batch: list[Scan] = []
-    for it in items:
-        batch.append(it)
-        if len(batch) == size:
-            yield batch
-            batch = []
-    if batch:
-        yield batch

@@ -112,7 +112,8 @@ class RbpfSlam:
         self.x = np.zeros((p, 3))
         self.logw = np.zeros(p)
         self.loglik = np.zeros(p)  # accumulated likelihood, inherited on resampling
-        self._kf_pose: list[np.ndarray] = []  # per keyframe: (P, 3) poses at insertion
+        self._kf_pose = np.zeros((16, p, 3))  # per keyframe: (P, 3) poses at insertion
+        self._n_kf = 0
         self._lineage = np.zeros((0, p), dtype=np.int32)  # per keyframe: which column
         self._hist_pose: list[np.ndarray] = []  # per matched step: (P, 3) float32
         self._hist_parent: list[np.ndarray] = []  # per matched step: (P,) int32
@@ -134,26 +135,24 @@ class RbpfSlam:
         particle against its own map, if eq. 5 accepts it."""
         cfg = self.config
         b = self.best
-        poses = [self._kf_pose[k][self._lineage[k, b]] for k in range(len(self._kf_pose))]
-        chosen = self.keyframes.select(self.x[b], np.array(poses)[:, :2])
-        ref_xy, ref_i = self.keyframes.reference(chosen, poses)  # type: ignore[arg-type]
+        poses = self._kf_poses_of(b)
+        chosen = self.keyframes.select(self.x[b], poses[:, :2])
+        ref_xy, ref_i = self.keyframes.reference(chosen, poses)
         if len(ref_xy) < cfg.icp.min_inliers:
             return None
         predicted = compose(self.x[b], u)
         res = intensity_icp(Reference(ref_xy, ref_i, cfg.icp.alpha), xy, inten, predicted,
                             cfg.icp)
-        if res.inliers < max(cfg.icp.min_inliers, 0.3 * len(xy)):
-            return None
-        if not inside_gate(self.x[b], res.pose, u, cfg.gate):
+        if not res.usable(len(xy), cfg.icp) or not inside_gate(self.x[b], res.pose, u,
+                                                                cfg.gate):
             return None
         return relative(self.x[b], res.pose)
 
     def likelihood(self, xy: np.ndarray, inten: np.ndarray | None) -> np.ndarray:
         """log p(z | x, m) per particle, eqs. 8-9 (up to a constant)."""
         cfg = self.config
-        best = int(np.argmax(self.loglik))
-        kf_xy = self._kf_positions(best)
-        chosen = self.keyframes.select(self.x[best], kf_xy)
+        best = self.best
+        chosen = self.keyframes.select(self.x[best], self._kf_poses_of(best)[:, :2])
         res = np.full((len(self.x), len(xy)), np.inf)
         for k in chosen:
             kf_pose = self._kf_pose[k][self._lineage[k]]  # (P, 3): each particle's own
@@ -185,7 +184,10 @@ class RbpfSlam:
 
     def add_keyframe(self, scan_index: int, xy: np.ndarray, inten: np.ndarray | None) -> None:
         self.keyframes.add(scan_index, xy, inten)
-        self._kf_pose.append(self.x.copy())
+        if self._n_kf == len(self._kf_pose):  # grow by doubling: amortised O(1)
+            self._kf_pose = np.concatenate([self._kf_pose, np.zeros_like(self._kf_pose)])
+        self._kf_pose[self._n_kf] = self.x
+        self._n_kf += 1
         row = np.arange(len(self.x), dtype=np.int32)[None, :]
         self._lineage = np.vstack([self._lineage, row])
 
@@ -234,9 +236,10 @@ class RbpfSlam:
         self._hist_parent.append((np.arange(p) if idx is None else idx).astype(np.int32))
         self._scan_step.append(len(self._hist_pose) - 1)
 
-    def _kf_positions(self, particle: int) -> np.ndarray:
-        return np.array([self._kf_pose[k][self._lineage[k, particle], :2]
-                         for k in range(len(self._kf_pose))])
+    def _kf_poses_of(self, particle: int) -> np.ndarray:
+        """The keyframe poses ``(K, 3)`` of one particle: its map."""
+        k = self._n_kf
+        return np.asarray(self._kf_pose[np.arange(k), self._lineage[:k, particle]])
 
     # -- outputs ------------------------------------------------------------------------
     @property
@@ -264,6 +267,4 @@ class RbpfSlam:
 
     def map_poses(self) -> np.ndarray:
         """The best particle's keyframe poses ``(K, 3)``: its map."""
-        b = self.best
-        return np.array([self._kf_pose[k][self._lineage[k, b]]
-                         for k in range(len(self._kf_pose))]).reshape(-1, 3)
+        return self._kf_poses_of(self.best)
