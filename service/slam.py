@@ -107,11 +107,7 @@ class SlamService:
 
     @staticmethod
     def _replay(run: Run, rows: list[dict[str, Any]]) -> None:
-        for row in rows:
-            scan = to_scan(ScanIn.model_validate(row))
-            run.slam.process(scan)
-            run.scans += 1
-            run.last_t = scan.t
+        SlamService._process(run, [to_scan(ScanIn.model_validate(r)) for r in rows])
         run.replayed = True
 
     async def create(self, world: str, options: SlamOptions) -> dict[str, Any]:

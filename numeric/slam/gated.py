@@ -22,10 +22,10 @@ from pydantic import BaseModel, Field
 
 from numeric.geometry import compose, place, relative, wrap_angle
 from numeric.slam.intensity_icp import IcpConfig, IcpResult, Reference, intensity_icp
-from numeric.slam.keyframes import Keyframes, MapConfig, moved, voxel_downsample
+from numeric.slam.keyframes import Keyframes, MapConfig, moved
 from numeric.slam.scan import Scan
 
-Method = Literal["odom", "icp", "gated", "rbpf"]
+SingleMethod = Literal["odom", "icp", "gated"]
 
 
 class GateConfig(BaseModel):
@@ -63,7 +63,7 @@ class StepInfo:
 class SingleHypothesisSlam:
     """``method`` = "odom", "icp" or "gated" (eq. 5); feed scans with :meth:`process`."""
 
-    method: Method = "gated"
+    method: SingleMethod = "gated"
     icp: IcpConfig = field(default_factory=IcpConfig)
     map: MapConfig = field(default_factory=MapConfig)
     gate: GateConfig = field(default_factory=GateConfig)
@@ -123,15 +123,9 @@ class SingleHypothesisSlam:
                inten: np.ndarray | None) -> IcpResult:
         kf_xy = np.array(self.kf_poses)[:, :2]
         chosen = self.keyframes.select(predicted, kf_xy)
-        ref_xy, ref_i = self.keyframes.reference(chosen, self.kf_poses)  # type: ignore[arg-type]
         assert self._prev is not None
-        pxy, pi = self._prev
-        ref_xy = np.vstack([ref_xy, pxy])
-        if ref_i is not None and pi is not None:
-            ref_i = np.concatenate([ref_i, pi])
-        else:
-            ref_i = None
-        ref_xy, ref_i = voxel_downsample(ref_xy, ref_i, self.map.voxel_m)
+        ref_xy, ref_i = self.keyframes.reference(chosen, self.kf_poses,  # type: ignore[arg-type]
+                                                 extra=self._prev)
         return intensity_icp(Reference(ref_xy, ref_i, self.icp.alpha), xy, inten, predicted,
                              self.icp)
 

@@ -27,7 +27,7 @@ from pydantic import BaseModel, Field
 from scipy.spatial import cKDTree
 
 from numeric.errors import InvalidInput
-from numeric.geometry import place, relative, wrap_angle
+from numeric.geometry import compose, place, relative
 
 
 class IcpConfig(BaseModel):
@@ -133,11 +133,6 @@ def rigid_step_line(src: np.ndarray, dst: np.ndarray, normals: np.ndarray) -> np
     return np.asarray(-np.linalg.solve(h, j.T @ r))
 
 
-def _apply(step: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    c, s = np.cos(step[2]), np.sin(step[2])
-    return np.asarray(xy @ np.array([[c, s], [-s, c]]) + step[:2])
-
-
 def intensity_icp(reference: Reference, scan_xy: np.ndarray, scan_intensity: np.ndarray | None,
                   initial_pose: np.ndarray, config: IcpConfig) -> IcpResult:
     """Align the scan (robot-frame points ``(N, 2)``, intensities ``(N,)``) to
@@ -166,17 +161,10 @@ def intensity_icp(reference: Reference, scan_xy: np.ndarray, scan_intensity: np.
             step = rigid_step_point(cur[sel], dst)
         else:
             step = rigid_step_line(cur[sel], dst, reference.normals[idx[sel]])
-        # compose the world-frame step onto the accumulated transform
-        c, s = np.cos(step[2]), np.sin(step[2])
-        total = np.array([c * total[0] - s * total[1] + step[0],
-                          s * total[0] + c * total[1] + step[1],
-                          float(wrap_angle(total[2] + step[2]))])
-        cur = _apply(total, z1)
+        total = compose(step, total)  # the world-frame step after the accumulated one
+        cur = place(z1, total)
         if np.hypot(step[0], step[1]) < config.tolerance_m and abs(step[2]) < config.tolerance_rad:
             converged = True
             break
-    # the pose whose scan lands on ``cur``: world transform ``total`` applied to ``init``
-    c, s = np.cos(total[2]), np.sin(total[2])
-    pose = np.array([c * init[0] - s * init[1] + total[0], s * init[0] + c * init[1] + total[1],
-                     float(wrap_angle(init[2] + total[2]))])
+    pose = compose(total, init)  # the pose whose scan lands on ``cur``
     return IcpResult(pose, relative(init, pose), converged, iterations, inl, resid)

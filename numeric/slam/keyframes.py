@@ -97,13 +97,18 @@ class Keyframes:
         return np.concatenate([np.sort(cand), recent])
 
     def reference(self, chosen: np.ndarray, poses: np.ndarray,
+                  extra: tuple[np.ndarray, np.ndarray | None] | None = None,
                   ) -> tuple[np.ndarray, np.ndarray | None]:
-        """World points and intensities of keyframes ``chosen`` placed at ``poses``."""
+        """World points and intensities of keyframes ``chosen`` placed at ``poses``,
+        plus the ``extra`` world points (the previous scan), down-sampled once."""
         xy = [place(self.frames[k].xy, poses[k]) for k in chosen]
-        has_i = all(self.frames[k].intensity is not None for k in chosen)
-        it = [self.frames[k].intensity for k in chosen] if has_i else None
+        it: list[np.ndarray | None] = [self.frames[k].intensity for k in chosen]
+        if extra is not None:
+            xy.append(extra[0])
+            it.append(extra[1])
         pts = np.vstack(xy) if xy else np.zeros((0, 2))
-        inten = np.concatenate(it) if it else None  # type: ignore[arg-type]
+        have = [i for i in it if i is not None]
+        inten = np.concatenate(have) if have and len(have) == len(it) else None
         return voxel_downsample(pts, inten, self.config.voxel_m)
 
 

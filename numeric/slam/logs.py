@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 from typing import Any
 
@@ -192,14 +193,22 @@ def read_log(path: str | Path, max_range_m: float = DEFAULT_MAX_RANGE_M,
     return read_carmen(p, max_range_m=max_range_m, limit=limit)
 
 
-def write_tum(path: str | Path, times: np.ndarray, poses: np.ndarray) -> None:
+def format_tum(times: np.ndarray, poses: np.ndarray) -> str:
     """One line ``t x y z qx qy qz qw`` per pose (planar: z = qx = qy = 0)."""
+    poses = np.asarray(poses, dtype=float).reshape(-1, 3)
     half = 0.5 * poses[:, 2]
-    rows = np.column_stack([times, poses[:, 0], poses[:, 1], np.zeros(len(poses)),
-                            np.zeros(len(poses)), np.zeros(len(poses)),
+    zero = np.zeros(len(poses))
+    rows = np.column_stack([times, poses[:, 0], poses[:, 1], zero, zero, zero,
                             np.sin(half), np.cos(half)])
+    buf = io.StringIO()
+    np.savetxt(buf, rows, fmt="%.6f")
+    return buf.getvalue()
+
+
+def write_tum(path: str | Path, times: np.ndarray, poses: np.ndarray) -> None:
+    """:func:`format_tum` into ``path`` (written to a temporary file, then renamed)."""
     tmp = Path(str(path) + ".tmp")
-    np.savetxt(tmp, rows, fmt=["%.6f"] + ["%.6f"] * 7)
+    tmp.write_text(format_tum(times, poses))
     tmp.replace(path)
 
 

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from numeric.errors import InvalidInput
-from numeric.geometry import compose
+from numeric.geometry import place
 
 
 @dataclass(frozen=True)
@@ -44,9 +44,7 @@ class Scan:
         """Valid returns as points ``(m, 2)`` in the robot frame and their intensities."""
         ok = self.valid
         r, a = self.ranges[ok], self.angles[ok]
-        local = np.stack([r * np.cos(a), r * np.sin(a), np.zeros_like(r)], axis=1)
-        pts = compose(self.sensor_pose, local)[:, :2] if np.any(self.sensor_pose) \
-            else local[:, :2]
+        pts = place(np.stack([r * np.cos(a), r * np.sin(a)], axis=1), self.sensor_pose)
         return pts, None if self.intensities is None else self.intensities[ok]
 
 

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import io
 from typing import Annotated, Any
 
 import numpy as np
 from fastapi import APIRouter, Query, Response, status
 
+from numeric.slam.logs import format_tum
 from numeric.slam.runner import SlamOptions
 from service.api.routes.worlds import WorldName
 from service.deps import SlamDep
@@ -62,12 +62,7 @@ async def get_trajectory(world: WorldName, rid: str, slam: SlamDep,
     """Pose per scan; ``format=tum`` gives a TUM file (``t x y z qx qy qz qw``)."""
     t, p = await slam.trajectory(world, rid)
     if format == "tum":
-        half = 0.5 * p[:, 2] if len(p) else np.zeros(0)
-        rows = np.column_stack([t, p[:, 0], p[:, 1], np.zeros((len(t), 3)), np.sin(half),
-                                np.cos(half)]) if len(t) else np.zeros((0, 8))
-        buf = io.StringIO()
-        np.savetxt(buf, rows, fmt="%.6f")
-        return Response(buf.getvalue(), media_type="text/plain")
+        return Response(format_tum(t, p), media_type="text/plain")
     return {"t": t.tolist(), "poses": np.round(p, 6).tolist()}
 
 
