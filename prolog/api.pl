@@ -22,6 +22,7 @@
 :- use_module(drm).
 :- use_module(eigenspace).
 :- use_module(slam).
+:- use_module(grouping).
 :- use_module(query).
 :- use_module(loader, [message_text/2]).
 
@@ -181,7 +182,8 @@ run(facts, Args, Facts) :-
                               rule_probability/2, parameter/2,
                               eig_point/3, eig_triplet/4, eig_candidate_set/2,
                               map_pose/5, map_info/5, unknown_region/5,
-                              committed_map/1]),
+                              committed_map/1,
+                              vp_candidate/5, vp_unknown/4, vp_group/3, vp_min_area/1]),
                  functor(H, N, A), M:H,
                  format(string(S), "~k", [H]) ),
             Facts).
@@ -255,6 +257,29 @@ run(slam_regions_near, Args, Regions) :-
             Rs0),
     keysort(Rs0, Rs),
     pairs_values(Rs, Regions).
+
+%   {world, candidates: [{id, type, x, y, r_max}], regions: [{id, x, y, area_m2}],
+%    min_area_m2?}: replaces the world's viewpoint scene and replies with its
+%   observation groups.  Without min_area_m2 (or with null) the world's
+%   parameter vp_unknown_min_area_m2 is used.
+run(viewpoint_groups, Args, Reply) :-
+    existing_world(Args, W),
+    arg_(candidates, Args, Cs0), json_list(Cs0, candidates),
+    foldl(vp_candidate_item, Cs0, Cs, 0, _),
+    arg_(regions, Args, Rs0), json_list(Rs0, regions),
+    foldl(vp_region_item, Rs0, Rs, 0, _),
+    (   get_dict(min_area_m2, Args, A0), A0 \== null
+    ->  nonneg_float("min_area_m2", A0, MinArea)
+    ;   world_module(W, M),
+        parameter(M, vp_unknown_min_area_m2, A1),
+        MinArea is float(A1)
+    ),
+    replace_viewpoint_scene(W, Cs, Rs, MinArea),
+    viewpoint_scene_reply(W, Reply).
+
+run(viewpoint_scene, Args, Reply) :-
+    existing_world(Args, W),
+    viewpoint_scene_reply(W, Reply).
 
 dict_pairs_or_empty(Args, Key, Pairs) :-
     (   get_dict(Key, Args, D), is_dict(D) -> dict_pairs(D, _, Pairs) ; Pairs = [] ).
@@ -380,6 +405,62 @@ slam_region_item(Run, D, unknown_region(Run, I, X, Y, A), I, I1) :-
 slam_region_value(D, I, Key, F, V) :-
     field("regions[~d].~w", [I, Key], F),
     (   get_dict(Key, D, V0) -> V = V0 ; throw(chizu_error(missing(Key), F)) ).
+
+%   One candidate {id, type, x, y, r_max}; the id becomes an atom only after
+%   valid_id/1, the type stays a string.
+vp_candidate_item(D, vp_candidate(Id, Type, X, Y, R), I, I1) :-
+    I1 is I + 1,
+    field("candidates[~d]", [I], F),
+    (   is_dict(D) -> true ; throw(chizu_error(invalid_candidate, F)) ),
+    maplist(vp_value(D, "candidates", I), [id, type, x, y, r_max], [FI, FT, FX, FY, FR],
+            [IdText, Type, X0, Y0, R0]),
+    id_field(IdText, FI, Id),
+    (   string(Type), string_length(Type, L), L >= 1, L =< 64
+    ->  true
+    ;   throw(chizu_error(invalid_type(Type), FT))
+    ),
+    vp_coordinate(FX, X0, X),
+    vp_coordinate(FY, Y0, Y),
+    vp_coordinate(FR, R0, R),
+    (   R > 0 -> true ; throw(chizu_error(invalid_number(R0), FR)) ).
+
+%   One unknown region {id, x, y, area_m2}.
+vp_region_item(D, vp_unknown(Id, X, Y, A), I, I1) :-
+    I1 is I + 1,
+    field("regions[~d]", [I], F),
+    (   is_dict(D) -> true ; throw(chizu_error(invalid_region, F)) ),
+    maplist(vp_value(D, "regions", I), [id, x, y, area_m2], [FI, FX, FY, FA],
+            [Id, X0, Y0, A0]),
+    (   integer(Id), Id >= 0 -> true ; throw(chizu_error(invalid_region_id(Id), FI)) ),
+    finite_float(FX, X0, X),
+    finite_float(FY, Y0, Y),
+    nonneg_float(FA, A0, A).
+
+vp_value(D, List, I, Key, F, V) :-
+    field("~w[~d].~w", [List, I, Key], F),
+    (   get_dict(Key, D, V0) -> V = V0 ; throw(chizu_error(missing(Key), F)) ).
+
+%   Candidate coordinates and R_max: finite and at most 1e15 in magnitude
+%   (grouping.pl squares distances).
+vp_coordinate(Field, V0, V) :-
+    finite_float(Field, V0, V),
+    (   abs(V) =< 1.0e15 -> true ; throw(chizu_error(invalid_number(V0), Field)) ).
+
+%   {groups: [...] ordered by id, min_area_m2: A} from World's stored scene;
+%   a world without one has no groups and the threshold it would use.
+viewpoint_scene_reply(W, _{groups:Groups, min_area_m2:MinArea}) :-
+    world_module(W, M),
+    findall(G-J, ( observation_group(W, G, Kind, Ms), vp_group_json(W, G, Kind, Ms, J) ), Gs0),
+    keysort(Gs0, Gs),
+    pairs_values(Gs, Groups),
+    (   M:vp_min_area(A) -> MinArea = A
+    ;   parameter(M, vp_unknown_min_area_m2, A0), MinArea is float(A0)
+    ).
+
+vp_group_json(_, G, objects, Ms, _{id:G, kind:"objects", members:Ss}) :-
+    maplist(atom_string, Ms, Ss).
+vp_group_json(W, G, unknown, Ms, _{id:G, kind:"unknown", members:Ms, area_m2:A}) :-
+    unknown_group_area(W, G, A).
 
 %   {"state": "x"} | {"state": "y", "set": M | "unlisted"} | {"state": "z"}
 json_state(W, D, State) :-

@@ -17,7 +17,7 @@ user:message_hook(Term, Kind, _) :-
     fail.
 
 %!  chizu_modules(-Files) is det.
-chizu_modules([world, params, qualitative, drm, eigenspace, slam, query, api, repl]).
+chizu_modules([world, params, qualitative, drm, eigenspace, slam, grouping, query, api, repl]).
 
 %!  load_checked(+Dir) is det.
 %

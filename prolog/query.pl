@@ -14,6 +14,10 @@
         map_pose/5, map_info/5, unknown_region/5, committed_map/1,
         explored_fraction/1, unknown_region_within/5,
         largest_unknown_region/2, map_path_length/1
+      - the viewpoint-planning scene and its observation groups
+        (grouping.pl), world filled in: vp_candidate/5, vp_unknown/4,
+        observation_group/3, same_group/2, joinable/2, candidate_group/2,
+        unknown_group_area/2
       - comparison: =, \=, ==, \==, and <, >, =<, >=, =:= on numbers or
         variables only (no arithmetic expressions, so no arithmetic bombs)
       - member/2, memberchk/2
@@ -30,6 +34,7 @@
 :- use_module(drm).
 :- use_module(eigenspace).
 :- use_module(slam).
+:- use_module(grouping).
 
 %!  world_query(+World, +Text, +MaxSolutions, -Solutions, -Truncated) is det.
 %
@@ -110,6 +115,14 @@ relation_goal(W, explored_fraction(F), slam:explored_fraction(W, F)).
 relation_goal(W, unknown_region_within(X, Y, R, Id, D), slam:unknown_region_within(W, X, Y, R, Id, D)).
 relation_goal(W, largest_unknown_region(Id, A), slam:largest_unknown_region(W, Id, A)).
 relation_goal(W, map_path_length(L), slam:map_path_length(W, L)).
+relation_goal(W, vp_candidate(Id, T, X, Y, R), M:vp_candidate(Id, T, X, Y, R)) :-
+    world_module(W, M).
+relation_goal(W, vp_unknown(Id, X, Y, A), M:vp_unknown(Id, X, Y, A)) :- world_module(W, M).
+relation_goal(W, observation_group(G, K, Ms), grouping:observation_group(W, G, K, Ms)).
+relation_goal(W, same_group(A, B), grouping:same_group(W, A, B)).
+relation_goal(W, joinable(A, B), grouping:joinable(W, A, B)).
+relation_goal(W, candidate_group(C, G), grouping:candidate_group(W, C, G)).
+relation_goal(W, unknown_group_area(G, A), grouping:unknown_group_area(W, G, A)).
 
 comparison(G) :-
     G =.. [Op, _, _],

@@ -13,12 +13,13 @@ from numeric.qualitative.survey import survey
 from numeric.simulator import ObserverConfig
 from numeric.world import WorldDescription
 from service import errors
-from service.api.routes import eigenspace, health, qualitative, slam, worlds
+from service.api.routes import eigenspace, health, qualitative, slam, viewpoint, worlds
 from service.eigenspace import EigenspaceService
 from service.kb import KnowledgeBase
 from service.settings import Settings, get_settings
 from service.slam import SlamService
 from service.store import Store
+from service.viewpoint import ViewpointService
 from service.worlds import WorldService
 
 log = logging.getLogger("chizu")
@@ -54,6 +55,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         k = await asyncio.to_thread(sl.restore)
         log.info("restored %d committed SLAM map(s)", k)
         app.state.slam = sl
+        vp = ViewpointService(store, kb, service)
+        v = await asyncio.to_thread(vp.restore)
+        log.info("restored %d viewpoint scene(s)", v)
+        app.state.viewpoint = vp
         try:
             yield
         finally:
@@ -67,6 +72,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(qualitative.router)
     app.include_router(eigenspace.router)
     app.include_router(slam.router)
+    app.include_router(viewpoint.router)
     errors.install(app)
     app.add_middleware(errors.BodySizeLimit, max_bytes=settings.max_body_bytes)
     return app

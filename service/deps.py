@@ -10,6 +10,7 @@ from service.eigenspace import EigenspaceService
 from service.kb import KnowledgeBase
 from service.settings import Settings, get_settings
 from service.slam import SlamService
+from service.viewpoint import ViewpointService
 from service.worlds import WorldService
 
 
@@ -25,6 +26,10 @@ def _slam(request: Request) -> SlamService:
     return request.app.state.slam  # type: ignore[no-any-return]
 
 
+def _viewpoint(request: Request) -> ViewpointService:
+    return request.app.state.viewpoint  # type: ignore[no-any-return]
+
+
 def _kb(request: Request) -> KnowledgeBase:
     return request.app.state.kb  # type: ignore[no-any-return]
 
@@ -34,3 +39,4 @@ WorldsDep = Annotated[WorldService, Depends(_worlds)]
 KbDep = Annotated[KnowledgeBase, Depends(_kb)]
 EigenspaceDep = Annotated[EigenspaceService, Depends(_eigenspace)]
 SlamDep = Annotated[SlamService, Depends(_slam)]
+ViewpointDep = Annotated[ViewpointService, Depends(_viewpoint)]

@@ -62,7 +62,8 @@ def resolve_description(desc: WorldDescription) -> WorldDescription:
 
 _READ_ONLY = frozenset({"worlds", "landmarks", "relations", "drm", "facts", "params",
                         "engine", "query", "eigenspace_transition",
-                        "eigenspace_covering", "slam_summary", "slam_regions_near"})
+                        "eigenspace_covering", "slam_summary", "slam_regions_near",
+                        "viewpoint_scene"})
 
 
 class WorldService:

@@ -116,14 +116,17 @@ class OccupancyMap:
 
 
 def build_occupancy(keyframes: Keyframes, poses: np.ndarray, resolution_m: float = 0.05,
-                    margin_m: float = 1.0, max_cells: int = 16_000_000) -> OccupancyMap:
+                    margin_m: float = 1.0, max_cells: int = 16_000_000,
+                    misses: list[np.ndarray] | None = None) -> OccupancyMap:
     """Occupancy grid of the keyframes placed at ``poses (K, 3)``: cells on the rays
     from each keyframe's pose to its points are free, the end cells occupied (an
-    occupied hit outvotes free passes 2:1)."""
+    occupied hit outvotes free passes 2:1). ``misses[k]`` (robot frame) are the ends of
+    keyframe k's no-return beams at maximum range: free up to there, nothing occupied."""
     if len(keyframes) == 0:
         raise InvalidInput("the run has no keyframes yet", field="run")
     world = [place(f.xy, poses[k]) for k, f in enumerate(keyframes.frames)]
-    allp = np.vstack(world + [poses[:, :2]])
+    clear = [place(m, poses[k]) for k, m in enumerate(misses)] if misses else []
+    allp = np.vstack(world + clear + [poses[:, :2]])
     lo = allp.min(axis=0) - margin_m
     hi = allp.max(axis=0) + margin_m
     shape = np.ceil((hi - lo) / resolution_m).astype(int) + 1
@@ -140,17 +143,23 @@ def build_occupancy(keyframes: Keyframes, poses: np.ndarray, resolution_m: float
         c = np.floor((p - lo) / resolution_m).astype(np.int64)
         return c[..., 0] * ny + c[..., 1]
 
-    for k, pts in enumerate(world):
-        if len(pts) == 0:
-            continue
-        o = poses[k, :2]
+    def clear_rays(o: np.ndarray, pts: np.ndarray, stop_m: float) -> None:
+        nonlocal free
         d = pts - o
         length = np.hypot(d[:, 0], d[:, 1])
         steps = max(1, int(np.ceil(length.max() / (0.5 * resolution_m))))
         f = np.linspace(0.0, 1.0, steps, endpoint=False)
         ray = o + f[None, :, None] * d[:, None, :]  # (n, steps, 2)
-        inside = (f[None, :] * length[:, None]) < (length[:, None] - resolution_m)
+        inside = (f[None, :] * length[:, None]) < (length[:, None] - stop_m)
         free += np.bincount(flat(ray[inside]), minlength=nx * ny).astype(np.int32)
+
+    for k, m in enumerate(clear):
+        if len(m):
+            clear_rays(poses[k, :2], m, 0.0)
+    for k, pts in enumerate(world):
+        if len(pts) == 0:
+            continue
+        clear_rays(poses[k, :2], pts, resolution_m)
         cells = flat(pts)
         hit += np.bincount(cells, minlength=nx * ny).astype(np.int32)
         inten = keyframes.frames[k].intensity

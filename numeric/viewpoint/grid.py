@@ -1,0 +1,244 @@
+"""The planner's view of a free / occupied / unknown grid (paper §4.1).
+
+The grid itself is :class:`numeric.slam.occupancy.OccupancyMap` -- the same type a SLAM
+run commits to a world -- built here from the simulator (the world's true geometry, or
+laser scans from known poses as in the paper, which trusts odometry inside one room) or
+from a ROS ``nav_msgs/OccupancyGrid``-style array a client posts. :class:`PlanningGrid`
+adds what the planner asks of it: is a viewpoint free with clearance, is the line from
+a viewpoint to an object clear, which unknown components are there (labelled with
+``scipy.ndimage``) and where are their entry points (unknown cells next to free ones,
+§6.3).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+from scipy import ndimage
+
+from numeric.errors import InvalidInput
+from numeric.geometry import ray_crossings
+from numeric.laser import Laser
+from numeric.slam.keyframes import Keyframes, MapConfig
+from numeric.slam.occupancy import FREE, OCCUPIED, UNKNOWN, OccupancyMap, build_occupancy
+from numeric.world import World
+
+MAX_CELLS = 4_000_000
+
+
+@dataclass(frozen=True)
+class UnknownComponent:
+    """A connected unknown region: label in :attr:`PlanningGrid.unknown_labels`,
+    centroid, area and entry points (centres of its cells that touch free cells)."""
+
+    label: int
+    centroid: np.ndarray
+    area_m2: float
+    entries: np.ndarray
+
+
+class PlanningGrid:
+    """An occupancy map plus an optional room mask (cells inside the room's known walls:
+    the paper gives the robot the room's wall shape, so unknown space outside the room is
+    not a region to explore)."""
+
+    def __init__(self, grid: OccupancyMap, room: np.ndarray | None = None) -> None:
+        if grid.state.ndim != 2 or min(grid.state.shape) < 1:
+            raise InvalidInput("the grid must be a non-empty 2D array", field="grid")
+        if room is not None and room.shape != grid.state.shape:
+            raise InvalidInput("the room mask must have the grid's shape", field="grid")
+        self.grid = grid
+        self.room = room
+
+    @property
+    def resolution(self) -> float:
+        return self.grid.resolution_m
+
+    @property
+    def state(self) -> np.ndarray:
+        return self.grid.state
+
+    # -- cells ------------------------------------------------------------------------
+    def cells(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Cell indices ``(i, j)`` of points ``(..., 2)`` and whether they are on the grid."""
+        c = np.floor((np.asarray(xy, float) - self.grid.origin) / self.resolution).astype(int)
+        i, j = c[..., 0], c[..., 1]
+        inside = (i >= 0) & (j >= 0) & (i < self.state.shape[0]) & (j < self.state.shape[1])
+        return np.where(inside, i, 0), np.where(inside, j, 0), inside
+
+    def centres(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        return np.asarray(self.grid.origin + (np.stack([i, j], axis=-1) + 0.5) * self.resolution)
+
+    @cached_property
+    def clearance(self) -> np.ndarray:
+        """Distance (m) from each cell to the nearest occupied cell."""
+        occ = self.state == OCCUPIED
+        if not occ.any():
+            return np.full(self.state.shape, np.inf)
+        return np.asarray(ndimage.distance_transform_edt(~occ) * self.resolution)
+
+    def free(self, xy: np.ndarray, clearance_m: float = 0.25) -> np.ndarray:
+        """True where points ``(..., 2)`` are on known free cells at least ``clearance_m``
+        from every occupied cell."""
+        i, j, inside = self.cells(xy)
+        ok = inside & (self.state[i, j] == FREE) & (self.clearance[i, j] >= clearance_m)
+        return np.asarray(ok)
+
+    def clear_lines(self, a: np.ndarray, b: np.ndarray, stop_short_m: float = 0.0) -> np.ndarray:
+        """True for each pair of points ``a (N, 2)``, ``b (N, 2)`` whose segment crosses no
+        occupied cell, ignoring the last ``stop_short_m`` before ``b`` (the object)."""
+        a = np.atleast_2d(a).astype(float)
+        b = np.atleast_2d(b).astype(float)
+        d = b - a
+        length = np.hypot(d[:, 0], d[:, 1])
+        n = max(2, int(np.ceil(length.max(initial=0.0) / (0.5 * self.resolution))) + 1)
+        f = np.linspace(0.0, 1.0, n)
+        pts = a[:, None, :] + f[None, :, None] * d[:, None, :]
+        keep = (f[None, :] * length[:, None]) <= np.maximum(length[:, None] - stop_short_m, 0.0)
+        i, j, inside = self.cells(pts)
+        blocked = inside & (self.state[i, j] == OCCUPIED) & keep
+        return np.asarray(~blocked.any(axis=1))
+
+    # -- unknown regions (§4.2) -------------------------------------------------------
+    @cached_property
+    def unknown_labels(self) -> tuple[np.ndarray, int]:
+        """Connected unknown components (8-neighbourhood) -- inside the room mask when
+        there is one, else those not touching the grid border."""
+        unk = self.state == UNKNOWN
+        if self.room is not None:
+            unk &= self.room
+        lab, n = ndimage.label(unk, structure=np.ones((3, 3)))
+        if self.room is None and n:
+            border = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
+            lab[np.isin(lab, border[border > 0])] = 0
+        return lab, int(n)
+
+    def unknown_components(self, min_area_m2: float = 0.0) -> list[UnknownComponent]:
+        """Every unknown component of at least ``min_area_m2`` (the candidates for
+        unknown-region groups; whether one becomes a group is decided in Prolog), with
+        its entry points, largest first."""
+        lab, n = self.unknown_labels
+        if n == 0:
+            return []
+        idx = np.arange(1, n + 1)
+        counts = np.asarray(ndimage.sum_labels(np.ones_like(lab), lab, idx))
+        free = self.state == FREE
+        touch = ndimage.binary_dilation(free, structure=ndimage.generate_binary_structure(2, 1))
+        out = []
+        for k, c in zip(idx, counts, strict=True):
+            area = float(c) * self.resolution**2
+            if c == 0 or area < min_area_m2:
+                continue
+            mask = lab == k
+            ii, jj = np.nonzero(mask)
+            ei, ej = np.nonzero(mask & touch)
+            out.append(UnknownComponent(int(k), self.centres(ii, jj).mean(axis=0), area,
+                                        self.centres(ei, ej)))
+        return sorted(out, key=lambda r: -r.area_m2)
+
+    def unknown_area(self) -> float:
+        lab, _ = self.unknown_labels
+        return float(np.count_nonzero(lab)) * self.resolution**2
+
+
+# -- building grids -------------------------------------------------------------------
+def _world_frame(world: World, resolution_m: float, margin_m: float = 0.5,
+                 ) -> tuple[np.ndarray, tuple[int, int]]:
+    lo, hi = world.bounds
+    lo = lo - margin_m
+    shape = np.ceil((hi + margin_m - lo) / resolution_m).astype(int)
+    if shape[0] * shape[1] > MAX_CELLS:
+        raise InvalidInput(f"a {shape[0]}x{shape[1]} grid is too large; use a coarser "
+                           "resolution", field="resolution_m")
+    return lo, (int(shape[0]), int(shape[1]))
+
+
+def room_mask(world: World, resolution_m: float) -> np.ndarray:
+    """Cells whose centre is inside the world's walls (even-odd rule, objects included)."""
+    lo, shape = _world_frame(world, resolution_m)
+    ii, jj = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
+    xy = (lo + (np.stack([ii, jj], axis=-1) + 0.5) * resolution_m).reshape(-1, 2)
+    surf = world.surfaces
+    walls = ~np.isfinite(surf.top_m)
+    inside = ray_crossings(xy, surf.a[walls], surf.b[walls]) % 2 == 1
+    return np.asarray(inside.reshape(shape))
+
+
+def true_grid(world: World, resolution_m: float = 0.05) -> PlanningGrid:
+    """The world's true map: every cell inside the walls known (free, or occupied where a
+    wall or object surface passes)."""
+    lo, shape = _world_frame(world, resolution_m)
+    room = room_mask(world, resolution_m)
+    state = np.full(shape, UNKNOWN, dtype=np.int8)
+    state[room] = FREE
+    surf = world.surfaces
+    for a, b in zip(surf.a, surf.b, strict=True):
+        n = max(2, int(np.ceil(np.hypot(*(b - a)) / (0.25 * resolution_m))) + 1)
+        pts = a + np.linspace(0, 1, n)[:, None] * (b - a)
+        c = np.floor((pts - lo) / resolution_m).astype(int)
+        ok = (c[:, 0] >= 0) & (c[:, 1] >= 0) & (c[:, 0] < shape[0]) & (c[:, 1] < shape[1])
+        state[c[ok, 0], c[ok, 1]] = OCCUPIED
+    for o in world.description.objects:  # the inside of a cuboid is not free space
+        fp = o.footprint()
+        ii, jj = np.nonzero(room)
+        xy = lo + (np.stack([ii, jj], axis=-1) + 0.5) * resolution_m
+        inside = ray_crossings(xy, fp, np.roll(fp, -1, axis=0)) % 2 == 1
+        state[ii[inside], jj[inside]] = OCCUPIED
+    grid = OccupancyMap(lo, resolution_m, state, np.full(shape, np.nan))
+    return PlanningGrid(grid, room)
+
+
+def scanned_grid(world: World, poses: Sequence[np.ndarray] | np.ndarray,
+                 resolution_m: float = 0.05, laser: Laser | None = None) -> PlanningGrid:
+    """The map a robot builds by scanning from ``poses (K, 3)`` whose odometry it trusts
+    (§4.1): the simulated laser, ray-traced into free / occupied / unknown, on the world's
+    frame, with the room mask of the known walls."""
+    laser = laser or Laser(world)
+    poses = np.atleast_2d(np.asarray(poses, dtype=float))
+    kf = Keyframes(MapConfig(voxel_m=resolution_m / 2, max_points_m=laser.config.max_range_m))
+    misses = []
+    ang = laser.config.angles
+    ray = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    for k, p in enumerate(poses):
+        r, i = laser.measure(p)
+        ok = r < laser.config.max_range_m
+        kf.add(k, r[ok, None] * ray[ok], i[ok])
+        misses.append(laser.config.max_range_m * ray[~ok])
+    lo, shape = _world_frame(world, resolution_m)
+    built = build_occupancy(kf, poses, resolution_m=resolution_m, misses=misses)
+    # re-sample onto the world's frame so every grid of a world lines up
+    state = np.full(shape, UNKNOWN, dtype=np.int8)
+    ii, jj = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
+    centres = lo + (np.stack([ii, jj], axis=-1) + 0.5) * resolution_m
+    src = PlanningGrid(built)
+    bi, bj, inside = src.cells(centres)
+    state[inside] = built.state[bi[inside], bj[inside]]
+    grid = OccupancyMap(lo, resolution_m, state, np.full(shape, np.nan))
+    return PlanningGrid(grid, room_mask(world, resolution_m))
+
+
+def from_occupancy_values(width: int, height: int, resolution_m: float,
+                          origin: tuple[float, float], data: Sequence[int],
+                          free_thresh: int = 19, occupied_thresh: int = 65) -> PlanningGrid:
+    """A grid from ROS ``nav_msgs/OccupancyGrid`` values: row-major with x fastest,
+    ``-1`` unknown, ``0..100`` occupancy (``<= free_thresh`` free, ``>= occupied_thresh``
+    occupied, between: unknown)."""
+    if width < 1 or height < 1 or width * height > MAX_CELLS:
+        raise InvalidInput(f"grid of {width}x{height} cells is empty or too large "
+                           f"(at most {MAX_CELLS})", field="grid.width")
+    v = np.asarray(data, dtype=np.int64)
+    if v.shape != (width * height,):
+        raise InvalidInput(f"grid.data has {v.size} values, width*height is {width * height}",
+                           field="grid.data")
+    if np.any((v < -1) | (v > 100)):
+        raise InvalidInput("grid.data values must be -1 (unknown) or 0..100", field="grid.data")
+    vals = v.reshape(height, width).T  # state[i along x, j along y]
+    state = np.full(vals.shape, UNKNOWN, dtype=np.int8)
+    state[(vals >= 0) & (vals <= free_thresh)] = FREE
+    state[vals >= occupied_thresh] = OCCUPIED
+    grid = OccupancyMap(np.asarray(origin, dtype=float), resolution_m, state,
+                        np.full(state.shape, np.nan))
+    return PlanningGrid(grid)

@@ -1,0 +1,303 @@
+"""A viewpoint-planning request end to end (paper Fig. 2): appearance models, candidates
+and unknown components in, observation groups (decided by the Prolog grouping rules,
+passed in as ``grouper``), their values and observation times, and the best ordered plan
+out.
+
+:class:`PlanRequest` is both the body of ``POST /worlds/{world}/viewpoint-plan`` and the
+``SCENE.json`` of ``chizu plan``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, model_validator
+
+from numeric.errors import InvalidInput
+from numeric.viewpoint.appearance import AppearanceModel, AppearanceParams, MeasurementTables
+from numeric.viewpoint.grid import MAX_CELLS, PlanningGrid, from_occupancy_values
+from numeric.viewpoint.plan import GroupCost, Loss, Plan, Problem, solve, solve_exhaustive
+from numeric.viewpoint.recognition import OBJECT_KINDS, fitted_models
+from numeric.viewpoint.verification import (
+    Candidate,
+    LocalPlan,
+    TableCache,
+    Verifier,
+    unknown_region_time,
+)
+from numeric.world import ID_PATTERN
+
+MAX_CANDIDATES = 200
+MAX_TYPES = 32
+MAX_ENTRIES = 64
+EXHAUSTIVE_MAX_GROUPS = 9
+
+Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+
+
+class ObjectType(BaseModel):
+    """A known object type: value V_obj (eq. 16), mean count per room n_bar (eqs. 10, 17)
+    and its appearance -- fitted parameters, measurement tables to fit, or (for the
+    built-in types A, B, C) nothing: fitted to the simulator's measurements."""
+
+    model_config = ConfigDict(extra="forbid")
+    name: str = Field(min_length=1, max_length=64)
+    value: NonNeg = 50.0
+    mean_count: NonNeg = 0.0
+    appearance: AppearanceParams | None = None
+    tables: MeasurementTables | None = None
+    th_match: Positive = 15.0
+
+    @model_validator(mode="after")
+    def _one_source(self) -> ObjectType:
+        if self.appearance is not None and self.tables is not None:
+            raise ValueError("give appearance or tables, not both")
+        return self
+
+
+class CandidateIn(BaseModel):
+    """A candidate object found by colour (§4.1)."""
+
+    model_config = ConfigDict(extra="forbid")
+    id: str = Field(pattern=ID_PATTERN)
+    type: str = Field(min_length=1, max_length=64)
+    x: FiniteFloat
+    y: FiniteFloat
+    belief: list[Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]] | None = Field(
+        None, description="orientation belief P(theta_i) over N_theta orientations")
+
+
+class GridIn(BaseModel):
+    """An occupancy grid as ROS ``nav_msgs/OccupancyGrid`` has it: ``data`` row-major with
+    x fastest, -1 unknown, 0..100 occupancy; ``origin`` the lower-left corner (m)."""
+
+    model_config = ConfigDict(extra="forbid")
+    width: int = Field(ge=1, le=4000)
+    height: int = Field(ge=1, le=4000)
+    resolution_m: float = Field(gt=0.005, le=5.0, allow_inf_nan=False)
+    origin: tuple[FiniteFloat, FiniteFloat] = (0.0, 0.0)
+    data: list[int] = Field(max_length=MAX_CELLS)
+
+    def to_grid(self) -> PlanningGrid:
+        return from_occupancy_values(self.width, self.height, self.resolution_m, self.origin,
+                                     self.data)
+
+
+class PlanRequest(BaseModel):
+    """Everything one planning step needs (paper §§3-6)."""
+
+    model_config = ConfigDict(extra="forbid")
+    robot: tuple[FiniteFloat, FiniteFloat, FiniteFloat] = Field(
+        description="robot pose (x, y, theta), m and rad")
+    exit: tuple[FiniteFloat, FiniteFloat] = Field(description="the room's exit O (eq. 18)")
+    time_limit_s: NonNeg = 60.0
+    loss: Literal["L1", "L2", "L3"] = "L2"
+    k_lim: NonNeg = 0.5
+    speed_m_s: Positive = 0.4
+    t_verify_s: NonNeg = 2.0
+    t_search_s: NonNeg = Field(5.0, description="t_sea of eq. 9")
+    t_dist_s: NonNeg = Field(3.0, description="t_dist of eq. 10")
+    k_area: NonNeg = Field(5.0, description="value per m2 of mapped unknown area (eq. 17)")
+    min_area_m2: NonNeg = Field(0.5, description="unknown components this large are groups")
+    clearance_m: NonNeg = 0.25
+    object_types: Annotated[list[ObjectType], Field(max_length=MAX_TYPES)] = []
+    candidates: Annotated[list[CandidateIn], Field(max_length=MAX_CANDIDATES)] = []
+    grid: GridIn | None = None
+    use_table: bool = Field(True, description="eq. 6's pattern tables (else exact eq. 5)")
+    solver: Literal["dp", "exhaustive"] = "dp"
+    runner_ups: int = Field(5, ge=0, le=50)
+
+    @model_validator(mode="after")
+    def _consistent(self) -> PlanRequest:
+        names = [t.name for t in self.object_types]
+        for i, n in enumerate(names):
+            if n in names[:i]:
+                raise ValueError(f"object_types[{i}].name {n!r} is not unique")
+        ids = [c.id for c in self.candidates]
+        for i, c in enumerate(ids):
+            if c in ids[:i]:
+                raise ValueError(f"candidates[{i}].id {c!r} is not unique")
+        return self
+
+    def loss_function(self) -> Loss:
+        return Loss(kind=self.loss, t_limit_s=self.time_limit_s, k_lim=self.k_lim)
+
+
+@dataclass(frozen=True)
+class GroupSpec:
+    """A group as the grouping rules decided it: id, ``objects``/``unknown``, members
+    (candidate ids, or the unknown component's label)."""
+
+    id: int
+    kind: str
+    members: tuple[str | int, ...]
+
+
+#: (candidates [{id, type, x, y, r_max}], regions [{id, x, y, area_m2}], min_area_m2)
+#: -> groups; the service's implementation asks the Prolog rules (prolog/grouping.pl).
+Grouper = Callable[[list[dict[str, object]], list[dict[str, object]], float], list[GroupSpec]]
+
+
+@dataclass(frozen=True)
+class PlannedGroup:
+    """A group with its value (eqs. 16-17), observation time and entry points."""
+
+    spec: GroupSpec
+    name: str
+    value: float
+    t_obs: float
+    entries: np.ndarray
+    local: LocalPlan | None = None
+    area_m2: float | None = None
+    centroid: np.ndarray | None = None
+
+
+@dataclass
+class PlanReport:
+    """The planner's answer: groups, the best plan first, then the runner-ups."""
+
+    groups: list[PlannedGroup]
+    plans: list[Plan]
+    skipped: list[PlannedGroup] = field(default_factory=list)
+    timings_ms: dict[str, float] = field(default_factory=dict)
+    tables_built: int = 0
+    tables_reused: int = 0
+
+    def names(self, plan: Plan) -> list[str]:
+        return [self.groups[i].name for i in plan.order]
+
+
+def group_name(i: int) -> str:
+    return "G_" + (chr(ord("A") + i) if i < 26 else str(i))
+
+
+def resolve_models(types: Sequence[ObjectType], seed: int = 0,
+                   ) -> dict[str, AppearanceModel]:
+    """One appearance model per object type: given parameters, a fit to the given tables,
+    or the simulator's fit for a built-in type."""
+    out: dict[str, AppearanceModel] = {}
+    builtin: dict[str, AppearanceModel] | None = None
+    for i, t in enumerate(types):
+        if t.appearance is not None:
+            out[t.name] = AppearanceModel(t.appearance)
+        elif t.tables is not None:
+            try:
+                out[t.name] = AppearanceModel.fit(t.tables, t.th_match)[0]
+            except InvalidInput as e:
+                raise InvalidInput(str(e), field=f"object_types[{i}].{e.field}") from None
+        elif t.name in OBJECT_KINDS:
+            builtin = builtin or fitted_models(seed=seed)
+            out[t.name] = builtin[t.name]
+        else:
+            raise InvalidInput(f"object type {t.name!r} is not built in (A, B, C): give its "
+                               "appearance or measurement tables", field=f"object_types[{i}]")
+    return out
+
+
+class ViewpointPlanner:
+    """Plans with one grid; keeps the pattern tables across calls (re-planning)."""
+
+    def __init__(self, tables: TableCache | None = None) -> None:
+        self.tables = tables if tables is not None else TableCache()
+        self._models: dict[str, AppearanceModel] = {}
+
+    def models(self, req: PlanRequest) -> dict[str, AppearanceModel]:
+        missing = [t for t in req.object_types if t.name not in self._models
+                   or t.appearance is not None or t.tables is not None]
+        if missing:
+            self._models.update(resolve_models(missing))
+        return {t.name: self._models[t.name] for t in req.object_types}
+
+    def plan(self, req: PlanRequest, grid: PlanningGrid, grouper: Grouper,
+             beliefs: dict[str, np.ndarray] | None = None) -> PlanReport:
+        t0 = time.perf_counter()
+        models = self.models(req)
+        types = {t.name: t for t in req.object_types}
+        cands: dict[str, Candidate] = {}
+        for i, c in enumerate(req.candidates):
+            if c.type not in models:
+                raise InvalidInput(f"candidate type {c.type!r} is not among object_types",
+                                   field=f"candidates[{i}].type")
+            m = models[c.type]
+            belief = None
+            if c.belief is not None:
+                b = np.asarray(c.belief, dtype=float)
+                if len(b) != m.n_theta or b.sum() <= 0:
+                    raise InvalidInput(f"belief needs {m.n_theta} probabilities, not all 0",
+                                       field=f"candidates[{i}].belief")
+                belief = b / b.sum()
+            if beliefs and c.id in beliefs:
+                belief = beliefs[c.id]
+            cands[c.id] = Candidate(c.id, c.type, np.array([c.x, c.y]), m, belief)
+        comps = {c.label: c for c in grid.unknown_components()}
+        t1 = time.perf_counter()
+        specs = grouper(
+            [{"id": c.id, "type": c.type, "x": float(c.xy[0]), "y": float(c.xy[1]),
+              "r_max": max(c.model.r_max, 1e-3)} for c in cands.values()],
+            [{"id": k, "x": float(c.centroid[0]), "y": float(c.centroid[1]),
+              "area_m2": c.area_m2} for k, c in comps.items()],
+            req.min_area_m2)
+        t2 = time.perf_counter()
+        verifier = Verifier(grid, req.speed_m_s, req.t_verify_s, req.clearance_m,
+                            req.use_table, self.tables)
+        builds, hits = self.tables.builds, self.tables.hits
+        unknown_total = sum(comps[int(s.members[0])].area_m2 for s in specs
+                            if s.kind == "unknown")
+        mean_counts = {t.name: t.mean_count for t in req.object_types}
+        planned: list[PlannedGroup] = []
+        skipped: list[PlannedGroup] = []
+        for spec in specs:
+            name = group_name(spec.id)
+            if spec.kind == "objects":
+                members = [cands[str(m)] for m in spec.members]
+                entries = np.vstack([verifier.viewpoints(c).entries for c in members])
+                if len(entries) == 0:
+                    skipped.append(PlannedGroup(spec, name, 0.0, np.inf, entries))
+                    continue
+                entries = _thin(entries)
+                local = verifier.group(members, entries, entries)
+                best = int(np.argmin([lp.time_s for lp in local]))
+                value = float(sum(types[c.type].value for c in members))
+                g = PlannedGroup(spec, name, value, local[best].time_s, entries, local[best])
+            else:
+                comp = comps[int(spec.members[0])]
+                entries = _thin(comp.entries)
+                e = entries[np.argmin(np.hypot(*(entries - comp.centroid).T))]
+                t_u = unknown_region_time(verifier, models, mean_counts, comp.centroid, e,
+                                          comp.area_m2, unknown_total, req.t_search_s,
+                                          req.t_dist_s)
+                share = comp.area_m2 / unknown_total if unknown_total > 0 else 0.0
+                value = req.k_area * comp.area_m2 + share * sum(
+                    t.mean_count * t.value for t in req.object_types)  # eq. 17
+                g = PlannedGroup(spec, name, value, t_u, entries, None, comp.area_m2,
+                                 comp.centroid)
+            (planned if np.isfinite(g.t_obs) and len(g.entries) else skipped).append(g)
+        t3 = time.perf_counter()
+        problem = Problem.build(
+            [GroupCost(g.name, g.spec.kind, g.value, g.t_obs, g.entries) for g in planned],
+            np.asarray(req.robot, float), np.asarray(req.exit, float), req.speed_m_s,
+            req.loss_function())
+        if req.solver == "exhaustive":
+            if problem.n > EXHAUSTIVE_MAX_GROUPS:
+                raise InvalidInput(f"{problem.n} groups: the exhaustive solver is limited to "
+                                   f"{EXHAUSTIVE_MAX_GROUPS}; use solver 'dp'", field="solver")
+            plans = solve_exhaustive(problem)[: req.runner_ups + 1]
+        else:
+            plans = solve(problem, req.runner_ups)
+        t4 = time.perf_counter()
+        return PlanReport(planned, plans, skipped,
+                          {"prepare": 1e3 * (t1 - t0), "grouping": 1e3 * (t2 - t1),
+                           "local": 1e3 * (t3 - t2), "global": 1e3 * (t4 - t3),
+                           "total": 1e3 * (t4 - t0)},
+                          self.tables.builds - builds, self.tables.hits - hits)
+
+
+def _thin(points: np.ndarray, at_most: int = MAX_ENTRIES) -> np.ndarray:
+    if len(points) <= at_most:
+        return points
+    return points[np.linspace(0, len(points) - 1, at_most).astype(int)]

@@ -1,0 +1,159 @@
+"""Viewpoint plans for a world (paper: time-constrained viewpoint planning).
+
+A request carries the robot's pose, the exit, the time limit and loss, the object types
+and the candidates; the grid is the posted one, else the map a SLAM run committed to the
+world (``slam_map`` artifact), else what the robot would map from its pose in the
+world's simulator (a look around, §4.1). Grouping is decided by the Prolog rules
+(``prolog/grouping.pl``, op ``viewpoint_groups``), which keep the scene's candidates,
+unknown regions and groups as facts of the world (queryable in the REPL and the query
+endpoint). The scene is stored, so it survives a restart; a request that fails after
+grouping puts the previous scene back.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+from typing import Any
+
+import numpy as np
+
+from numeric.errors import InvalidInput
+from numeric.slam.occupancy import OccupancyMap
+from numeric.viewpoint.grid import PlanningGrid, room_mask, scanned_grid
+from numeric.viewpoint.plan import Plan
+from numeric.viewpoint.planner import (
+    GroupSpec,
+    PlannedGroup,
+    PlanReport,
+    PlanRequest,
+    ViewpointPlanner,
+)
+from service.kb import KnowledgeBase
+from service.slam import MAP_ARTIFACT
+from service.store import Store
+from service.worlds import WorldService
+
+SCENE_ARTIFACT = "viewpoint_scene"
+LOOK_AROUND = (0.0, np.pi / 2, np.pi, -np.pi / 2)
+
+
+def kb_grouper(kb: KnowledgeBase, world: str, sink: dict[str, Any] | None = None):  # type: ignore[no-untyped-def]
+    """A :data:`numeric.viewpoint.planner.Grouper` asking the world's Prolog rules;
+    ``sink`` receives the call's arguments (to store the scene)."""
+
+    def group(cands: list[dict[str, Any]], regions: list[dict[str, Any]],
+              min_area: float) -> list[GroupSpec]:
+        args = {"world": world, "candidates": cands, "regions": regions,
+                "min_area_m2": min_area}
+        reply = kb.call("viewpoint_groups", **args)
+        if sink is not None:
+            sink.update(args)
+        return [GroupSpec(int(g["id"]), str(g["kind"]), tuple(g["members"]))
+                for g in reply["groups"]]
+
+    return group
+
+
+def _num(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def plan_json(report: PlanReport, plan: Plan) -> dict[str, Any]:
+    return {"groups": report.names(plan), "value": plan.value,
+            "t_move_s": plan.t_move, "t_obs_s": plan.t_obs, "expected_time_s": plan.time,
+            "loss": _num(plan.loss), "utility": _num(plan.utility),
+            "feasible": math.isfinite(plan.utility)}
+
+
+def group_json(g: PlannedGroup) -> dict[str, Any]:
+    out: dict[str, Any] = {"id": g.spec.id, "name": g.name, "kind": g.spec.kind,
+                           "members": list(g.spec.members), "value": g.value,
+                           "t_obs_s": _num(g.t_obs), "entry_points": len(g.entries)}
+    if g.local is not None:
+        out["strategy"] = g.local.strategy
+        out["order"] = list(g.local.order)
+        out["joint_point"] = list(g.local.joint_point) if g.local.joint_point else None
+        out["t_seq_s"] = g.local.t_seq_s
+        out["t_par_s"] = g.local.t_par_s
+    if g.area_m2 is not None and g.centroid is not None:
+        out["area_m2"] = g.area_m2
+        out["centroid"] = [float(g.centroid[0]), float(g.centroid[1])]
+    return out
+
+
+def report_json(world: str, report: PlanReport, grid_source: str,
+                grid: PlanningGrid) -> dict[str, Any]:
+    best, *rest = report.plans
+    return {
+        "world": world,
+        "groups": [group_json(g) for g in report.groups],
+        "unverifiable": [{"name": g.name, "kind": g.spec.kind, "members": list(g.spec.members),
+                          "reason": "no usable viewpoint recognises it" if g.spec.kind
+                          == "objects" else "no entry point"} for g in report.skipped],
+        "plan": plan_json(report, best),
+        "leave_now": not best.order,
+        "runner_ups": [plan_json(report, p) for p in rest],
+        "grid": {"source": grid_source, "resolution_m": grid.resolution,
+                 "cells": list(grid.state.shape), "unknown_m2": grid.unknown_area()},
+        "tables": {"built": report.tables_built, "reused": report.tables_reused},
+        "timings_ms": report.timings_ms,
+    }
+
+
+class ViewpointService:
+    def __init__(self, store: Store, kb: KnowledgeBase, worlds: WorldService) -> None:
+        self.store, self.kb, self.worlds = store, kb, worlds
+        self.planner = ViewpointPlanner()
+        self._lock = asyncio.Lock()  # the planner's pattern tables are not thread-safe
+
+    def restore(self) -> int:
+        """Re-assert every world's last viewpoint scene."""
+        n = 0
+        for name in self.worlds.names():
+            blob = self.store.artifact(name, SCENE_ARTIFACT)
+            if blob is not None:
+                self.kb.call("viewpoint_groups", **json.loads(blob))
+                n += 1
+        return n
+
+    def grid_for(self, world: str, req: PlanRequest) -> tuple[PlanningGrid, str]:
+        if req.grid is not None:
+            return req.grid.to_grid(), "posted"
+        blob = self.store.artifact(world, MAP_ARTIFACT)
+        if blob is not None:
+            return PlanningGrid(OccupancyMap.from_npz(blob)), "slam_map"
+        w = self.worlds.model(world)
+        if len(w.wall_a) == 0:
+            raise InvalidInput(f"world {world!r} has no walls and no committed SLAM map: "
+                               "post a grid", field="grid")
+        x, y, _ = req.robot
+        if not room_mask(w, 0.05).any():
+            raise InvalidInput("the world's walls enclose no space", field="grid")
+        poses = np.array([[x, y, a] for a in LOOK_AROUND])
+        return scanned_grid(w, poses), "simulated"
+
+    async def plan(self, world: str, req: PlanRequest) -> dict[str, Any]:
+        self.worlds.model(world)  # 404 for an unknown world
+        async with self.worlds._write, self._lock:
+            previous = self.store.artifact(world, SCENE_ARTIFACT)
+            scene: dict[str, Any] = {}
+            try:
+                grid, source = await asyncio.to_thread(self.grid_for, world, req)
+                report = await asyncio.to_thread(self.planner.plan, req, grid,
+                                                 kb_grouper(self.kb, world, scene))
+                with self.store.transaction() as conn:
+                    self.store.put_artifact(conn, world, SCENE_ARTIFACT,
+                                            json.dumps(scene).encode())
+            except BaseException:
+                if scene:  # grouping asserted a scene: put the previous one back
+                    old = json.loads(previous) if previous else {
+                        "world": world, "candidates": [], "regions": []}
+                    await self.kb.acall("viewpoint_groups", **old)
+                raise
+        return report_json(world, report, source, grid)
+
+    async def scene(self, world: str) -> Any:
+        self.worlds.model(world)
+        return await self.kb.acall("viewpoint_scene", world=world)
