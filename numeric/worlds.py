@@ -203,9 +203,42 @@ TEMPLATES: dict[str, Callable[[str], WorldDescription]] = {
     "office": lambda name: office_world(name=name),
     "room_a": room_a,
     "room_b": room_b,
+    "summary_room": lambda name: summary_room(name),
+    "fig11a": lambda name: summary_room(name, "fig11a"),
+    "fig11b": lambda name: summary_room(name, "fig11b"),
     "room_c": room_c,
     "room_d": room_d,
 }
+
+
+#: The viewpoint-planning paper's rooms (7.0 m x 5.5 m, §7): the robot enters at the
+#: door in the middle of the south wall. ``summary_room``: the real-robot experiment
+#: (Fig. 12) -- two objects, one behind a cabinet; ``fig11a``: two objects far apart, near
+#: and far from the door (Table 1); ``fig11b``: four objects (two close together) and two
+#: cabinets that hide two regions from the door (Fig. 11(b)).
+SUMMARY_ROOM_M = (7.0, 5.5)
+SUMMARY_DOOR = (3.5, 0.6)
+_SUMMARY_LAYOUTS: dict[str, tuple[list[tuple[str, str, float, float, float]],
+                                  list[tuple[tuple[float, float], tuple[float, float]]]]] = {
+    "summary_room": ([("mug", "A", 1.2, 4.3, 0.5), ("kettle", "B", 5.6, 2.4, 2.0)],
+                     [((4.2, 3.4), (6.2, 3.4))]),
+    "fig11a": ([("a_near", "A", 5.6, 1.5, 0.3), ("b_far", "B", 1.0, 4.9, 1.1)], []),
+    "fig11b": ([("obj1", "A", 1.0, 1.6, 0.2), ("obj2", "B", 1.4, 2.6, 1.3),
+                ("obj3", "C", 5.9, 1.7, 2.6), ("obj4", "A", 4.0, 4.7, 0.9)],
+               [((0.0, 3.9), (2.0, 3.9)), ((4.6, 3.2), (7.0, 3.2))]),
+}
+
+
+def summary_room(name: str = "summary_room", layout: str = "summary_room") -> WorldDescription:
+    """A viewpoint-planning room (see :data:`_SUMMARY_LAYOUTS`)."""
+    w, h = SUMMARY_ROOM_M
+    walls = _polygon_walls([(0.0, 0.0), (w, 0.0), (w, h), (0.0, h)], ROOM_TEXTURES, 2.0)
+    objects, cabinets = _SUMMARY_LAYOUTS[layout]
+    for a, b in cabinets:
+        walls.append(Wall(a=a, b=b, texture="text", reflectivity=0.4))
+    objs = [WorldObject(id=i, type=t, x=x, y=y, theta=th, size_m=(0.4, 0.3, 0.5),
+                        texture="coffee") for i, t, x, y, th in objects]
+    return WorldDescription(name=name, walls=walls, objects=objs)
 
 
 def from_template(template: str, name: str) -> WorldDescription:

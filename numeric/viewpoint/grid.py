@@ -20,7 +20,7 @@ import numpy as np
 from scipy import ndimage
 
 from numeric.errors import InvalidInput
-from numeric.geometry import ray_crossings
+from numeric.geometry import point_segment_distance, ray_crossings
 from numeric.laser import Laser
 from numeric.slam.keyframes import Keyframes, MapConfig
 from numeric.slam.occupancy import FREE, OCCUPIED, UNKNOWN, OccupancyMap, build_occupancy
@@ -156,22 +156,25 @@ def _world_frame(world: World, resolution_m: float, margin_m: float = 0.5,
     return lo, (int(shape[0]), int(shape[1]))
 
 
-def room_mask(world: World, resolution_m: float) -> np.ndarray:
-    """Cells whose centre is inside the world's walls (even-odd rule, objects included)."""
+def room_mask(world: World, resolution_m: float, wall_margin_m: float = 0.1) -> np.ndarray:
+    """Cells whose centre is inside the world's walls (even-odd rule, objects included),
+    less a ``wall_margin_m`` band along the walls -- unseen wall cells would otherwise
+    join unknown regions that only touch the same wall."""
     lo, shape = _world_frame(world, resolution_m)
     ii, jj = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
     xy = (lo + (np.stack([ii, jj], axis=-1) + 0.5) * resolution_m).reshape(-1, 2)
     surf = world.surfaces
     walls = ~np.isfinite(surf.top_m)
     inside = ray_crossings(xy, surf.a[walls], surf.b[walls]) % 2 == 1
-    return np.asarray(inside.reshape(shape))
+    near = point_segment_distance(xy, surf.a[walls], surf.b[walls]).min(axis=1, initial=np.inf)
+    return np.asarray((inside & (near >= wall_margin_m)).reshape(shape))
 
 
 def true_grid(world: World, resolution_m: float = 0.05) -> PlanningGrid:
     """The world's true map: every cell inside the walls known (free, or occupied where a
     wall or object surface passes)."""
     lo, shape = _world_frame(world, resolution_m)
-    room = room_mask(world, resolution_m)
+    room = room_mask(world, resolution_m, 0.0)
     state = np.full(shape, UNKNOWN, dtype=np.int8)
     state[room] = FREE
     surf = world.surfaces

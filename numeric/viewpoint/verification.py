@@ -189,6 +189,7 @@ class ViewpointSet:
     pattern: str | None         # the Fig. 8 pattern (table mode)
     rotation: int
     entries: np.ndarray         # outermost usable viewpoints: the group's entry points
+    usable: np.ndarray          # (U, 2) every usable viewpoint (for executing a plan)
     table: VerificationTable | None = None
 
 
@@ -249,13 +250,14 @@ class Verifier:
                         tab = self.tables.get(cand.model, radii, name, rot, prior,
                                               self.speed, self.t_verify)
                         vs = ViewpointSet(pts[idx], cand.model.recognisable(pts[idx], cand.xy),
-                                          name, rot, entries, tab)
+                                          name, rot, entries, pts[usable], tab)
                         self._sets[cand.id] = vs
                         return vs
                     if name == "open":
                         break  # the open pattern is rotation invariant
         idx = np.nonzero(usable)[0]
-        vs = ViewpointSet(pts[idx], cand.model.recognisable(pts[idx], cand.xy), None, 0, entries)
+        vs = ViewpointSet(pts[idx], cand.model.recognisable(pts[idx], cand.xy), None, 0, entries,
+                          pts[usable])
         self._sets[cand.id] = vs
         return vs
 
@@ -279,6 +281,22 @@ class Verifier:
             return np.full((len(starts), len(goals)), np.inf)
         d_sv = cdist(starts, vs.points) / self.speed                      # (S, V)
         return np.asarray(np.min(d_sv[:, None, :] + q[None, :, :], axis=2))
+
+    def next_viewpoint(self, cand: Candidate, start: np.ndarray, goal: np.ndarray,
+                       ) -> np.ndarray | None:
+        """The first viewpoint of the best eq.-5 policy from ``start`` with the candidate's
+        current belief over every usable viewpoint (executing a plan re-plans after each
+        observation); ``None`` when no viewpoint can recognise it any more."""
+        vs = self.viewpoints(cand)
+        pts = vs.usable
+        q, ok = single_dp(pts, cand.model.recognisable(pts, cand.xy), cand.prior(),
+                          np.atleast_2d(goal), self.speed, self.t_verify)
+        if not ok:
+            return None
+        cost = cdist(np.atleast_2d(start), pts)[0] / self.speed + q[0]
+        if not np.isfinite(cost).any():
+            return None
+        return np.asarray(pts[int(np.argmin(cost))])
 
     # -- t_seq (eq. 7) ----------------------------------------------------------------
     def sequential(self, cands: Sequence[Candidate], starts: np.ndarray, goals: np.ndarray,
