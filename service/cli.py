@@ -1,4 +1,4 @@
-"""The ``chizu`` command line: serve, repl, path, slam, slam-eval, slam-sim."""
+"""The ``chizu`` command line: serve, repl, path, slam, slam-eval, slam-sim, plan, summarise."""
 
 from __future__ import annotations
 
@@ -200,6 +200,162 @@ def slam_sim(template: str = typer.Argument("corridor", help="built-in world"),
     assert log.truth is not None
     write_tum(Path(str(out) + ".truth.tum"), log.times, log.truth)
     console.print(f"wrote {out} ({len(log)} scans) and {out}.truth.tum")
+
+
+DEFAULT_TYPES = [{"name": "A", "value": 50, "mean_count": 1.0},
+                 {"name": "B", "value": 100, "mean_count": 0.5},
+                 {"name": "C", "value": 80, "mean_count": 0.5}]
+
+
+def _world_description(name: str):  # type: ignore[no-untyped-def]
+    """A stored world of the data directory, else a built-in template."""
+    from numeric.world import WorldDescription
+    from numeric.worlds import TEMPLATES, from_template
+    from service.store import Store
+
+    s = get_settings()
+    if s.db_path.exists():
+        row = Store(s.db_path).world(name)
+        if row is not None:
+            return WorldDescription.model_validate(row.description)
+    if name in TEMPLATES:
+        return from_template(name, name if name[0].islower() else "w")
+    console.print(f"[red]no world {name!r} in {s.db_path} and no such template; "
+                  f"templates: {', '.join(sorted(TEMPLATES))}[/red]")
+    raise typer.Exit(2)
+
+
+@app.command()
+def plan(scene: str = typer.Argument(..., help="SCENE.json: a viewpoint-plan request"),
+         world: str = typer.Option(None, help="world (stored or template) to simulate the "
+                                   "grid from when the scene has none"),
+         png: str = typer.Option(None, help="write a figure of the groups and the plan"),
+         exhaustive: bool = typer.Option(False, help="the paper's exhaustive search")) -> None:
+    """Plan one viewpoint-planning scene (the body of POST /worlds/{w}/viewpoint-plan)."""
+    import json
+
+    import numpy as np
+    from pydantic import ValidationError
+
+    from numeric.errors import InvalidInput
+    from numeric.viewpoint.figures import plan_figure
+    from numeric.viewpoint.grid import scanned_grid
+    from numeric.viewpoint.planner import PlanRequest, ViewpointPlanner
+    from numeric.world import World
+    from service.viewpoint import LOOK_AROUND, local_grouper, report_json
+
+    try:
+        req = PlanRequest.model_validate_json(Path(scene).read_text())
+    except (OSError, ValidationError) as e:
+        console.print(f"[red]{scene}: {e}[/red]")
+        raise typer.Exit(2) from None
+    if exhaustive:
+        req = req.model_copy(update={"solver": "exhaustive"})
+    if req.grid is not None:
+        grid = req.grid.to_grid()
+    elif world is not None:
+        x, y, _ = req.robot
+        grid = scanned_grid(World(_world_description(world)),
+                            np.array([[x, y, a] for a in LOOK_AROUND]))
+    else:
+        console.print("[red]the scene has no grid: give one, or --world to simulate it[/red]")
+        raise typer.Exit(2)
+    grouper, kb = local_grouper(get_settings().prolog_dir)
+    try:
+        report = ViewpointPlanner().plan(req, grid, grouper)
+    except InvalidInput as e:
+        console.print(f"[red]{e.field}: {e}[/red]")
+        raise typer.Exit(2) from None
+    finally:
+        kb.close()
+    out = report_json("scene", report, "posted" if req.grid else "simulated", grid)
+    t = Table(title=f"groups ({req.loss}, t_limit {req.time_limit_s:g} s)")
+    for col in ("group", "kind", "members", "value", "t_obs (s)", "strategy"):
+        t.add_column(col)
+    for g in out["groups"]:
+        t.add_row(g["name"], g["kind"], ",".join(map(str, g["members"])), f"{g['value']:.1f}",
+                  f"{g['t_obs_s']:.2f}", g.get("strategy", "explore"))
+    console.print(t)
+    t = Table(title="plans (best first)")
+    for col in ("plan", "V", "time (s)", "loss", "U"):
+        t.add_column(col)
+    for p in [out["plan"], *out["runner_ups"]]:
+        t.add_row(" → ".join(p["groups"]) or "(leave)", f"{p['value']:.1f}",
+                  f"{p['expected_time_s']:.2f}",
+                  "∞" if p["loss"] is None else f"{p['loss']:.2f}",
+                  "-∞" if p["utility"] is None else f"{p['utility']:.2f}")
+    console.print(t)
+    console.print(f"planning {out['timings_ms']['total']:.1f} ms "
+                  f"(tables built {out['tables']['built']})")
+    if png:
+        plan_figure(report, req, grid, png)
+        console.print(f"wrote {png}")
+    console.print_json(json.dumps({"plan": out["plan"]}))
+
+
+@app.command()
+def summarise(world: str = typer.Argument(..., help="stored world or template, e.g. "
+                                          "summary_room"),
+              time_limit: float = typer.Option(55.0, "--time-limit", min=0),
+              loss: str = typer.Option("L2", help="L1 | L2 | L3"),
+              door: str = typer.Option(None, help="x,y of the door (default: the paper "
+                                       "rooms' door)"),
+              seed: int = typer.Option(0, min=0),
+              out: str = typer.Option("summary", help="directory for run.json and run.png"),
+              ) -> None:
+    """Summarise a room online (§7.3): plan, move and observe in the simulator, update,
+    re-plan, until the plan is to leave; writes the run log and a figure."""
+    import json
+
+    import numpy as np
+
+    from numeric.viewpoint.figures import run_figure
+    from numeric.viewpoint.online import Summariser, SummaryConfig
+    from numeric.viewpoint.planner import ObjectType
+    from numeric.world import World
+    from numeric.worlds import SUMMARY_DOOR
+    from service.viewpoint import local_grouper
+
+    if loss not in ("L1", "L2", "L3"):
+        console.print(f"[red]--loss must be L1, L2 or L3, not {loss!r}[/red]")
+        raise typer.Exit(2)
+    try:
+        door_xy = np.array([float(v) for v in door.split(",")]) if door else np.array(
+            SUMMARY_DOOR)
+        assert door_xy.shape == (2,) and np.all(np.isfinite(door_xy))
+    except (ValueError, AssertionError):
+        console.print(f"[red]--door must be x,y, not {door!r}[/red]")
+        raise typer.Exit(2) from None
+    w = World(_world_description(world))
+    types = [ObjectType.model_validate(t) for t in DEFAULT_TYPES]
+    cfg = SummaryConfig(time_limit_s=time_limit, loss=loss, seed=seed)
+    grouper, kb = local_grouper(get_settings().prolog_dir)
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    try:
+        with Progress(TextColumn("{task.description}"), BarColumn(),
+                      TextColumn("{task.completed:.1f}/{task.total:.0f} s"),
+                      TimeElapsedColumn(), console=console) as bar:
+            task = bar.add_task("summarising", total=max(time_limit, 1.0))
+
+            def step(e):  # type: ignore[no-untyped-def]
+                bar.update(task, completed=min(e.t_s, time_limit))
+                what = e.detail.get("plan", e.detail.get("candidate", e.detail.get("group")))
+                bar.console.print(f"{e.t_s:6.1f} s  {e.action:<14} {what}")
+
+            run = Summariser(w, types, grouper, cfg, door_xy).run(on_step=step)
+    finally:
+        kb.close()
+    outdir = Path(out)
+    outdir.mkdir(parents=True, exist_ok=True)
+    summary = run.summary(w)
+    log = [{"step": e.step, "t_s": e.t_s, "action": e.action, **e.detail} for e in run.log]
+    (outdir / "run.json").write_text(json.dumps({"summary": summary, "log": log}, indent=1,
+                                                default=float))
+    run_figure(run, w, str(outdir / "run.png"),
+               f"{world}: {loss}, t_limit {time_limit:g} s, took {run.elapsed_s:.1f} s")
+    console.print(summary)
+    console.print(f"wrote {outdir / 'run.json'} and {outdir / 'run.png'}")
 
 
 if __name__ == "__main__":

@@ -15,6 +15,7 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -54,6 +55,14 @@ def kb_grouper(kb: KnowledgeBase, world: str, sink: dict[str, Any] | None = None
                 for g in reply["groups"]]
 
     return group
+
+
+def local_grouper(prolog_dir: Path, world: str = "scene"):  # type: ignore[no-untyped-def]
+    """A grouper on a private knowledge base (for the CLI and benchmarks): the same rules,
+    a scratch world that is never stored. Returns (grouper, kb); close the kb when done."""
+    kb = KnowledgeBase(prolog_dir)
+    kb.call("create_world", world=world, landmarks=[])
+    return kb_grouper(kb, world), kb
 
 
 def _num(x: float) -> float | None:

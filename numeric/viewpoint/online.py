@@ -88,12 +88,13 @@ class SummaryRun:
     def summary(self, world: World) -> dict[str, Any]:
         truth = {o.id for o in world.description.objects}
         room = self.grid.room if self.grid.room is not None else np.ones_like(self.grid.state, bool)
-        known = np.count_nonzero(room & (self.grid.state != -1))
+        known = int(np.count_nonzero(room & (self.grid.state != -1)))
+        cells = max(int(np.count_nonzero(room)), 1)
         return {"elapsed_s": self.elapsed_s, "verified": sorted(self.verified),
                 "rejected": sorted(self.rejected), "unverified": sorted(self.unverified),
                 "objects_in_world": len(truth),
                 "objects_verified": len(truth & set(self.verified)),
-                "explored_fraction": known / max(np.count_nonzero(room), 1),
+                "explored_fraction": known / cells,
                 "steps": len(self.plans)}
 
 
@@ -281,41 +282,3 @@ class Summariser:
         b = b * ~model.recognisable(xy[None, :], est)[0]
         beliefs[cid] = b / b.sum() if b.sum() > 0 else b
         return False
-
-
-def figure(run: SummaryRun, world: World, path_png: str, title: str = "") -> None:
-    """The run as a PNG: the final map, the path, verified (green), rejected (red) and
-    unverified (orange) candidates, the true objects (black squares)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    g = run.grid
-    img = np.full(g.state.shape, 0.6)
-    img[g.state == FREE] = 1.0
-    img[g.state == OCCUPIED] = 0.0
-    lo = g.grid.origin
-    hi = lo + np.array(g.state.shape) * g.resolution
-    fig, ax = plt.subplots(figsize=(7, 6))
-    ax.imshow(img.T, origin="lower", cmap="gray", vmin=0, vmax=1,
-              extent=(lo[0], hi[0], lo[1], hi[1]))
-    p = np.array(run.path)
-    ax.plot(p[:, 0], p[:, 1], "-", color="tab:blue", lw=1.5, label="path")
-    ax.plot(p[0, 0], p[0, 1], "o", color="tab:blue", ms=8, mfc="white", label="door")
-    for o in world.description.objects:
-        ax.plot(o.x, o.y, "s", color="black", ms=5)
-    for pts, col, lab in ((run.verified, "tab:green", "verified"),
-                          (run.rejected, "tab:red", "rejected"),
-                          (run.unverified, "tab:orange", "not verified")):
-        for k, (cid, xy) in enumerate(pts.items()):
-            ax.plot(xy[0], xy[1], "o", ms=11, mfc="none", mec=col, mew=2,
-                    label=lab if k == 0 else None)
-            ax.annotate(cid, xy, textcoords="offset points", xytext=(6, 6), fontsize=8)
-    ax.set_title(title or f"summary run: {run.elapsed_s:.1f} s")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.legend(loc="upper right", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path_png, dpi=110)
-    plt.close(fig)
