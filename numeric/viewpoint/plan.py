@@ -126,7 +126,8 @@ def evaluate(p: Problem, order: tuple[int, ...]) -> Plan:
 
 def _rank(plan: Plan) -> tuple[float, int, float, tuple[int, ...]]:
     u = plan.utility if np.isfinite(plan.utility) else -np.inf
-    return (-u, len(plan.order), round(plan.time, 9), plan.order)
+    # rounded: a set's value summed in another order differs in the last bits
+    return (-round(u, 9), len(plan.order), round(plan.time, 9), plan.order)
 
 
 def solve_exhaustive(p: Problem) -> list[Plan]:

@@ -1,0 +1,234 @@
+"""POST /worlds/{world}/viewpoint-plan: the paper's decisions through the API, the
+Prolog groups behind them, bad input as problem responses, persistence; the online loop
+and the CLI."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from numeric.viewpoint.online import Summariser, SummaryConfig
+from numeric.viewpoint.planner import ObjectType
+from numeric.world import World
+from numeric.worlds import SUMMARY_DOOR, summary_room
+from service.app import create_app
+from service.settings import Settings
+from service.viewpoint import local_grouper
+
+ROOT = Path(__file__).resolve().parent.parent
+DOOR = list(SUMMARY_DOOR)
+TYPES = [{"name": "A", "value": 50, "mean_count": 1.0},
+         {"name": "B", "value": 100, "mean_count": 0.5},
+         {"name": "C", "value": 80, "mean_count": 0.5}]
+
+
+def table1_body(loss: str) -> dict[str, Any]:
+    """Table 1: k_lim 0.5, v 0.4 m/s, t_limit 30 s; a near object A (value 50) and a far
+    object B (value 100); no unknown region (threshold above the room's area)."""
+    return {"robot": [*DOOR, 1.57], "exit": DOOR, "time_limit_s": 30, "loss": loss,
+            "k_lim": 0.5, "speed_m_s": 0.4, "t_verify_s": 10.0, "min_area_m2": 100,
+            "object_types": TYPES[:2],
+            "candidates": [{"id": "a_near", "type": "A", "x": 5.6, "y": 1.5},
+                           {"id": "b_far", "type": "B", "x": 1.0, "y": 4.9}]}
+
+
+@pytest.fixture(scope="module")
+def rooms(client: TestClient) -> TestClient:
+    for name, template in (("vp_a", "fig11a"), ("vp_b", "fig11b"), ("vp_s", "summary_room")):
+        r = client.post("/worlds", json={"name": name, "template": template})
+        assert r.status_code == 201, r.text
+    return client
+
+
+@pytest.mark.parametrize(("loss", "plan"), [("L1", ["G_A"]), ("L2", ["G_B"]),
+                                            ("L3", ["G_A", "G_B"])])
+def test_table1_decisions(rooms: TestClient, loss: str, plan: list[str]) -> None:
+    r = rooms.post("/worlds/vp_a/viewpoint-plan", json=table1_body(loss))
+    assert r.status_code == 200, r.text
+    out = r.json()
+    assert [g["members"] for g in out["groups"]] == [["a_near"], ["b_far"]]
+    assert sorted(out["plan"]["groups"]) == plan
+    t = {tuple(p["groups"]): p for p in [out["plan"], *out["runner_ups"]]}
+    if loss == "L2":  # eq. 13 on the planner's own times
+        for p in t.values():
+            over = max(p["expected_time_s"] - 30, 0)
+            assert p["loss"] == pytest.approx(0.5 * over**2)
+    if loss == "L1":
+        assert all(p["loss"] is None for p in t.values() if p["expected_time_s"] >= 30)
+
+
+def test_plan_structure_and_prolog_groups(rooms: TestClient) -> None:
+    body = {"robot": [*DOOR, 1.57], "exit": DOOR, "time_limit_s": 40, "loss": "L2",
+            "object_types": TYPES, "min_area_m2": 1.5,
+            "candidates": [{"id": f"obj{i}", "type": o.type, "x": o.x, "y": o.y}
+                           for i, o in enumerate(World(summary_room("x", "fig11b"))
+                                                 .description.objects, 1)]}
+    out = rooms.post("/worlds/vp_b/viewpoint-plan", json=body).json()
+    kinds = [g["kind"] for g in out["groups"]]
+    assert kinds.count("objects") == 3 and kinds.count("unknown") == 2
+    assert ["obj1", "obj2"] in [g["members"] for g in out["groups"]]
+    utilities = [p["utility"] for p in [out["plan"], *out["runner_ups"]]]
+    assert utilities == sorted(utilities, reverse=True)
+    assert out["grid"]["source"] == "simulated"
+    # the groups are Prolog facts of the world: the endpoint and the sandboxed query
+    groups = rooms.get("/worlds/vp_b/viewpoint-groups").json()["groups"]
+    assert [g["members"] for g in groups] == [g["members"] for g in out["groups"]]
+    q = rooms.post("/worlds/vp_b/query", json={"goal": "same_group(obj1, X)"})
+    assert q.status_code == 200, q.text
+    assert sorted(s["X"] for s in q.json()["solutions"]) == ["obj1", "obj2"]
+    # the exhaustive reference agrees
+    ex = rooms.post("/worlds/vp_b/viewpoint-plan", json={**body, "solver": "exhaustive"})
+    assert ex.json()["plan"]["utility"] == pytest.approx(out["plan"]["utility"])
+
+
+def _grid_body(data: list[int], w: int = 40, h: int = 40) -> dict[str, Any]:
+    return {"width": w, "height": h, "resolution_m": 0.1, "origin": [0, 0], "data": data}
+
+
+def test_posted_grid_gives_an_unknown_region(rooms: TestClient) -> None:
+    cells = np.zeros((40, 40), dtype=int)            # [y, x] rows
+    cells[0, :] = cells[-1, :] = cells[:, 0] = cells[:, -1] = 100
+    cells[25:35, 25:35] = -1                          # 1 m2 unknown in the corner
+    body = {"robot": [0.5, 0.5, 0], "exit": [0.5, 0.5], "time_limit_s": 60,
+            "object_types": TYPES, "min_area_m2": 0.5, "grid": _grid_body(cells.ravel().tolist()),
+            "candidates": [{"id": "c1", "type": "A", "x": 1.5, "y": 2.0}]}
+    out = rooms.post("/worlds/demo/viewpoint-plan", json=body).json()
+    unk = [g for g in out["groups"] if g["kind"] == "unknown"]
+    assert len(unk) == 1 and unk[0]["area_m2"] == pytest.approx(1.0)
+    assert unk[0]["centroid"] == pytest.approx([3.0, 3.0])
+    assert out["grid"]["source"] == "posted"
+
+
+def test_empty_candidates_and_no_time_means_leave(rooms: TestClient) -> None:
+    body = {**table1_body("L1"), "time_limit_s": 0}
+    out = rooms.post("/worlds/vp_a/viewpoint-plan", json=body).json()
+    assert out["leave_now"] and out["plan"]["groups"] == []
+    body = {**table1_body("L3"), "candidates": []}
+    assert rooms.post("/worlds/vp_a/viewpoint-plan", json=body).json()["plan"]["groups"] == []
+
+
+@pytest.mark.parametrize(("patch", "status", "field"), [
+    ({"loss": "L4"}, 422, "loss"),
+    ({"time_limit_s": -1}, 422, "time_limit_s"),
+    ({"k_lim": -0.5}, 422, "k_lim"),
+    ({"speed_m_s": 0}, 422, "speed_m_s"),
+    ({"robot": [1, 2]}, 422, "robot[2]"),
+    ({"exit": ["x", 0]}, 422, "exit[0]"),
+    ({"candidates": [{"id": "c1", "type": "A", "x": "NaN", "y": 1}]}, 422, "candidates[0].x"),
+    ({"candidates": [{"id": "c1", "type": "A", "x": 1e400, "y": 1}]}, 422, "candidates[0].x"),
+    ({"candidates": [{"id": "Bad id", "type": "A", "x": 1, "y": 1}]}, 422, "candidates[0].id"),
+    ({"candidates": [{"id": "c1", "type": "Z", "x": 1, "y": 1}]}, 422, "candidates[0].type"),
+    ({"candidates": [{"id": "c1", "type": "A", "x": 1, "y": 1}] * 2}, 422, None),
+    ({"candidates": [{"id": f"c{i}", "type": "A", "x": 1, "y": 1} for i in range(201)]},
+     422, "candidates"),
+    ({"candidates": [{"id": "c1", "type": "A", "x": 1, "y": 1, "belief": [1, 0]}]},
+     422, "candidates[0].belief"),
+    ({"object_types": [{"name": "mug", "value": 1}],
+      "candidates": [{"id": "c1", "type": "mug", "x": 1, "y": 1}]}, 422, "object_types[0]"),
+    ({"object_types": [{"name": "A", "value": -1}]}, 422, "object_types[0].value"),
+    ({"grid": _grid_body([0] * 10)}, 422, "grid.data"),
+    ({"grid": _grid_body([7] * 1599 + [101])}, 422, "grid.data"),
+    ({"grid": {**_grid_body([0] * 1600), "resolution_m": float("inf")}}, 422,
+     "grid.resolution_m"),
+    ({"grid": _grid_body([], 0, 0)}, 422, "grid.width"),
+    ({"unknown": 1}, 422, "unknown"),
+])
+def test_bad_input_is_a_problem_response(rooms: TestClient, patch: dict[str, Any], status: int,
+                                         field: str | None) -> None:
+    before = rooms.get("/worlds/vp_a/viewpoint-groups").json()
+    body = json.dumps({**table1_body("L2"), **patch}, allow_nan=True).replace(
+        "Infinity", "1e999")
+    r = rooms.post("/worlds/vp_a/viewpoint-plan", content=body,
+                   headers={"content-type": "application/json"})
+    assert r.status_code == status, r.text
+    assert r.headers["content-type"].startswith("application/problem+json")
+    if field is not None:
+        assert r.json()["field"] == field, r.json()
+    assert rooms.get("/worlds/vp_a/viewpoint-groups").json() == before
+
+
+def test_exhaustive_limit_and_unknown_world(rooms: TestClient) -> None:
+    body = {**table1_body("L2"), "solver": "exhaustive",
+            "candidates": [{"id": f"c{i}", "type": "A", "x": 0.6 + 0.6 * (i % 10),
+                            "y": 1.0 + 3.5 * (i // 10)} for i in range(20)],
+            "min_area_m2": 100}
+    r = rooms.post("/worlds/vp_a/viewpoint-plan", json=body)
+    # 20 candidates 0.6 m apart join into few groups: allowed, or refused naming solver
+    assert r.status_code == 200 or r.json()["field"] == "solver"
+    r = rooms.post("/worlds/nowhere/viewpoint-plan", json=table1_body("L2"))
+    assert r.status_code == 404
+    assert rooms.get("/worlds/nowhere/viewpoint-groups").status_code == 404
+
+
+def test_huge_payload_is_413(rooms: TestClient) -> None:
+    body = {**table1_body("L2"), "grid": _grid_body([0] * 4_400_000, 2200, 2000)}
+    r = rooms.post("/worlds/vp_a/viewpoint-plan", json=body)
+    assert r.status_code == 413
+
+
+def test_scene_survives_a_restart(tmp_path: Path) -> None:
+    s = Settings(data_dir=tmp_path, demo_world="")
+    with TestClient(create_app(s)) as c:
+        assert c.post("/worlds", json={"name": "room", "template": "fig11a"}).status_code == 201
+        assert c.post("/worlds/room/viewpoint-plan", json=table1_body("L3")).status_code == 200
+        groups = c.get("/worlds/room/viewpoint-groups").json()
+    with TestClient(create_app(s)) as c:
+        assert c.get("/worlds/room/viewpoint-groups").json() == groups
+        assert len(groups["groups"]) == 2
+
+
+# -- the online loop (§7.3) and the CLI -------------------------------------------------
+@pytest.fixture(scope="module")
+def grouper() -> Iterator[Any]:
+    g, kb = local_grouper(ROOT / "prolog")
+    yield g
+    kb.close()
+
+
+def test_online_summary_verifies_both_objects(grouper: Any) -> None:
+    w = World(summary_room())
+    types = [ObjectType.model_validate(t) for t in TYPES]
+    run = Summariser(w, types, grouper, SummaryConfig(time_limit_s=55, loss="L2"),
+                     np.array(SUMMARY_DOOR)).run()
+    s = run.summary(w)
+    assert s["verified"] == ["kettle", "mug"]
+    assert s["rejected"] == ["false1"]           # the false candidate is never recognised
+    assert run.elapsed_s < 55 + 10
+    assert s["explored_fraction"] > 0.9
+    assert run.log[-1].action == "leave" and run.plans[-1] == []
+    # with no time at all under L1 the robot leaves at once
+    run0 = Summariser(w, types, grouper, SummaryConfig(time_limit_s=0, loss="L1"),
+                      np.array(SUMMARY_DOOR)).run()
+    assert run0.verified == {} and run0.plans == [[]]
+
+
+def test_cli_plan_and_summarise(tmp_path: Path) -> None:
+    scene = tmp_path / "scene.json"
+    scene.write_text(json.dumps(table1_body("L2")))
+    env_cmd = [sys.executable, "-m", "service.cli"]
+    r = subprocess.run([*env_cmd, "plan", str(scene), "--world", "fig11a",
+                        "--png", str(tmp_path / "plan.png")],
+                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert '"groups": [\n      "G_B"\n    ]' in r.stdout or '"G_B"' in r.stdout
+    assert (tmp_path / "plan.png").read_bytes()[:4] == b"\x89PNG"
+    r = subprocess.run([*env_cmd, "summarise", "summary_room", "--time-limit", "55",
+                        "--out", str(tmp_path / "run")],
+                       cwd=ROOT, capture_output=True, text=True, timeout=300,
+                       env={"CHIZU_DATA_DIR": str(tmp_path / "data"), "PATH": "/usr/bin:/bin",
+                            "HOME": str(tmp_path)})
+    assert r.returncode == 0, r.stdout + r.stderr
+    log = json.loads((tmp_path / "run" / "run.json").read_text())
+    assert log["summary"]["objects_verified"] == 2
+    assert (tmp_path / "run" / "run.png").exists()
+    bad = subprocess.run([*env_cmd, "plan", str(tmp_path / "missing.json")], cwd=ROOT,
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2

@@ -1,0 +1,276 @@
+"""Viewpoint planning (numeric/viewpoint): appearance model, eq. 5 DP, tables, local
+strategies, unknown regions, global plan solvers, grids and the online loop."""
+
+from __future__ import annotations
+
+import functools
+import itertools
+
+import numpy as np
+import pytest
+
+from numeric.errors import InvalidInput
+from numeric.viewpoint.appearance import (
+    AngleSample,
+    AppearanceModel,
+    DistanceSample,
+    MeasurementTables,
+    exp_distance,
+    sigmoid_angle,
+)
+from numeric.viewpoint.grid import from_occupancy_values, true_grid
+from numeric.viewpoint.plan import GroupCost, Loss, Problem, solve, solve_exhaustive
+from numeric.viewpoint.recognition import OBJECT_KINDS, fitted_models
+from numeric.viewpoint.verification import (
+    PATTERNS,
+    Candidate,
+    Verifier,
+    single_dp,
+    unknown_region_time,
+    viewpoint_circles,
+)
+from numeric.world import Wall, World, WorldDescription
+
+
+@pytest.fixture(scope="module")
+def models() -> dict[str, AppearanceModel]:
+    return fitted_models()
+
+
+# -- appearance model (§3) ------------------------------------------------------------
+def test_fit_recovers_known_parameters() -> None:
+    a, b, k, half = (80.0, 60.0, 50.0, 70.0), (0.9, 0.7, 1.1, 0.8), 5.0, 0.7
+    d = np.linspace(0.3, 2.5, 12)
+    th = np.radians(np.arange(-80, 81, 5))
+    tables = MeasurementTables(
+        distance=[DistanceSample(face=j, d_m=float(x), matches=float(exp_distance(x, a[j], b[j])))
+                  for j in range(4) for x in d],
+        angle=[AngleSample(theta_rad=float(t), ratio=float(sigmoid_angle(t, k, half)))
+               for t in th])
+    m, rep = AppearanceModel.fit(tables)
+    assert np.allclose(m.params.a, a, rtol=1e-3) and np.allclose(m.params.b, b, rtol=1e-3)
+    assert m.params.k == pytest.approx(k, rel=1e-2)
+    assert m.params.theta_half == pytest.approx(half, rel=1e-2)
+    assert max(rep.distance_rmse) < 1e-3
+
+
+def test_fit_needs_two_distances_per_face() -> None:
+    rows = [DistanceSample(face=j % 4, d_m=1.0, matches=10.0) for j in range(8)]
+    tables = MeasurementTables(distance=rows, angle=[AngleSample(theta_rad=0, ratio=1)] * 3)
+    with pytest.raises(InvalidInput) as e:
+        AppearanceModel.fit(tables)
+    assert e.value.field == "tables.distance"
+
+
+def test_simulated_fit_is_close_to_the_simulator(models: dict[str, AppearanceModel]) -> None:
+    """The model is fitted to simulated measurements; its R_max should be within 25 % of
+    the simulator's true reach of the best face."""
+    for name, kind in OBJECT_KINDS.items():
+        true_reach = kind.d_half_m * np.sqrt(max(kind.features) / 15.0 - 1)
+        assert models[name].r_max == pytest.approx(true_reach, rel=0.25)
+        assert 0 < models[name].r_min() < models[name].r_max
+
+
+def test_posterior_peaks_at_the_true_orientation(models: dict[str, AppearanceModel]) -> None:
+    m = models["A"]
+    robot, obj = np.array([1.0, 0.2]), np.zeros(2)
+    for i in range(m.n_theta):
+        z = m.predict(robot[None], obj, m.thetas[i:i + 1])[0]
+        post = m.posterior(z, robot, obj)
+        assert post.sum() == pytest.approx(1.0)
+        assert post[i] == post.max()
+    with pytest.raises(InvalidInput):
+        m.posterior([1.0, np.nan, 0, 0], robot, obj)
+
+
+def test_p_recog_is_one_inside_r_min_and_zero_beyond_r_max(models: dict[str, AppearanceModel],
+                                                          ) -> None:
+    m = models["B"]
+    ang = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+    ring = np.stack([np.cos(ang), np.sin(ang)], 1)
+    assert np.allclose(m.p_recog(0.95 * m.r_min() * ring, np.zeros(2)), 1.0)
+    assert np.allclose(m.p_recog(1.05 * m.r_max * ring, np.zeros(2)), 0.0)
+    mid = m.p_recog(0.5 * (m.r_min() + m.r_max) * ring, np.zeros(2))
+    assert np.all((mid > 0) & (mid < 1))
+
+
+# -- eq. 5 ----------------------------------------------------------------------------
+def _eq5_by_recursion(points: np.ndarray, recog: np.ndarray, belief: np.ndarray,
+                      start: np.ndarray, goal: np.ndarray, speed: float, tv: float) -> float:
+    """The paper's recursion over the remaining viewpoint set S - {X}, with eq. 4's
+    indicator conditioned on the orientations not yet ruled out."""
+
+    @functools.cache
+    def t(pos: int, remaining: frozenset[int], mask: int) -> float:
+        at = start if pos < 0 else points[pos]
+        best = np.inf
+        bits = np.array([(mask >> i) & 1 for i in range(len(belief))], dtype=bool)
+        mass = belief[bits].sum()
+        for v in remaining:
+            p = belief[bits & recog[v]].sum() / mass if mass > 0 else 0.0
+            if p == 0:
+                continue
+            nxt = mask & ~sum(1 << i for i in np.nonzero(recog[v])[0])
+            rest = t(v, remaining - {v}, nxt) if p < 1 else 0.0
+            cost = (np.hypot(*(at - points[v])) / speed + tv
+                    + p * np.hypot(*(points[v] - goal)) / speed + (1 - p) * rest)
+            best = min(best, cost)
+        return float(np.hypot(*(at - goal)) / speed) if not np.isfinite(best) else best
+
+    return t(-1, frozenset(range(len(points))), (1 << len(belief)) - 1)
+
+
+def test_single_dp_equals_the_recursion_of_eq5(models: dict[str, AppearanceModel]) -> None:
+    m = models["A"]
+    rng = np.random.default_rng(3)
+    radii = m.radii(0.5)
+    pts = viewpoint_circles(np.zeros(2), radii)[rng.choice(24, 7, replace=False)]
+    rec = m.recognisable(pts, np.zeros(2))
+    belief = rng.dirichlet(np.ones(m.n_theta))
+    start, goal = np.array([3.0, -1.0]), np.array([-2.0, 2.5])
+    q, ok = single_dp(pts, rec, belief, goal[None], 0.4, 2.0)
+    assert ok
+    dp = float(np.min(np.hypot(*(pts - start).T) / 0.4 + q[0]))
+    assert dp == pytest.approx(_eq5_by_recursion(pts, rec, belief, start, goal, 0.4, 2.0))
+
+
+def test_table_mode_matches_exact_in_open_space(models: dict[str, AppearanceModel]) -> None:
+    c = Candidate("c", "A", np.array([2.0, 1.0]), models["A"])
+    s, g = np.array([[0.0, 0.0], [5.0, 3.0]]), np.array([[0.0, 0.0], [1.0, 4.0]])
+    exact = Verifier(None, 0.4, 2.0, use_table=False).single(c, s, g)
+    table = Verifier(None, 0.4, 2.0, use_table=True).single(c, s, g)
+    assert np.all(table >= exact - 1e-9)        # eq. 6 routes through a table end point
+    assert np.all(table <= exact * 1.15)
+
+
+def _box_world(objects: list[tuple[float, float]] = ()) -> World:  # type: ignore[assignment]
+    w, h = 6.0, 5.0
+    walls = [Wall(a=(0, 0), b=(w, 0)), Wall(a=(w, 0), b=(w, h)), Wall(a=(w, h), b=(0, h)),
+             Wall(a=(0, h), b=(0, 0))]
+    return World(WorldDescription(name="box", walls=walls))
+
+
+def test_a_wall_removes_viewpoints_and_costs_time(models: dict[str, AppearanceModel]) -> None:
+    grid = true_grid(_box_world())
+    v = Verifier(grid, 0.4, 2.0)
+    free = Candidate("free", "A", np.array([3.0, 2.5]), models["A"])
+    wall = Candidate("wall", "A", np.array([3.0, 0.45]), models["A"])
+    assert v.viewpoints(free).pattern == "open"
+    assert v.viewpoints(wall).pattern in ("wall", "corner", "front")
+    assert grid.free(v.viewpoints(wall).points, 0.25).all()
+    s = np.array([[3.0, 2.0]])
+    assert v.single(wall, s, s)[0, 0] > v.single(free, s, s)[0, 0]
+    assert set(PATTERNS) == {"open", "three_quarter", "wall", "corner", "front"}
+
+
+def test_pattern_tables_are_reused_across_objects_of_a_type(models: dict[str, AppearanceModel],
+                                                           ) -> None:
+    v = Verifier(None, 0.4, 2.0)
+    s = np.zeros((1, 2))
+    for k in range(5):
+        v.single(Candidate(f"c{k}", "A", np.array([k, 2.0 * k]), models["A"]), s, s)
+    assert v.tables.builds == 1 and v.tables.hits == 4
+
+
+def test_parallel_beats_sequential_for_objects_side_by_side(models: dict[str, AppearanceModel],
+                                                           ) -> None:
+    v = Verifier(None, 0.4, 2.0)
+    a = Candidate("a", "A", np.array([2.0, 2.0]), models["A"])
+    b = Candidate("b", "B", np.array([2.6, 2.0]), models["B"])
+    c = Candidate("c", "C", np.array([2.3, 2.5]), models["C"])
+    s = np.array([[0.0, 0.0]])
+    two = v.group([a, b], s, s)[0]
+    assert two.t_par_s is not None and two.t_seq_s is not None
+    assert two.strategy == "par" and two.t_par_s < two.t_seq_s
+    three = v.group([a, b, c], s, s)[0]
+    assert np.isfinite(three.time_s) and set(three.order) == {"a", "b", "c"}
+    assert three.time_s > two.time_s
+
+
+def test_sequential_order_prefers_the_near_object_first(models: dict[str, AppearanceModel],
+                                                       ) -> None:
+    v = Verifier(None, 0.4, 2.0)
+    near = Candidate("near", "A", np.array([1.5, 0.0]), models["A"])
+    far = Candidate("far", "A", np.array([6.0, 0.0]), models["A"])
+    t, which, orders = v.sequential([far, near], np.zeros((1, 2)), np.array([[8.0, 0.0]]))
+    assert orders[which[0, 0]] == ("near", "far")
+    rev, _, _ = v.sequential([far, near], np.zeros((1, 2)), np.array([[-2.0, 0.0]]))
+    assert np.isfinite(rev[0, 0])
+
+
+def test_unknown_region_time_eqs_9_10(models: dict[str, AppearanceModel]) -> None:
+    v = Verifier(None, 0.4, 2.0)
+    e, c = np.array([0.0, 0.0]), np.array([1.5, 1.0])
+    assert unknown_region_time(v, models, {"A": 0.0}, c, e, 2.0, 4.0, 5.0, 3.0) == 5.0
+    half = unknown_region_time(v, models, {"A": 1.0, "B": 1.0}, c, e, 2.0, 4.0, 5.0, 3.0)
+    full = unknown_region_time(v, models, {"A": 1.0, "B": 1.0}, c, e, 4.0, 4.0, 5.0, 3.0)
+    assert full - 5.0 == pytest.approx(2 * (half - 5.0))   # scales with A_G / A_U
+    assert half > 5.0 + 0.5 * 3.0                           # plus t_dist (sum n - 1)
+
+
+# -- global plan (§6) -----------------------------------------------------------------
+def test_losses_eqs_12_to_14() -> None:
+    t = np.array([10.0, 30.0, 32.35])
+    assert list(Loss(kind="L1", t_limit_s=30).__call__(t)) == [0.0, np.inf, np.inf]
+    assert Loss(kind="L2", t_limit_s=30, k_lim=0.5)(t)[2] == pytest.approx(0.5 * 2.35**2)
+    assert not Loss(kind="L3", t_limit_s=30)(t).any()
+
+
+@pytest.mark.parametrize("n", [1, 2, 4, 6, 7])
+@pytest.mark.parametrize("kind", ["L1", "L2", "L3"])
+def test_dp_and_exhaustive_find_the_same_optimum(n: int, kind: str) -> None:
+    rng = np.random.default_rng(10 * n + len(kind))
+    groups = [GroupCost(f"g{i}", "objects", float(rng.uniform(5, 100)), float(rng.uniform(1, 15)),
+                        rng.uniform(0, 8, (3, 2))) for i in range(n)]
+    p = Problem.build(groups, np.array([0.5, 0.5, 0]), np.array([0.5, 0.5]), 0.4,
+                      Loss(kind=kind, t_limit_s=45, k_lim=0.5))  # type: ignore[arg-type]
+    ref = solve_exhaustive(p)
+    assert len(ref) == 1 + sum(len(list(itertools.permutations(range(n), r)))
+                               for r in range(1, n + 1))
+    best = solve(p, runner_ups=3)
+    assert best[0].utility == pytest.approx(ref[0].utility)
+    assert set(best[0].order) == set(ref[0].order)
+    assert best[0].time == pytest.approx(ref[0].time)
+    # runner-ups: best order of other sets, in the reference's order of those sets
+    seen, ref_sets = set(), []
+    for plan in ref:
+        key = frozenset(plan.order)
+        if key not in seen:
+            seen.add(key)
+            ref_sets.append(plan)
+    for got, want in zip(best, ref_sets, strict=False):
+        assert got.utility == pytest.approx(want.utility)
+
+
+def test_too_many_groups_for_the_exact_solver() -> None:
+    g = [GroupCost(f"g{i}", "objects", 1.0, 1.0, np.zeros((1, 2))) for i in range(21)]
+    p = Problem.build(g, np.zeros(3), np.zeros(2), 0.4, Loss())
+    with pytest.raises(InvalidInput):
+        solve(p)
+
+
+# -- grids ----------------------------------------------------------------------------
+def test_ros_grid_orientation_and_validation() -> None:
+    # 3 wide, 2 high; row-major with x fastest: the cell (x=2, y=1) is occupied
+    g = from_occupancy_values(3, 2, 0.5, (1.0, 2.0), [0, 0, -1, 0, 0, 100])
+    assert g.state.shape == (3, 2)
+    assert g.state[2, 1] == 100 and g.state[2, 0] == -1
+    assert not g.free(np.array([[2.3, 2.7]]), 0.0)[0]
+    assert g.free(np.array([[1.2, 2.2]]), 0.0)[0]
+    with pytest.raises(InvalidInput) as e:
+        from_occupancy_values(3, 2, 0.5, (0, 0), [0] * 5)
+    assert e.value.field == "grid.data"
+    with pytest.raises(InvalidInput):
+        from_occupancy_values(3, 2, 0.5, (0, 0), [0] * 5 + [101])
+
+
+def test_unknown_components_and_entry_points() -> None:
+    state = np.zeros((20, 20), dtype=int)
+    state[0, :] = state[-1, :] = state[:, 0] = state[:, -1] = 100
+    state[5:10, 5:10] = -1     # 25 cells = 0.25 m2 at 0.1 m
+    state[12:19, 12:18] = -1   # 42 cells
+    g = from_occupancy_values(20, 20, 0.1, (0, 0), state.T.ravel().tolist())
+    comps = g.unknown_components()
+    assert [round(c.area_m2, 2) for c in comps] == [0.42, 0.25]
+    assert len(comps[1].entries) == 16   # the ring of a 5x5 block touching free cells
+    assert comps[1].centroid == pytest.approx([0.75, 0.75])
