@@ -45,15 +45,17 @@ LOOK_AROUND = (0.0, np.pi / 2, np.pi, -np.pi / 2)
 
 
 class SummaryConfig(BaseModel):
-    """The run's settings; the planner's parameters as in :class:`PlanRequest`."""
+    """The run's settings; the planner's parameters as in :class:`PlanRequest`. The
+    verification and search times default to a slow robot like the paper's humanoid
+    (stop, pan the head, stereo, SIFT): 6 s per look, 12 s to map a region."""
 
     model_config = ConfigDict(extra="forbid")
     time_limit_s: float = Field(55.0, ge=0)
     loss: str = Field("L2", pattern="^L[123]$")
     k_lim: float = Field(0.5, ge=0)
     speed_m_s: float = Field(0.4, gt=0)
-    t_verify_s: float = Field(2.0, ge=0)
-    t_search_s: float = Field(5.0, ge=0)
+    t_verify_s: float = Field(6.0, ge=0)
+    t_search_s: float = Field(12.0, ge=0)
     t_dist_s: float = Field(3.0, ge=0)
     k_area: float = Field(5.0, ge=0)
     min_area_m2: float = Field(1.0, ge=0)

@@ -1,0 +1,228 @@
+"""Viewpoint-planning benchmark: the paper's Table 1 and Fig. 11(b), the pattern table's
+speed-up, planning time against the number of groups (exact DP vs the paper's exhaustive
+search), and the online summarisation run of §7.3.
+
+    .venv/bin/python tests/bench/viewpoint.py [--quick]
+
+Writes bench-out/viewpoint.md and figures next to it. Times are medians on this machine;
+compare the ratios, not the absolute figures (shared, noisy 2-core machines).
+"""
+
+from __future__ import annotations
+
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+
+from numeric.viewpoint.figures import plan_figure, run_figure  # noqa: E402
+from numeric.viewpoint.grid import scanned_grid  # noqa: E402
+from numeric.viewpoint.online import Summariser, SummaryConfig  # noqa: E402
+from numeric.viewpoint.plan import (  # noqa: E402
+    GroupCost,
+    Loss,
+    Problem,
+    solve,
+    solve_exhaustive,
+)
+from numeric.viewpoint.planner import PlanRequest, ViewpointPlanner  # noqa: E402
+from numeric.viewpoint.verification import TableCache  # noqa: E402
+from numeric.world import World  # noqa: E402
+from numeric.worlds import SUMMARY_DOOR, summary_room  # noqa: E402
+from service.viewpoint import LOOK_AROUND, local_grouper  # noqa: E402
+
+OUT = ROOT / "bench-out"
+TYPES = [{"name": "A", "value": 50, "mean_count": 1.0},
+         {"name": "B", "value": 100, "mean_count": 0.5},
+         {"name": "C", "value": 80, "mean_count": 0.5}]
+DOOR = list(SUMMARY_DOOR)
+
+
+def median_ms(fn: Callable[[], Any], repeat: int) -> float:
+    ts = []
+    for _ in range(repeat):
+        t = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t)
+    return 1e3 * statistics.median(ts)
+
+
+def scene(layout: str, loss: str, **kw: Any) -> tuple[PlanRequest, Any]:
+    w = World(summary_room("x", layout))
+    grid = scanned_grid(w, np.array([[*DOOR, a] for a in LOOK_AROUND]))
+    cands = [{"id": o.id, "type": o.type, "x": o.x, "y": o.y} for o in w.description.objects]
+    body = {"robot": [*DOOR, 1.57], "exit": DOOR, "time_limit_s": 30, "loss": loss,
+            "k_lim": 0.5, "speed_m_s": 0.4, "object_types": TYPES, "candidates": cands,
+            "runner_ups": 10, **kw}
+    return PlanRequest.model_validate(body), grid
+
+
+def fmt(x: float | None, nd: int = 2) -> str:
+    if x is None or not np.isfinite(x):
+        return "∞" if (x is not None and x > 0) else "-∞"
+    return f"{x:.{nd}f}"
+
+
+def table1(grouper: Any, lines: list[str]) -> None:
+    lines += ["## Table 1 (Fig. 11(a)): k_lim 0.5, v 0.4 m/s, t_limit 30 s, t_verify 10 s", "",
+              "Room `fig11a`: near object A (value 50), far object B (value 100), start = "
+              "exit at the door; grid = what the robot maps from the door.", "",
+              "| plan | V | expected time (s) | L1 | L2 (eq. 13) | U L1 | U L2 | U L3 |",
+              "|---|---|---|---|---|---|---|---|"]
+    planner = ViewpointPlanner()
+    rows: dict[tuple[str, ...], dict[str, Any]] = {}
+    chosen = {}
+    for loss in ("L1", "L2", "L3"):
+        req, grid = scene("fig11a", loss, t_verify_s=10.0, min_area_m2=100.0,
+                          object_types=TYPES[:2])
+        rep = planner.plan(req, grid, grouper)
+        chosen[loss] = " → ".join(rep.names(rep.plans[0])) or "(leave)"
+        for p in rep.plans:
+            key = tuple(rep.names(p))
+            rows.setdefault(key, {"V": p.value, "t": p.time})[loss] = (p.loss, p.utility)
+    for key, r in sorted(rows.items(), key=lambda kv: (len(kv[0]), kv[0])):
+        if not key:
+            continue
+        lines.append(f"| {' → '.join(key)} | {r['V']:.0f} | {r['t']:.2f} | "
+                     f"{fmt(r['L1'][0])} | {fmt(r['L2'][0])} | {fmt(r['L1'][1])} | "
+                     f"{fmt(r['L2'][1])} | {fmt(r['L3'][1])} |")
+    lines += ["", f"Chosen: L1 → **{chosen['L1']}**, L2 → **{chosen['L2']}**, "
+              f"L3 → **{chosen['L3']}** (paper: G_A; G_B; G_A → G_B — G_A near, G_B far). "
+              "Paper's L2 losses: G_B 2.76, G_A → G_B 296.26.", ""]
+
+
+def fig11b(grouper: Any, lines: list[str], repeat: int) -> None:
+    lines += ["## Fig. 11(b): four candidates, three object groups, two unknown regions", "",
+              "Room `fig11b` seen from the door; t_limit 30 s, k_lim 0.5, v 0.4 m/s, "
+              "t_verify 2 s, unknown regions ≥ 1.5 m² (smaller shadows are not groups).", ""]
+    planner = ViewpointPlanner()
+    req, grid = scene("fig11b", "L2", t_verify_s=2.0, min_area_m2=1.5)
+    rep = planner.plan(req, grid, grouper)
+    lines += ["| group | kind | members | V | t_obs (s) | how |", "|---|---|---|---|---|---|"]
+    for g in rep.groups:
+        how = (f"{g.local.strategy} {','.join(g.local.order)}" if g.local
+               else f"explore {g.area_m2:.2f} m²")
+        lines.append(f"| {g.name} | {g.spec.kind} | {','.join(map(str, g.spec.members))} | "
+                     f"{g.value:.1f} | {g.t_obs:.2f} | {how} |")
+    lines += ["", "| loss | chosen plan | V | time (s) | U | runner-up | paper |",
+              "|---|---|---|---|---|---|---|"]
+    paper = {"L1": "B → C → E", "L2": "B → C → D", "L3": "B → C → D"}
+    for loss in ("L1", "L2", "L3"):
+        r = req.model_copy(update={"loss": loss})
+        rep = planner.plan(r, grid, grouper)
+        best, second = rep.plans[0], rep.plans[1] if len(rep.plans) > 1 else None
+        lines.append(f"| {loss} | {' → '.join(rep.names(best)) or '(leave)'} | "
+                     f"{best.value:.1f} | {best.time:.2f} | {fmt(best.utility)} | "
+                     f"{' → '.join(rep.names(second)) if second else ''} | {paper[loss]} |")
+        plan_figure(rep, r, grid, str(OUT / f"viewpoint_fig11b_{loss}.png"))
+    # planning time of the whole request (grouping in Prolog, local plans, global plan)
+    tables = TableCache()
+    warm = ViewpointPlanner(tables)
+    warm.plan(req, grid, grouper)
+    t_dp = median_ms(lambda: warm.plan(req, grid, grouper), repeat)
+    ex = req.model_copy(update={"solver": "exhaustive"})
+    t_ex = median_ms(lambda: warm.plan(ex, grid, grouper), repeat)
+    cold = median_ms(lambda: ViewpointPlanner(TableCache()).plan(req, grid, grouper),
+                     max(3, repeat // 4))
+    rep = warm.plan(req, grid, grouper)
+    gl = median_ms(lambda: solve(Problem.build(
+        [GroupCost(g.name, g.spec.kind, g.value, g.t_obs, g.entries) for g in rep.groups],
+        np.array(req.robot), np.array(req.exit), req.speed_m_s, req.loss_function())), repeat)
+    # the pattern table's speed-up (eq. 6 vs eq. 5 on the free viewpoints, fresh tables)
+    notab = req.model_copy(update={"use_table": False})
+    t_notab = median_ms(lambda: ViewpointPlanner(TableCache()).plan(notab, grid, grouper),
+                        max(3, repeat // 4))
+    lines += ["", f"Planning the scene ({len(rep.groups)} groups), median of {repeat}:", "",
+              "| what | time (ms) |", "|---|---|",
+              f"| whole request, tables warm (re-planning), exact DP | **{t_dp:.1f}** |",
+              f"| whole request, tables warm, the paper's exhaustive search | {t_ex:.1f} |",
+              f"| whole request, first plan (tables built) | {cold:.1f} |",
+              f"| whole request, no tables (exact eq. 5 on the free viewpoints) | {t_notab:.1f} |",
+              f"| global plan only (DP) | {gl:.2f} |", "",
+              f"Goal ≤ 20 ms for a Fig. 11(b)-size scene (paper ≈ 900 ms on a Core 2 Duo): "
+              f"{'met' if t_dp <= 20 else 'missed'} at {t_dp:.1f} ms. Pattern tables: a first "
+              f"plan takes {cold / t_notab:.2f}× the time of planning without tables, a "
+              f"re-plan {t_dp / t_notab:.2f}× (paper: ≈ 1/6).", ""]
+
+
+def scaling(lines: list[str], quick: bool) -> None:
+    lines += ["## Planning time vs number of groups (global plan, L2)", "",
+              "Random groups in a 10 m room (3 entry points each, values 5-100, t_obs 1-15 s, "
+              "t_limit 60 s). Exhaustive = every ordered subset (the paper); DP = Held-Karp "
+              "over subsets (chizu's default). Optimum utilities compared where both run.", "",
+              "| groups | ordered plans | exhaustive (ms) | DP (ms) | speed-up | same optimum |",
+              "|---|---|---|---|---|---|"]
+    rng = np.random.default_rng(0)
+    sizes = [3, 5, 7, 9, 12, 15] if quick else [3, 4, 5, 6, 7, 8, 9, 10, 12, 15, 16, 18, 20]
+    for n in sizes:
+        groups = [GroupCost(f"g{i}", "objects", float(rng.uniform(5, 100)),
+                            float(rng.uniform(1, 15)), rng.uniform(0, 10, (3, 2)))
+                  for i in range(n)]
+        p = Problem.build(groups, np.array([0.5, 0.5, 0.0]), np.array([0.5, 0.5]), 0.4,
+                          Loss(kind="L2", t_limit_s=60, k_lim=0.5))
+        plans = sum(int(np.prod(range(n - r + 1, n + 1))) for r in range(1, n + 1))
+        rep = 5 if n <= 12 else 2
+        t_dp = median_ms(lambda p=p: solve(p), rep)  # type: ignore[misc]
+        if n <= (8 if quick else 9):
+            t0 = time.perf_counter()
+            ref = solve_exhaustive(p)
+            t_ex = 1e3 * (time.perf_counter() - t0)
+            same = abs(ref[0].utility - solve(p)[0].utility) < 1e-9
+            lines.append(f"| {n} | {plans:,} | {t_ex:.1f} | {t_dp:.2f} | {t_ex / t_dp:.0f}× | "
+                         f"{'yes' if same else '**NO**'} |")
+        else:
+            lines.append(f"| {n} | {plans:,} | — | {t_dp:.2f} | — | — |")
+    lines.append("")
+
+
+def online(grouper: Any, lines: list[str]) -> None:
+    lines += ["## Online summarisation (§7.3), room `summary_room`", "",
+              "Two objects (one behind a cabinet) and one false candidate; the robot enters "
+              "at the door, plans, moves, observes, re-plans until the plan is to leave. "
+              "t_verify 6 s, t_sea 12 s (a slow robot like the paper's humanoid). The paper's "
+              "real-robot run: L3 needed 90 s, so t_limit was set to 55 s (60 %).", "",
+              "| loss | t_limit (s) | took (s) | verified | rejected | explored | re-plans |",
+              "|---|---|---|---|---|---|---|"]
+    w = World(summary_room())
+    from numeric.viewpoint.planner import ObjectType
+
+    types = [ObjectType.model_validate(t) for t in TYPES]
+    for loss, limit in (("L3", 300.0), ("L2", 55.0), ("L1", 55.0), ("L2", 40.0),
+                        ("L1", 25.0)):
+        run = Summariser(w, types, grouper, SummaryConfig(time_limit_s=limit, loss=loss),
+                         np.array(SUMMARY_DOOR)).run()
+        s = run.summary(w)
+        lines.append(f"| {loss} | {limit:g} | {run.elapsed_s:.1f} | "
+                     f"{', '.join(s['verified']) or '—'} | {', '.join(s['rejected']) or '—'} | "
+                     f"{s['explored_fraction']:.2f} | {s['steps']} |")
+        if loss == "L2":
+            run_figure(run, w, str(OUT / "viewpoint_summary_L2.png"))
+    lines += ["", "Figure: bench-out/viewpoint_summary_L2.png (path, map, verified objects).", ""]
+
+
+def main() -> None:
+    quick = "--quick" in sys.argv
+    OUT.mkdir(exist_ok=True)
+    grouper, kb = local_grouper(ROOT / "prolog")
+    lines = ["# Viewpoint planning benchmark", "",
+             f"`.venv/bin/python tests/bench/viewpoint.py{' --quick' if quick else ''}`", ""]
+    try:
+        table1(grouper, lines)
+        fig11b(grouper, lines, 10 if quick else 30)
+        scaling(lines, quick)
+        online(grouper, lines)
+    finally:
+        kb.close()
+    (OUT / "viewpoint.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
