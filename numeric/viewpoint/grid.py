@@ -27,6 +27,7 @@ from numeric.slam.occupancy import FREE, OCCUPIED, UNKNOWN, OccupancyMap, build_
 from numeric.world import World
 
 MAX_CELLS = 4_000_000
+MAX_COMPONENTS = 2_000
 
 
 @dataclass(frozen=True)
@@ -116,28 +117,34 @@ class PlanningGrid:
             lab[np.isin(lab, border[border > 0])] = 0
         return lab, int(n)
 
-    def unknown_components(self, min_area_m2: float = 0.0) -> list[UnknownComponent]:
-        """Every unknown component of at least ``min_area_m2`` (the candidates for
-        unknown-region groups; whether one becomes a group is decided in Prolog), with
-        its entry points, largest first."""
+    def unknown_components(self, min_area_m2: float = 0.0,
+                           at_most: int = MAX_COMPONENTS) -> list[UnknownComponent]:
+        """Unknown components of at least ``min_area_m2`` (the candidates for
+        unknown-region groups; whether one becomes a group is decided in Prolog), largest
+        first, at most ``at_most`` of them, with their entry points. Each component is
+        visited inside its bounding box only, so many small ones stay cheap."""
         lab, n = self.unknown_labels
         if n == 0:
             return []
         idx = np.arange(1, n + 1)
-        counts = np.asarray(ndimage.sum_labels(np.ones_like(lab), lab, idx))
-        free = self.state == FREE
-        touch = ndimage.binary_dilation(free, structure=ndimage.generate_binary_structure(2, 1))
+        ones = np.ones_like(lab)
+        area = np.asarray(ndimage.sum_labels(ones, lab, idx)) * self.resolution**2
+        with np.errstate(invalid="ignore"):  # labels dropped at the border have no cells
+            centroid = np.asarray(ndimage.center_of_mass(ones, lab, idx)).reshape(-1, 2)
+        boxes = ndimage.find_objects(lab)
+        touch = ndimage.binary_dilation(self.state == FREE,
+                                        structure=ndimage.generate_binary_structure(2, 1))
+        order = [int(k) for k in np.argsort(-area, kind="stable")
+                 if area[k] > 0 and area[k] >= min_area_m2][:at_most]
         out = []
-        for k, c in zip(idx, counts, strict=True):
-            area = float(c) * self.resolution**2
-            if c == 0 or area < min_area_m2:
-                continue
-            mask = lab == k
-            ii, jj = np.nonzero(mask)
-            ei, ej = np.nonzero(mask & touch)
-            out.append(UnknownComponent(int(k), self.centres(ii, jj).mean(axis=0), area,
-                                        self.centres(ei, ej)))
-        return sorted(out, key=lambda r: -r.area_m2)
+        for k in order:
+            box = boxes[k]
+            assert box is not None
+            ei, ej = np.nonzero((lab[box] == k + 1) & touch[box])
+            entries = self.centres(ei + box[0].start, ej + box[1].start)
+            out.append(UnknownComponent(k + 1, self.grid.origin + (centroid[k] + 0.5)
+                                        * self.resolution, float(area[k]), entries))
+        return out
 
     def unknown_area(self) -> float:
         lab, _ = self.unknown_labels
