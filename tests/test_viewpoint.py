@@ -274,3 +274,16 @@ def test_unknown_components_and_entry_points() -> None:
     assert [round(c.area_m2, 2) for c in comps] == [0.42, 0.25]
     assert len(comps[1].entries) == 16   # the ring of a 5x5 block touching free cells
     assert comps[1].centroid == pytest.approx([0.75, 0.75])
+
+
+def test_a_requests_own_appearance_does_not_leak_into_the_next() -> None:
+    from numeric.viewpoint.planner import PlanRequest, ViewpointPlanner
+
+    planner = ViewpointPlanner()
+    own = {"a": (9.0, 9.0, 9.0, 9.0), "b": (1.0, 1.0, 1.0, 1.0), "k": 5.0, "theta_half": 0.8}
+    base = {"robot": (0, 0, 0), "exit": (0, 0)}
+    custom = PlanRequest.model_validate(
+        {**base, "object_types": [{"name": "A", "appearance": own}]})
+    plain = PlanRequest.model_validate({**base, "object_types": [{"name": "A"}]})
+    assert planner.models(custom)["A"].params.a == own["a"]
+    assert planner.models(plain)["A"].params == fitted_models()["A"].params

@@ -204,14 +204,11 @@ class ViewpointPlanner:
 
     def __init__(self, tables: TableCache | None = None) -> None:
         self.tables = tables if tables is not None else TableCache()
-        self._models: dict[str, AppearanceModel] = {}
 
     def models(self, req: PlanRequest) -> dict[str, AppearanceModel]:
-        missing = [t for t in req.object_types if t.name not in self._models
-                   or t.appearance is not None or t.tables is not None]
-        if missing:
-            self._models.update(resolve_models(missing))
-        return {t.name: self._models[t.name] for t in req.object_types}
+        """The request's own models: a type's appearance comes from this request only
+        (the built-in fits are cached by :func:`fitted_models`)."""
+        return resolve_models(req.object_types)
 
     def plan(self, req: PlanRequest, grid: PlanningGrid, grouper: Grouper,
              beliefs: dict[str, np.ndarray] | None = None) -> PlanReport:

@@ -12,6 +12,8 @@ real measurements.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -120,3 +122,8 @@ def fitted_models(kinds: dict[str, ObjectKind] | None = None, seed: int = 0,
         model, _ = AppearanceModel.fit(measure_tables(kind, rng), th_match, n_theta)
         out[name] = model
     return out
+
+
+@functools.cache
+def _builtin_models(seed: int, th_match: float, n_theta: int) -> dict[str, AppearanceModel]:
+    return fitted_models(OBJECT_KINDS, seed, th_match, n_theta)
