@@ -115,10 +115,13 @@ def measure_tables(kind: ObjectKind, rng: np.random.Generator,
 
 def fitted_models(kinds: dict[str, ObjectKind] | None = None, seed: int = 0,
                   th_match: float = 15.0, n_theta: int = 8) -> dict[str, AppearanceModel]:
-    """Appearance models fitted to simulated measurements, one per object kind."""
+    """Appearance models fitted to simulated measurements, one per object kind (the
+    built-in kinds' fits are computed once per process)."""
+    if kinds is None:
+        return dict(_builtin_models(seed, th_match, n_theta))
     rng = np.random.default_rng(seed)
     out = {}
-    for name, kind in (kinds or OBJECT_KINDS).items():
+    for name, kind in kinds.items():
         model, _ = AppearanceModel.fit(measure_tables(kind, rng), th_match, n_theta)
         out[name] = model
     return out
