@@ -73,6 +73,12 @@ def pattern_indices(pattern: str, rotation: int) -> np.ndarray:
     return np.asarray((np.arange(RINGS)[:, None] * DIRECTIONS + dirs[None, :]).ravel())
 
 
+def min_plus(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The min-plus matrix product ``out[i, j] = min_k a[i, k] + b[k, j]``: chaining
+    expected times through intermediate viewpoints."""
+    return np.asarray(np.min(a[:, :, None] + b[None, :, :], axis=1))
+
+
 def single_dp(points: np.ndarray, recog: NDArray[np.bool_], belief: np.ndarray,
               goals: np.ndarray, speed: float, t_verify: float) -> tuple[np.ndarray, bool]:
     """Eq. 5 by dynamic programming over (viewpoint, remaining orientation set).
@@ -107,24 +113,21 @@ def single_dp(points: np.ndarray, recog: NDArray[np.bool_], belief: np.ndarray,
     d_vg = cdist(points, goals).T / speed         # (G, V)
     n_bits = len(b)
     t_at: dict[int, np.ndarray] = {}              # mask -> (G, V): time from viewpoint a
-    q_at: dict[int, np.ndarray] = {}
     for m in order:
         bits = np.array([(m >> i) & 1 for i in range(n_bits)], dtype=float)
         mass = float(bits @ b)
         p = rf @ (bits * b) / mass if mass > 0 else np.zeros(n_v)
         useful = p > 0
+        q = np.full((n_g, n_v), np.inf)
         if not useful.any():
-            q_at[m] = np.full((n_g, n_v), np.inf)
             t_at[m] = d_vg.copy()  # nothing left to try: go to the goal
             continue
-        q = np.full((n_g, n_v), np.inf)
         for v in np.nonzero(useful)[0]:
             rest = t_at[m & ~rbits[v]][:, v] if p[v] < 1 else 0.0
             q[:, v] = t_verify + p[v] * d_vg[:, v] + (1 - p[v]) * rest
-        q_at[m] = q
         # T(a, m) = min_v d(a, v) + Q(v, m)
-        t_at[m] = np.min(d_vv[None, :, :] + q[:, None, :], axis=2)
-    return q_at[start], True
+        t_at[m] = min_plus(q, d_vv)
+    return q, True  # the last set in the order is the start set
 
 
 @dataclass
@@ -159,7 +162,7 @@ class TableCache:
         rec = model.recognisable(pts, np.zeros(2))
         q, ok = single_dp(pts, rec, belief, pts, speed, t_verify)
         d = cdist(pts, pts) / speed
-        times = np.min(d[None, :, :] + q[:, None, :], axis=2) if ok else d.T
+        times = min_plus(q, d) if ok else d.T
         tab = VerificationTable(pts, times, ok)
         self.tables[key] = tab
         return tab
@@ -273,14 +276,13 @@ class Verifier:
                 return np.full((len(starts), len(goals)), np.inf)
             # eq. 6: min_{a,b} d(X_s, a) + T[b, a] + d(b, X_g)
             d_sa = cdist(starts, vs.points) / self.speed                  # (S, A)
-            e = np.min(d_sa[:, None, :] + vs.table.times[None, :, :], axis=2)  # (S, B)
-            d_bg = cdist(vs.points, goals) / self.speed                   # (B, G)
-            return np.asarray(np.min(e[:, :, None] + d_bg[None, :, :], axis=1))
+            e = min_plus(d_sa, vs.table.times.T)                          # (S, B)
+            return min_plus(e, cdist(vs.points, goals) / self.speed)      # (S, G)
         q, ok = single_dp(vs.points, vs.recog, cand.prior(), goals, self.speed, self.t_verify)
         if not ok:
             return np.full((len(starts), len(goals)), np.inf)
         d_sv = cdist(starts, vs.points) / self.speed                      # (S, V)
-        return np.asarray(np.min(d_sv[:, None, :] + q[None, :, :], axis=2))
+        return min_plus(d_sv, q.T)
 
     def next_viewpoint(self, cand: Candidate, start: np.ndarray, goal: np.ndarray,
                        ) -> np.ndarray | None:
@@ -327,11 +329,11 @@ class Verifier:
                 key = (prev.id, cur.id)
                 if key not in pair:
                     pair[key] = self.single(cur, pts[prev.id], pts[cur.id])   # (Vp, Vc)
-                vec = np.min(vec[:, :, None] + pair[key][None, :, :], axis=1)
+                vec = min_plus(vec, pair[key])
             key = (order[-2].id, order[-1].id)
             if key not in last:  # the last object: from the hand-over point to the goal
                 last[key] = self.single(order[-1], pts[order[-2].id], goals)  # (Vp, G)
-            tot = np.min(vec[:, :, None] + last[key][None, :, :], axis=1)     # (S, G)
+            tot = min_plus(vec, last[key])                                    # (S, G)
             better = tot < best
             best = np.where(better, tot, best)
             which = np.where(better, k, which)
