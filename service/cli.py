@@ -234,15 +234,14 @@ def plan(scene: str = typer.Argument(..., help="SCENE.json: a viewpoint-plan req
     """Plan one viewpoint-planning scene (the body of POST /worlds/{w}/viewpoint-plan)."""
     import json
 
-    import numpy as np
     from pydantic import ValidationError
 
     from numeric.errors import InvalidInput
     from numeric.viewpoint.figures import plan_figure
-    from numeric.viewpoint.grid import scanned_grid
+    from numeric.viewpoint.grid import look_around, scanned_grid
     from numeric.viewpoint.planner import PlanRequest, ViewpointPlanner
     from numeric.world import World
-    from service.viewpoint import LOOK_AROUND, local_grouper, report_json
+    from service.viewpoint import local_grouper, report_json
 
     try:
         req = PlanRequest.model_validate_json(Path(scene).read_text())
@@ -254,9 +253,7 @@ def plan(scene: str = typer.Argument(..., help="SCENE.json: a viewpoint-plan req
     if req.grid is not None:
         grid = req.grid.to_grid()
     elif world is not None:
-        x, y, _ = req.robot
-        grid = scanned_grid(World(_world_description(world)),
-                            np.array([[x, y, a] for a in LOOK_AROUND]))
+        grid = scanned_grid(World(_world_description(world)), look_around(req.robot))
     else:
         console.print("[red]the scene has no grid: give one, or --world to simulate it[/red]")
         raise typer.Exit(2)

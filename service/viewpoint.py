@@ -18,11 +18,9 @@ import math
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from numeric.errors import InvalidInput
 from numeric.slam.occupancy import OccupancyMap
-from numeric.viewpoint.grid import PlanningGrid, room_mask, scanned_grid
+from numeric.viewpoint.grid import PlanningGrid, look_around, scanned_grid
 from numeric.viewpoint.plan import Plan
 from numeric.viewpoint.planner import (
     GroupSpec,
@@ -37,7 +35,6 @@ from service.store import Store
 from service.worlds import WorldService
 
 SCENE_ARTIFACT = "viewpoint_scene"
-LOOK_AROUND = (0.0, np.pi / 2, np.pi, -np.pi / 2)
 
 
 def kb_grouper(kb: KnowledgeBase, world: str, sink: dict[str, Any] | None = None):  # type: ignore[no-untyped-def]
@@ -137,11 +134,10 @@ class ViewpointService:
         if len(w.wall_a) == 0:
             raise InvalidInput(f"world {world!r} has no walls and no committed SLAM map: "
                                "post a grid", field="grid")
-        x, y, _ = req.robot
-        if not room_mask(w, 0.05).any():
+        grid = scanned_grid(w, look_around(req.robot))
+        if grid.room is None or not grid.room.any():
             raise InvalidInput("the world's walls enclose no space", field="grid")
-        poses = np.array([[x, y, a] for a in LOOK_AROUND])
-        return scanned_grid(w, poses), "simulated"
+        return grid, "simulated"
 
     async def plan(self, world: str, req: PlanRequest) -> dict[str, Any]:
         self.worlds.model(world)  # 404 for an unknown world

@@ -27,6 +27,8 @@ from numeric.slam.occupancy import FREE, OCCUPIED, UNKNOWN, OccupancyMap, build_
 from numeric.world import World
 
 MAX_CELLS = 4_000_000
+#: The robot looks around in four directions at a stop (the laser covers 240 degrees).
+LOOK_AROUND = (0.0, np.pi / 2, np.pi, -np.pi / 2)
 MAX_COMPONENTS = 2_000
 
 
@@ -228,6 +230,11 @@ def scanned_grid(world: World, poses: Sequence[np.ndarray] | np.ndarray,
     state[inside] = built.state[bi[inside], bj[inside]]
     grid = OccupancyMap(lo, resolution_m, state, np.full(shape, np.nan))
     return PlanningGrid(grid, room_mask(world, resolution_m))
+
+
+def look_around(xy: Sequence[float] | np.ndarray) -> np.ndarray:
+    """The scan poses ``(4, 3)`` of one look around at ``xy``."""
+    return np.array([[float(xy[0]), float(xy[1]), a] for a in LOOK_AROUND])
 
 
 def from_occupancy_values(width: int, height: int, resolution_m: float,

@@ -28,7 +28,7 @@ from skimage.graph import MCP_Geometric
 
 from numeric.geometry import line_of_sight
 from numeric.slam.occupancy import FREE, OCCUPIED
-from numeric.viewpoint.grid import PlanningGrid, scanned_grid
+from numeric.viewpoint.grid import PlanningGrid, look_around, scanned_grid
 from numeric.viewpoint.planner import (
     CandidateIn,
     Grouper,
@@ -40,8 +40,6 @@ from numeric.viewpoint.planner import (
 from numeric.viewpoint.recognition import Recogniser
 from numeric.viewpoint.verification import Candidate, Verifier
 from numeric.world import World
-
-LOOK_AROUND = (0.0, np.pi / 2, np.pi, -np.pi / 2)
 
 
 class SummaryConfig(BaseModel):
@@ -168,8 +166,8 @@ class Summariser:
     def run(self, on_step: Callable[[LogEntry], None] | None = None) -> SummaryRun:
         cfg = self.cfg
         pose = np.array([*self.door, np.pi / 2])
-        scans = [np.array([*self.door, a]) for a in LOOK_AROUND]
-        grid = scanned_grid(self.world, np.array(scans))
+        scans = look_around(self.door)
+        grid = scanned_grid(self.world, scans)
         cands: dict[str, tuple[str, np.ndarray]] = {}
         self._detect(pose[:2], cands)
         self._false_candidates(grid, cands)
@@ -227,9 +225,9 @@ class Summariser:
                     fc = grid.centres(free[:, 0], free[:, 1])
                     e = fc[np.argmin(np.hypot(*(fc - e).T))]
                 move(e)
-                scans += [np.array([*e, a]) for a in LOOK_AROUND]
+                scans = np.vstack([scans, look_around(e)])
                 t += cfg.t_search_s
-                grid = scanned_grid(self.world, np.array(scans))
+                grid = scanned_grid(self.world, scans)
                 found = self._detect(e, cands)
                 record("explore", group=g.name, at=e.tolist(), found=found,
                        unknown_m2=grid.unknown_area())

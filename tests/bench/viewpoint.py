@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from numeric.viewpoint.figures import plan_figure, run_figure  # noqa: E402
-from numeric.viewpoint.grid import scanned_grid  # noqa: E402
+from numeric.viewpoint.grid import look_around, scanned_grid  # noqa: E402
 from numeric.viewpoint.online import Summariser, SummaryConfig  # noqa: E402
 from numeric.viewpoint.plan import (  # noqa: E402
     GroupCost,
@@ -36,12 +36,11 @@ from numeric.viewpoint.planner import PlanRequest, ViewpointPlanner  # noqa: E40
 from numeric.viewpoint.verification import TableCache  # noqa: E402
 from numeric.world import World  # noqa: E402
 from numeric.worlds import SUMMARY_DOOR, summary_room  # noqa: E402
-from service.viewpoint import LOOK_AROUND, local_grouper  # noqa: E402
+from service.cli import DEFAULT_TYPES  # noqa: E402
+from service.viewpoint import local_grouper  # noqa: E402
 
 OUT = ROOT / "bench-out"
-TYPES = [{"name": "A", "value": 50, "mean_count": 1.0},
-         {"name": "B", "value": 100, "mean_count": 0.5},
-         {"name": "C", "value": 80, "mean_count": 0.5}]
+TYPES = DEFAULT_TYPES
 DOOR = list(SUMMARY_DOOR)
 
 
@@ -56,7 +55,7 @@ def median_ms(fn: Callable[[], Any], repeat: int) -> float:
 
 def scene(layout: str, loss: str, **kw: Any) -> tuple[PlanRequest, Any]:
     w = World(summary_room("x", layout))
-    grid = scanned_grid(w, np.array([[*DOOR, a] for a in LOOK_AROUND]))
+    grid = scanned_grid(w, look_around(DOOR))
     cands = [{"id": o.id, "type": o.type, "x": o.x, "y": o.y} for o in w.description.objects]
     body = {"robot": [*DOOR, 1.57], "exit": DOOR, "time_limit_s": 30, "loss": loss,
             "k_lim": 0.5, "speed_m_s": 0.4, "object_types": TYPES, "candidates": cands,
