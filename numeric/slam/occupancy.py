@@ -19,6 +19,30 @@ UNKNOWN, FREE, OCCUPIED = -1, 0, 100
 
 
 @dataclass(frozen=True)
+class UnknownComponent:
+    """A connected unknown region: its label, centroid, area and entry points (centres
+    of its cells that touch free cells, §6.3 of the viewpoint paper)."""
+
+    label: int
+    centroid: np.ndarray
+    area_m2: float
+    entries: np.ndarray
+
+
+def label_unknown(state: np.ndarray, room: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+    """Connected unknown components (8-neighbourhood) of a grid -- inside ``room`` when
+    given, else those enclosed by the mapped area (not touching the grid border)."""
+    unk = state == UNKNOWN
+    if room is not None:
+        unk &= room
+    lab, n = ndimage.label(unk, structure=np.ones((3, 3)))
+    if room is None and n:
+        border = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
+        lab[np.isin(lab, border[border > 0])] = 0
+    return lab, int(n)
+
+
+@dataclass(frozen=True)
 class OccupancyMap:
     """``state[i, j]`` for the cell whose lower-left corner is ``origin + (i, j) *
     resolution`` (i along x); ``intensity`` the mean intensity of occupied cells (NaN
@@ -41,25 +65,45 @@ class OccupancyMap:
                 "resolution_m": self.resolution_m,
                 "width": self.shape[0], "height": self.shape[1]}
 
-    def unknown_regions(self, min_area_m2: float = 0.5) -> list[dict[str, float]]:
-        """Connected unknown components (8-neighbourhood) enclosed by the mapped area --
-        not touching the grid border -- of at least ``min_area_m2``: centroid and area."""
-        lab, n = ndimage.label(self.state == UNKNOWN, structure=np.ones((3, 3)))
+    def centres(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        """Centres (..., 2) of the cells ``(i, j)``."""
+        return np.asarray(self.origin + (np.stack([i, j], axis=-1) + 0.5) * self.resolution_m)
+
+    def unknown_components(self, min_area_m2: float = 0.0, at_most: int | None = None,
+                           labels: tuple[np.ndarray, int] | None = None,
+                           ) -> list[UnknownComponent]:
+        """Unknown components of at least ``min_area_m2``, largest first, at most
+        ``at_most``, with their entry points; ``labels`` from :func:`label_unknown`
+        (default: the enclosed components). Each component is visited inside its
+        bounding box only, so many small ones stay cheap."""
+        lab, n = labels if labels is not None else label_unknown(self.state)
         if n == 0:
             return []
-        border = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
         idx = np.arange(1, n + 1)
-        counts = ndimage.sum_labels(np.ones_like(lab), lab, idx)
-        cx, cy = np.asarray(ndimage.center_of_mass(np.ones_like(lab), lab, idx)).T.reshape(2, -1)
+        ones = np.ones_like(lab)
+        area = np.asarray(ndimage.sum_labels(ones, lab, idx)) * self.resolution_m**2
+        with np.errstate(invalid="ignore"):  # labels dropped at the border have no cells
+            centroid = np.asarray(ndimage.center_of_mass(ones, lab, idx)).reshape(-1, 2)
+        boxes = ndimage.find_objects(lab)
+        touch = ndimage.binary_dilation(self.state == FREE,
+                                        structure=ndimage.generate_binary_structure(2, 1))
+        order = [int(k) for k in np.argsort(-area, kind="stable")
+                 if area[k] > 0 and area[k] >= min_area_m2][:at_most]
         out = []
-        for k, c, x, y in zip(idx, counts, cx, cy, strict=True):
-            area = float(c) * self.resolution_m**2
-            if k in border or area < min_area_m2:
-                continue
-            out.append({"x": float(self.origin[0] + (x + 0.5) * self.resolution_m),
-                        "y": float(self.origin[1] + (y + 0.5) * self.resolution_m),
-                        "area_m2": area})
-        return sorted(out, key=lambda r: -r["area_m2"])
+        for k in order:
+            box = boxes[k]
+            assert box is not None
+            ei, ej = np.nonzero((lab[box] == k + 1) & touch[box])
+            entries = self.centres(ei + box[0].start, ej + box[1].start)
+            out.append(UnknownComponent(k + 1, self.origin + (centroid[k] + 0.5)
+                                        * self.resolution_m, float(area[k]), entries))
+        return out
+
+    def unknown_regions(self, min_area_m2: float = 0.5) -> list[dict[str, float]]:
+        """The enclosed unknown components of at least ``min_area_m2``: centroid and area,
+        largest first (the facts a committed SLAM map reports)."""
+        return [{"x": float(c.centroid[0]), "y": float(c.centroid[1]), "area_m2": c.area_m2}
+                for c in self.unknown_components(min_area_m2)]
 
     # -- exports ------------------------------------------------------------------------
     def image_rows(self) -> np.ndarray:

@@ -13,7 +13,6 @@ a viewpoint to an object clear, which unknown components are there (labelled wit
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
@@ -23,24 +22,21 @@ from numeric.errors import InvalidInput
 from numeric.geometry import point_segment_distance, ray_crossings
 from numeric.laser import Laser
 from numeric.slam.keyframes import Keyframes, MapConfig
-from numeric.slam.occupancy import FREE, OCCUPIED, UNKNOWN, OccupancyMap, build_occupancy
+from numeric.slam.occupancy import (
+    FREE,
+    OCCUPIED,
+    UNKNOWN,
+    OccupancyMap,
+    UnknownComponent,
+    build_occupancy,
+    label_unknown,
+)
 from numeric.world import World
 
 MAX_CELLS = 4_000_000
 #: The robot looks around in four directions at a stop (the laser covers 240 degrees).
 LOOK_AROUND = (0.0, np.pi / 2, np.pi, -np.pi / 2)
 MAX_COMPONENTS = 2_000
-
-
-@dataclass(frozen=True)
-class UnknownComponent:
-    """A connected unknown region: label in :attr:`PlanningGrid.unknown_labels`,
-    centroid, area and entry points (centres of its cells that touch free cells)."""
-
-    label: int
-    centroid: np.ndarray
-    area_m2: float
-    entries: np.ndarray
 
 
 class PlanningGrid:
@@ -73,7 +69,7 @@ class PlanningGrid:
         return np.where(inside, i, 0), np.where(inside, j, 0), inside
 
     def centres(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
-        return np.asarray(self.grid.origin + (np.stack([i, j], axis=-1) + 0.5) * self.resolution)
+        return self.grid.centres(i, j)
 
     @cached_property
     def clearance(self) -> np.ndarray:
@@ -108,45 +104,16 @@ class PlanningGrid:
     # -- unknown regions (§4.2) -------------------------------------------------------
     @cached_property
     def unknown_labels(self) -> tuple[np.ndarray, int]:
-        """Connected unknown components (8-neighbourhood) -- inside the room mask when
-        there is one, else those not touching the grid border."""
-        unk = self.state == UNKNOWN
-        if self.room is not None:
-            unk &= self.room
-        lab, n = ndimage.label(unk, structure=np.ones((3, 3)))
-        if self.room is None and n:
-            border = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
-            lab[np.isin(lab, border[border > 0])] = 0
-        return lab, int(n)
+        """Connected unknown components -- inside the room mask when there is one, else
+        those not touching the grid border."""
+        return label_unknown(self.state, self.room)
 
     def unknown_components(self, min_area_m2: float = 0.0,
                            at_most: int = MAX_COMPONENTS) -> list[UnknownComponent]:
         """Unknown components of at least ``min_area_m2`` (the candidates for
         unknown-region groups; whether one becomes a group is decided in Prolog), largest
-        first, at most ``at_most`` of them, with their entry points. Each component is
-        visited inside its bounding box only, so many small ones stay cheap."""
-        lab, n = self.unknown_labels
-        if n == 0:
-            return []
-        idx = np.arange(1, n + 1)
-        ones = np.ones_like(lab)
-        area = np.asarray(ndimage.sum_labels(ones, lab, idx)) * self.resolution**2
-        with np.errstate(invalid="ignore"):  # labels dropped at the border have no cells
-            centroid = np.asarray(ndimage.center_of_mass(ones, lab, idx)).reshape(-1, 2)
-        boxes = ndimage.find_objects(lab)
-        touch = ndimage.binary_dilation(self.state == FREE,
-                                        structure=ndimage.generate_binary_structure(2, 1))
-        order = [int(k) for k in np.argsort(-area, kind="stable")
-                 if area[k] > 0 and area[k] >= min_area_m2][:at_most]
-        out = []
-        for k in order:
-            box = boxes[k]
-            assert box is not None
-            ei, ej = np.nonzero((lab[box] == k + 1) & touch[box])
-            entries = self.centres(ei + box[0].start, ej + box[1].start)
-            out.append(UnknownComponent(k + 1, self.grid.origin + (centroid[k] + 0.5)
-                                        * self.resolution, float(area[k]), entries))
-        return out
+        first, at most ``at_most`` of them, with their entry points."""
+        return self.grid.unknown_components(min_area_m2, at_most, self.unknown_labels)
 
     def unknown_area(self) -> float:
         lab, _ = self.unknown_labels
