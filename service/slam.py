@@ -85,13 +85,7 @@ class SlamService:
         for rid, world, opts in self.store.slam_runs():
             o = SlamOptions.model_validate(opts)
             self.runs[rid] = Run(rid, world, o, create(o), replayed=False)
-        n = 0
-        for name in self.worlds.names():
-            blob = self.store.artifact(name, FACTS_ARTIFACT)
-            if blob is not None:
-                self.kb.call("slam_facts", **json.loads(blob))
-                n += 1
-        return n
+        return self.worlds.reassert(FACTS_ARTIFACT, "slam_facts")
 
     async def _run(self, world: str, rid: str) -> Run:
         self.worlds.model(world)  # 404 for an unknown world

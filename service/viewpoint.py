@@ -116,13 +116,7 @@ class ViewpointService:
 
     def restore(self) -> int:
         """Re-assert every world's last viewpoint scene."""
-        n = 0
-        for name in self.worlds.names():
-            blob = self.store.artifact(name, SCENE_ARTIFACT)
-            if blob is not None:
-                self.kb.call("viewpoint_groups", **json.loads(blob))
-                n += 1
-        return n
+        return self.worlds.reassert(SCENE_ARTIFACT, "viewpoint_groups")
 
     def grid_for(self, world: str, req: PlanRequest) -> tuple[PlanningGrid, str]:
         if req.grid is not None:

@@ -9,6 +9,7 @@ rebuilt in the knowledge base from the store, so the two never disagree.
 from __future__ import annotations
 
 import asyncio
+import json
 import logging
 from collections.abc import Callable
 from typing import Any
@@ -84,6 +85,17 @@ class WorldService:
         for row in self.store.worlds():
             self._load_into_kb(WorldDescription.model_validate(row.description))
             n += 1
+        return n
+
+    def reassert(self, artifact: str, op: str) -> int:
+        """Start-up: send every world's stored ``artifact`` (the JSON arguments of a
+        knowledge-base call) to ``op`` again; returns how many worlds had one."""
+        n = 0
+        for name in self.names():
+            blob = self.store.artifact(name, artifact)
+            if blob is not None:
+                self.kb.call(op, **json.loads(blob))
+                n += 1
         return n
 
     def _load_into_kb(self, desc: WorldDescription) -> None:
