@@ -132,13 +132,18 @@ def _world_frame(world: World, resolution_m: float, margin_m: float = 0.5,
     return lo, (int(shape[0]), int(shape[1]))
 
 
+def _cell_centres(lo: np.ndarray, shape: tuple[int, int], resolution_m: float) -> np.ndarray:
+    """Centres ``(nx, ny, 2)`` of every cell of a grid with lower corner ``lo``."""
+    ii, jj = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
+    return np.asarray(lo + (np.stack([ii, jj], axis=-1) + 0.5) * resolution_m)
+
+
 def room_mask(world: World, resolution_m: float, wall_margin_m: float = 0.1) -> np.ndarray:
     """Cells whose centre is inside the world's walls (even-odd rule, objects included),
     less a ``wall_margin_m`` band along the walls -- unseen wall cells would otherwise
     join unknown regions that only touch the same wall."""
     lo, shape = _world_frame(world, resolution_m)
-    ii, jj = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
-    xy = (lo + (np.stack([ii, jj], axis=-1) + 0.5) * resolution_m).reshape(-1, 2)
+    xy = _cell_centres(lo, shape, resolution_m).reshape(-1, 2)
     surf = world.surfaces
     walls = ~np.isfinite(surf.top_m)
     inside = ray_crossings(xy, surf.a[walls], surf.b[walls]) % 2 == 1
@@ -153,21 +158,19 @@ def true_grid(world: World, resolution_m: float = 0.05) -> PlanningGrid:
     room = room_mask(world, resolution_m, 0.0)
     state = np.full(shape, UNKNOWN, dtype=np.int8)
     state[room] = FREE
+    grid = PlanningGrid(OccupancyMap(lo, resolution_m, state, np.full(shape, np.nan)), room)
     surf = world.surfaces
     for a, b in zip(surf.a, surf.b, strict=True):
         n = max(2, int(np.ceil(np.hypot(*(b - a)) / (0.25 * resolution_m))) + 1)
-        pts = a + np.linspace(0, 1, n)[:, None] * (b - a)
-        c = np.floor((pts - lo) / resolution_m).astype(int)
-        ok = (c[:, 0] >= 0) & (c[:, 1] >= 0) & (c[:, 0] < shape[0]) & (c[:, 1] < shape[1])
-        state[c[ok, 0], c[ok, 1]] = OCCUPIED
+        i, j, ok = grid.cells(a + np.linspace(0, 1, n)[:, None] * (b - a))
+        state[i[ok], j[ok]] = OCCUPIED
+    ii, jj = np.nonzero(room)
+    xy = grid.centres(ii, jj)
     for o in world.description.objects:  # the inside of a cuboid is not free space
         fp = o.footprint()
-        ii, jj = np.nonzero(room)
-        xy = lo + (np.stack([ii, jj], axis=-1) + 0.5) * resolution_m
         inside = ray_crossings(xy, fp, np.roll(fp, -1, axis=0)) % 2 == 1
         state[ii[inside], jj[inside]] = OCCUPIED
-    grid = OccupancyMap(lo, resolution_m, state, np.full(shape, np.nan))
-    return PlanningGrid(grid, room)
+    return grid
 
 
 def scanned_grid(world: World, poses: Sequence[np.ndarray] | np.ndarray,
@@ -190,10 +193,7 @@ def scanned_grid(world: World, poses: Sequence[np.ndarray] | np.ndarray,
     built = build_occupancy(kf, poses, resolution_m=resolution_m, misses=misses)
     # re-sample onto the world's frame so every grid of a world lines up
     state = np.full(shape, UNKNOWN, dtype=np.int8)
-    ii, jj = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
-    centres = lo + (np.stack([ii, jj], axis=-1) + 0.5) * resolution_m
-    src = PlanningGrid(built)
-    bi, bj, inside = src.cells(centres)
+    bi, bj, inside = PlanningGrid(built).cells(_cell_centres(lo, shape, resolution_m))
     state[inside] = built.state[bi[inside], bj[inside]]
     grid = OccupancyMap(lo, resolution_m, state, np.full(shape, np.nan))
     return PlanningGrid(grid, room_mask(world, resolution_m))
