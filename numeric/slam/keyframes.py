@@ -62,6 +62,7 @@ class Keyframe:
     scan_index: int
     xy: np.ndarray
     intensity: np.ndarray | None
+    misses: np.ndarray | None = None  # ends of no-return beams (robot frame), for maps
 
 
 @dataclass
@@ -74,11 +75,12 @@ class Keyframes:
     def __len__(self) -> int:
         return len(self.frames)
 
-    def add(self, scan_index: int, xy: np.ndarray, intensity: np.ndarray | None) -> int:
+    def add(self, scan_index: int, xy: np.ndarray, intensity: np.ndarray | None,
+            misses: np.ndarray | None = None) -> int:
         near = np.hypot(xy[:, 0], xy[:, 1]) <= self.config.max_points_m
         xy, intensity = xy[near], None if intensity is None else intensity[near]
         xy, intensity = voxel_downsample(xy, intensity, self.config.voxel_m)
-        self.frames.append(Keyframe(scan_index, xy, intensity))
+        self.frames.append(Keyframe(scan_index, xy, intensity, misses))
         return len(self.frames) - 1
 
     def select(self, pose: np.ndarray, kf_xy: np.ndarray) -> np.ndarray:

@@ -14,8 +14,11 @@ from scipy import ndimage
 from numeric.errors import InvalidInput
 from numeric.geometry import place
 from numeric.slam.keyframes import Keyframes
+from numeric.slam.probability_grid import GridConfig, ProbabilityGrid
 
 UNKNOWN, FREE, OCCUPIED = -1, 0, 100
+#: probability from which a cell is occupied (map_server's default occupied_thresh)
+OCCUPIED_P = 0.5
 
 
 @dataclass(frozen=True)
@@ -161,58 +164,57 @@ class OccupancyMap:
 
 def build_occupancy(keyframes: Keyframes, poses: np.ndarray, resolution_m: float = 0.05,
                     margin_m: float = 1.0, max_cells: int = 16_000_000,
-                    misses: list[np.ndarray] | None = None) -> OccupancyMap:
-    """Occupancy grid of the keyframes placed at ``poses (K, 3)``: cells on the rays
-    from each keyframe's pose to its points are free, the end cells occupied (an
-    occupied hit outvotes free passes 2:1). ``misses[k]`` (robot frame) are the ends of
-    keyframe k's no-return beams at maximum range: free up to there, nothing occupied."""
+                    misses: list[np.ndarray] | None = None, miss_cap_m: float = 5.0,
+                    grid: GridConfig | None = None) -> OccupancyMap:
+    """The occupancy grid of the keyframes placed at ``poses (K, 3)``: every keyframe
+    is ray-cast into one :class:`~numeric.slam.probability_grid.ProbabilityGrid` (hits
+    raise a cell's odds, cells a beam passes through lower them, once per scan with hits
+    winning, clamped), then thresholded the way ``map_server`` reads a map: occupied at
+    ``p >= 0.65``, free below 0.5, unknown where never observed or undecided.
+    ``misses[k]`` (robot frame; default: the keyframe's own) are the ends of keyframe
+    k's no-return beams: free up to ``miss_cap_m``, nothing occupied."""
     if len(keyframes) == 0:
         raise InvalidInput("the run has no keyframes yet", field="run")
-    world = [place(f.xy, poses[k]) for k, f in enumerate(keyframes.frames)]
-    clear = [place(m, poses[k]) for k, m in enumerate(misses)] if misses else []
-    allp = np.vstack(world + clear + [poses[:, :2]])
+    cfg = (grid or GridConfig()).model_copy(update={"resolution_m": resolution_m,
+                                                     "miss_cap_m": miss_cap_m,
+                                                     "grow_margin_m": 0.0})
+    frames = keyframes.frames
+    miss = [misses[k] if misses is not None else f.misses for k, f in enumerate(frames)]
+    world = [place(f.xy, poses[k]) for k, f in enumerate(frames)]
+    clear = [None if m is None or len(m) == 0 else place(m, poses[k])
+             for k, m in enumerate(miss)]
+    for k, c in enumerate(clear):  # cut the no-return beams at the cap before sizing
+        if c is not None:
+            d = c - poses[k, :2]
+            r = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
+            clear[k] = poses[k, :2] + d * (np.minimum(r, miss_cap_m) / r)[:, None]
+    kept = [w[np.hypot(*(w - poses[k, :2]).T) <= cfg.max_range_m] for k, w in enumerate(world)]
+    allp = np.vstack(kept + [c for c in clear if c is not None] + [poses[:, :2]])
     lo = allp.min(axis=0) - margin_m
     hi = allp.max(axis=0) + margin_m
     shape = np.ceil((hi - lo) / resolution_m).astype(int) + 1
     if shape[0] * shape[1] > max_cells:
         raise InvalidInput(f"a {shape[0]}x{shape[1]} grid at {resolution_m} m is too large; "
                            "use a coarser resolution", field="resolution_m")
-    nx, ny = int(shape[0]), int(shape[1])
-    free = np.zeros(nx * ny, dtype=np.int32)
-    hit = np.zeros(nx * ny, dtype=np.int32)
+    g = ProbabilityGrid(cfg)
+    g.ensure(lo, hi)
+    for k, pts in enumerate(kept):
+        g.insert(poses[k, :2], pts, clear[k])
+    nx, ny = g.shape
     isum = np.zeros(nx * ny)
     icnt = np.zeros(nx * ny)
-
-    def flat(p: np.ndarray) -> np.ndarray:
-        c = np.floor((p - lo) / resolution_m).astype(np.int64)
-        return c[..., 0] * ny + c[..., 1]
-
-    def clear_rays(o: np.ndarray, pts: np.ndarray, stop_m: float) -> None:
-        nonlocal free
-        d = pts - o
-        length = np.hypot(d[:, 0], d[:, 1])
-        steps = max(1, int(np.ceil(length.max() / (0.5 * resolution_m))))
-        f = np.linspace(0.0, 1.0, steps, endpoint=False)
-        ray = o + f[None, :, None] * d[:, None, :]  # (n, steps, 2)
-        inside = (f[None, :] * length[:, None]) < (length[:, None] - stop_m)
-        free += np.bincount(flat(ray[inside]), minlength=nx * ny).astype(np.int32)
-
-    for k, m in enumerate(clear):
-        if len(m):
-            clear_rays(poses[k, :2], m, 0.0)
-    for k, pts in enumerate(world):
-        if len(pts) == 0:
+    for k, f in enumerate(frames):
+        if f.intensity is None or len(world[k]) == 0:
             continue
-        clear_rays(poses[k, :2], pts, resolution_m)
-        cells = flat(pts)
-        hit += np.bincount(cells, minlength=nx * ny).astype(np.int32)
-        inten = keyframes.frames[k].intensity
-        if inten is not None:
-            isum += np.bincount(cells, weights=inten, minlength=nx * ny)
-            icnt += np.bincount(cells, minlength=nx * ny)
-    state = np.full(nx * ny, UNKNOWN, dtype=np.int8)
-    state[free > 0] = FREE
-    state[(hit > 0) & (2 * hit >= free)] = OCCUPIED
+        c = np.floor(g.to_cells(world[k])).astype(np.int64)
+        ok = (c[:, 0] >= 0) & (c[:, 0] < nx) & (c[:, 1] >= 0) & (c[:, 1] < ny)
+        cells = c[ok, 0] * ny + c[ok, 1]
+        isum += np.bincount(cells, weights=f.intensity[ok], minlength=nx * ny)
+        icnt += np.bincount(cells, minlength=nx * ny)
+    state = np.full((nx, ny), UNKNOWN, dtype=np.int8)
+    p = g.prob
+    state[(p > 0) & (p < 0.5)] = FREE
+    state[p >= OCCUPIED_P] = OCCUPIED
     with np.errstate(invalid="ignore", divide="ignore"):
         mean_i = np.where(icnt > 0, isum / icnt, np.nan)
-    return OccupancyMap(lo, resolution_m, state.reshape(nx, ny), mean_i.reshape(nx, ny))
+    return OccupancyMap(g.origin, resolution_m, state, mean_i.reshape(nx, ny))

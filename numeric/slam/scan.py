@@ -47,6 +47,14 @@ class Scan:
         pts = place(np.stack([r * np.cos(a), r * np.sin(a)], axis=1), self.sensor_pose)
         return pts, None if self.intensities is None else self.intensities[ok]
 
+    def misses(self) -> np.ndarray:
+        """Ends ``(m, 2)`` (robot frame) of the no-return beams -- ranges at or beyond
+        ``max_range_m`` -- placed at ``max_range_m``: space a map may clear, never mark."""
+        no = np.asarray(self.ranges >= self.max_range_m)
+        a = self.angles[no]
+        r = self.max_range_m
+        return place(np.stack([r * np.cos(a), r * np.sin(a)], axis=1), self.sensor_pose)
+
 
 def validate_scan(t: float, ranges: np.ndarray, angles: np.ndarray, odom: np.ndarray,
                   intensities: np.ndarray | None, min_range_m: float,

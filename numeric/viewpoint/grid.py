@@ -190,7 +190,8 @@ def scanned_grid(world: World, poses: Sequence[np.ndarray] | np.ndarray,
         kf.add(k, r[ok, None] * ray[ok], i[ok])
         misses.append(laser.config.max_range_m * ray[~ok])
     lo, shape = _world_frame(world, resolution_m)
-    built = build_occupancy(kf, poses, resolution_m=resolution_m, misses=misses)
+    built = build_occupancy(kf, poses, resolution_m=resolution_m, misses=misses,
+                            miss_cap_m=laser.config.max_range_m)
     # re-sample onto the world's frame so every grid of a world lines up
     state = np.full(shape, UNKNOWN, dtype=np.int8)
     bi, bj, inside = PlanningGrid(built).cells(_cell_centres(lo, shape, resolution_m))
