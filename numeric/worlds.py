@@ -197,8 +197,37 @@ def stripe_corridor(name: str = "corridor", length_m: float = 40.0, width_m: flo
     return WorldDescription(name=name, walls=walls)
 
 
+def loop_corridor(name: str = "loop", outer_m: tuple[float, float] = (24.0, 14.0),
+                  width_m: float = 2.0, seed: int = 3) -> WorldDescription:
+    """A closed loop of plain 2 m corridors around a block (for loop closure): the
+    walls of a long side are beyond a URG's reach from the corners, so a robot that
+    goes round accumulates drift until it sees where it started; four boxes stand at
+    irregular places so that places can be told apart."""
+    w, h = outer_m
+    outer = _polygon_walls([(0, 0), (w, 0), (w, h), (0, h)], ROOM_TEXTURES, 4.0)
+    inner = _polygon_walls([(width_m, width_m), (width_m, h - width_m),
+                            (w - width_m, h - width_m), (w - width_m, width_m)],
+                           ROOM_TEXTURES, 4.0, offset=3)
+    # boxes against the walls at irregular places (a few metres apart, as doors and
+    # cupboards are): every stretch of corridor is told apart along its length
+    rng = np.random.default_rng(seed)
+    spots: list[tuple[float, float, float]] = []
+    near, far = 0.35, width_m - 0.35  # box centres: against the outer or the inner wall
+    xs = np.arange(3.0, w - 3.0, 3.2)
+    for x in xs + rng.uniform(-0.8, 0.8, len(xs)):
+        spots.append((float(x), near if rng.random() < 0.5 else far, 0.0))
+        spots.append((float(w - x), h - (near if rng.random() < 0.5 else far), 0.0))
+    ys = np.arange(3.0, h - 3.0, 3.2)
+    for y in ys + rng.uniform(-0.8, 0.8, len(ys)):
+        spots.append((w - (near if rng.random() < 0.5 else far), float(y), 0.0))
+        spots.append((near if rng.random() < 0.5 else far, float(h - y), 0.0))
+    boxes = _boxes(spots)
+    return WorldDescription(name=name, walls=outer + inner, objects=boxes)
+
+
 TEMPLATES: dict[str, Callable[[str], WorldDescription]] = {
     "corridor": stripe_corridor,
+    "loop": loop_corridor,
     "demo": lambda name: office_world(name=name),
     "office": lambda name: office_world(name=name),
     "room_a": room_a,

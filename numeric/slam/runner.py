@@ -1,5 +1,6 @@
-"""One entry point for the four methods (odometry, Intensity-ICP, gated, RBPF): options,
-a factory, and a run over a whole log with the outputs the CLI and the service write."""
+"""One entry point for the methods (odometry, Intensity-ICP, gated and RBPF from the
+paper; graph SLAM beyond it): options, a factory, and a run over a whole log with the
+outputs the CLI and the service write."""
 
 from __future__ import annotations
 
@@ -11,13 +12,14 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from numeric.slam.gated import SingleHypothesisSlam
+from numeric.slam.graph import GraphSlam, GraphSlamConfig
 from numeric.slam.intensity_icp import IcpConfig
 from numeric.slam.keyframes import Keyframes
 from numeric.slam.occupancy import OccupancyMap, build_occupancy
 from numeric.slam.rbpf import RbpfConfig, RbpfSlam
 from numeric.slam.scan import LaserLog, Scan
 
-Method = Literal["odom", "icp", "gated", "rbpf"]
+Method = Literal["odom", "icp", "gated", "rbpf", "graph"]
 
 
 class SlamOptions(BaseModel):
@@ -48,6 +50,8 @@ class Slam(Protocol):
 def create(options: SlamOptions) -> Slam:
     """A fresh estimator for ``options.method``."""
     icp = IcpConfig(alpha=options.alpha)
+    if options.method == "graph":
+        return GraphSlam(GraphSlamConfig(alpha=options.alpha), seed=options.seed)
     if options.method == "rbpf":
         return RbpfSlam(RbpfConfig(particles=options.particles, alpha=options.alpha,
                                    proposal=options.proposal, resample=options.resample,

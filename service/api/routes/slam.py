@@ -19,7 +19,7 @@ router = APIRouter(prefix="/worlds/{world}", tags=["SLAM"])
 @router.post("/slam-runs", status_code=status.HTTP_201_CREATED)
 async def post_run(world: WorldName, options: SlamOptions, slam: SlamDep,
                    response: Response) -> dict[str, Any]:
-    """Start a SLAM run (method odom | icp | gated | rbpf, particles, intensity weight
+    """Start a SLAM run (method odom | icp | gated | rbpf | graph, particles, intensity weight
     alpha, RBPF proposal and resampling, map resolution, seed)."""
     run = await slam.create(world, options)
     response.headers["Location"] = f"/worlds/{world}/slam-runs/{run['id']}"

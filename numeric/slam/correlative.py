@@ -1,0 +1,354 @@
+"""Scan-to-grid matching for graph SLAM (Hess, Kohler, Rapp, Andor, "Real-Time Loop
+Closure in 2D LIDAR SLAM", ICRA 2016; Olson, "Real-Time Correlative Scan Matching",
+ICRA 2009).
+
+Three matchers, all scoring a pose by the mean probability of the grid cells the scan's
+points fall in:
+
+- :func:`correlative_search` -- exhaustive search of a small window around a prediction
+  (the "real-time correlative scan matcher" of local SLAM), with a cost on the distance
+  from the prediction;
+- :func:`refine` -- Gauss-Newton / Levenberg-Marquardt on the bilinearly interpolated
+  grid (Hess et al. eq. CS, the Ceres scan matcher; Kohlbrecher et al.'s Hector
+  matcher), with quadratic priors pulling towards the prediction;
+- :class:`PrecomputedGrid` and :func:`branch_and_bound` -- the loop-closure matcher
+  (Hess et al. §V, Algorithms 2-3): a stack of precomputation grids where level h holds
+  the maximum over the 2^h x 2^h cells starting at each cell, so that a candidate at
+  depth h bounds every finer candidate it contains; depth-first branch and bound finds
+  the same best pose as the brute-force search (:func:`brute_force`, for tests).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from numeric.slam.probability_grid import ProbabilityGrid, bilinear
+
+
+def angular_step(points: np.ndarray, resolution_m: float) -> float:
+    """Search step in angle so that the farthest point moves about one cell (Hess et
+    al. eq. 7)."""
+    r = float(np.max(np.hypot(points[:, 0], points[:, 1]))) if len(points) else 1.0
+    r = max(r, 4 * resolution_m)
+    return float(np.arccos(1.0 - resolution_m**2 / (2.0 * r * r)))
+
+
+def rotated_cells(points: np.ndarray, pose: np.ndarray, thetas: np.ndarray,
+                  origin: np.ndarray, resolution_m: float) -> np.ndarray:
+    """Continuous cell coordinates ``(A, n, 2)`` of robot-frame ``points (n, 2)`` at the
+    position of ``pose`` and each heading ``pose[2] + thetas[a]``."""
+    th = pose[2] + thetas
+    c, s = np.cos(th)[:, None], np.sin(th)[:, None]
+    x = c * points[None, :, 0] - s * points[None, :, 1] + pose[0]
+    y = s * points[None, :, 0] + c * points[None, :, 1] + pose[1]
+    return np.stack([(x - origin[0]) / resolution_m, (y - origin[1]) / resolution_m], axis=-1)
+
+
+# -- real-time correlative search (local SLAM) ----------------------------------------------
+@njit(cache=True)
+def _search_window(prob: np.ndarray, cells: np.ndarray, w: int, step_m: float,
+                   thetas: np.ndarray, w_t: float, w_r: float) -> tuple[int, int, int, float]:
+    nx, ny = prob.shape
+    n = cells.shape[1]
+    best, ba, bx, by = -1.0, 0, 0, 0
+    for a in range(cells.shape[0]):
+        for dx in range(-w, w + 1):
+            for dy in range(-w, w + 1):
+                s = 0.0
+                for k in range(n):
+                    i = int(math.floor(cells[a, k, 0])) + dx
+                    j = int(math.floor(cells[a, k, 1])) + dy
+                    if 0 <= i < nx and 0 <= j < ny:
+                        s += prob[i, j]
+                s /= n
+                s *= math.exp(-math.hypot(w_t * step_m * math.hypot(dx, dy),
+                                          w_r * thetas[a]))
+                if s > best:
+                    best, ba, bx, by = s, a, dx, dy
+    return ba, bx, by, best
+
+
+def correlative_search(grid: ProbabilityGrid, points: np.ndarray, pose: np.ndarray,
+                       linear_window_m: float, angular_window_rad: float,
+                       translation_cost: float = 0.1, rotation_cost: float = 0.1,
+                       ) -> tuple[np.ndarray, float]:
+    """Best pose in the window around ``pose`` for robot-frame ``points (n, 2)`` and its
+    (cost-weighted) score, searching every cell offset and angle step."""
+    res = grid.resolution_m
+    step = angular_step(points, res)
+    na = int(np.ceil(angular_window_rad / step))
+    thetas = np.arange(-na, na + 1) * step
+    cells = rotated_cells(points, pose, thetas, grid.origin, res)
+    w = int(np.ceil(linear_window_m / res))
+    a, dx, dy, score = _search_window(grid.prob, cells, w, res, thetas, translation_cost,
+                                      rotation_cost)
+    return np.array([pose[0] + dx * res, pose[1] + dy * res, pose[2] + thetas[a]]), score
+
+
+# -- Gauss-Newton refinement ----------------------------------------------------------------
+@njit(cache=True)
+def _refine(prob: np.ndarray, ox: float, oy: float, res: float, pts: np.ndarray,
+            x: float, y: float, t: float, px: float, py: float, pt: float,
+            w_occ: float, w_t: float, w_r: float, iters: int,
+            ) -> tuple[float, float, float, float, np.ndarray]:
+    n = pts.shape[0]
+    wp = w_occ * w_occ / n
+    lam = 1e-3
+    cost_prev = 1e300
+    for _ in range(iters):
+        h = np.zeros((3, 3))
+        g = np.zeros(3)
+        c, s = math.cos(t), math.sin(t)
+        cost = 0.0
+        for k in range(n):
+            qx, qy = pts[k, 0], pts[k, 1]
+            wx = c * qx - s * qy + x
+            wy = s * qx + c * qy + y
+            m, gx, gy = bilinear(prob, (wx - ox) / res, (wy - oy) / res)
+            r = 1.0 - m
+            gx /= res
+            gy /= res
+            jx, jy = -gx, -gy
+            jt = -(gx * (-s * qx - c * qy) + gy * (c * qx - s * qy))
+            cost += wp * r * r
+            jv = (jx, jy, jt)
+            for a in range(3):
+                g[a] += wp * jv[a] * r
+                for b in range(3):
+                    h[a, b] += wp * jv[a] * jv[b]
+        dt = t - pt
+        dt = (dt + math.pi) % (2 * math.pi) - math.pi
+        cost += w_t * w_t * ((x - px) ** 2 + (y - py) ** 2) + w_r * w_r * dt * dt
+        g[0] += w_t * w_t * (x - px)
+        g[1] += w_t * w_t * (y - py)
+        g[2] += w_r * w_r * dt
+        h[0, 0] += w_t * w_t
+        h[1, 1] += w_t * w_t
+        h[2, 2] += w_r * w_r
+        if cost > cost_prev:
+            lam *= 10.0
+        else:
+            lam = max(lam * 0.3, 1e-6)
+        cost_prev = min(cost, cost_prev)
+        for a in range(3):
+            h[a, a] *= 1.0 + lam
+        d = np.linalg.solve(h, -g)
+        x += d[0]
+        y += d[1]
+        t += d[2]
+        if abs(d[0]) < 1e-5 and abs(d[1]) < 1e-5 and abs(d[2]) < 1e-5:
+            break
+    c, s = math.cos(t), math.sin(t)
+    tot = 0.0
+    info = np.zeros((3, 3))
+    for k in range(n):
+        qx, qy = pts[k, 0], pts[k, 1]
+        m, gx, gy = bilinear(prob, (c * qx - s * qy + x - ox) / res,
+                             (s * qx + c * qy + y - oy) / res)
+        tot += m
+        gx /= res
+        gy /= res
+        jv = (gx, gy, gx * (-s * qx - c * qy) + gy * (c * qx - s * qy))
+        for a in range(3):
+            for b in range(3):
+                info[a, b] += jv[a] * jv[b] / n
+    return x, y, t, tot / n, info
+
+
+@dataclass
+class Refined:
+    """A refined pose, the mean probability of the points there, and the scan term's
+    information ``(3, 3)``: the mean of ``J J^T`` over the points (1/m², 1/(m rad),
+    1/rad²), whose translational eigenvalues tell how well each direction is fixed --
+    along a plain corridor one of them is close to 0."""
+
+    pose: np.ndarray
+    score: float
+    information: np.ndarray
+
+    def degeneracy(self) -> float:
+        """Smallest over largest eigenvalue of the translational information (0 when
+        one direction is not constrained at all, 1 when both are equally)."""
+        ev = np.linalg.eigvalsh(self.information[:2, :2])
+        return float(ev[0] / ev[1]) if ev[1] > 0 else 0.0
+
+
+def refine(grid: ProbabilityGrid, points: np.ndarray, pose: np.ndarray,
+           prior: np.ndarray | None = None, occupied_weight: float = 1.0,
+           translation_weight: float = 10.0, rotation_weight: float = 40.0,
+           iterations: int = 20) -> Refined:
+    """Pose minimising ``sum (w_occ / sqrt(n))^2 (1 - M(T p))^2 + w_t^2 |t - t_prior|^2
+    + w_r^2 (theta - theta_prior)^2`` (M the bilinear interpolation of the grid), from
+    ``pose``."""
+    pr = pose if prior is None else prior
+    x, y, t, score, info = _refine(grid.prob, float(grid.origin[0]), float(grid.origin[1]),
+                             grid.resolution_m, np.ascontiguousarray(points, dtype=float),
+                             float(pose[0]), float(pose[1]), float(pose[2]), float(pr[0]),
+                             float(pr[1]), float(pr[2]), occupied_weight, translation_weight,
+                             rotation_weight, iterations)
+    return Refined(np.array([x, y, (t + np.pi) % (2 * np.pi) - np.pi]), float(score), info)
+
+
+# -- branch and bound (loop closure) --------------------------------------------------------
+@njit(cache=True)
+def _precompute(base: np.ndarray, depth: int, pad: int) -> np.ndarray:
+    nx, ny = base.shape
+    out = np.zeros((depth + 1, nx + 2 * pad, ny + 2 * pad), dtype=np.uint8)
+    out[0, pad:pad + nx, pad:pad + ny] = base
+    mx, my = nx + 2 * pad, ny + 2 * pad
+    tmp = np.zeros((mx, my), dtype=np.uint8)
+    for h in range(depth):
+        w = 1 << h
+        for i in range(mx):
+            for j in range(my):
+                v = out[h, i, j]
+                if i + w < mx and out[h, i + w, j] > v:
+                    v = out[h, i + w, j]
+                tmp[i, j] = v
+        for i in range(mx):
+            for j in range(my):
+                v = tmp[i, j]
+                if j + w < my and tmp[i, j + w] > v:
+                    v = tmp[i, j + w]
+                out[h + 1, i, j] = v
+    return out
+
+
+@njit(cache=True)
+def _score(pre: np.ndarray, h: int, pts: np.ndarray, a: int, dx: int, dy: int) -> float:
+    nx, ny = pre.shape[1], pre.shape[2]
+    n = pts.shape[1]
+    s = 0
+    for k in range(n):
+        i = pts[a, k, 0] + dx
+        j = pts[a, k, 1] + dy
+        if 0 <= i < nx and 0 <= j < ny:
+            s += pre[h, i, j]
+    return s / (255.0 * n)
+
+
+@njit(cache=True)
+def branch_and_bound(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int,
+                     min_score: float) -> tuple[int, int, int, float]:
+    """Best ``(angle index, dx, dy, score)`` over offsets ``[0, wx) x [0, wy)`` with a
+    score above ``min_score`` (angle -1 when none), Hess et al. Algorithm 3. ``pts (A,
+    n, 2)`` are the points' cells at offset (0, 0) in ``pre``'s padded frame."""
+    depth = pre.shape[0] - 1
+    na = pts.shape[0]
+    step = 1 << depth
+    ntx = (wx + step - 1) // step
+    nty = (wy + step - 1) // step
+    ntop = na * ntx * nty
+    cap = ntop + 4 * (depth + 1) + 8
+    s_score = np.empty(cap)
+    s_a = np.empty(cap, dtype=np.int64)
+    s_x = np.empty(cap, dtype=np.int64)
+    s_y = np.empty(cap, dtype=np.int64)
+    s_h = np.empty(cap, dtype=np.int64)
+    top = np.empty(ntop)
+    ta = np.empty(ntop, dtype=np.int64)
+    tx = np.empty(ntop, dtype=np.int64)
+    ty = np.empty(ntop, dtype=np.int64)
+    k = 0
+    for a in range(na):
+        for ix in range(ntx):
+            for iy in range(nty):
+                top[k] = _score(pre, depth, pts, a, ix * step, iy * step)
+                ta[k], tx[k], ty[k] = a, ix * step, iy * step
+                k += 1
+    order = np.argsort(top)  # ascending: the best is pushed last, popped first
+    sp = 0
+    for q in order:
+        if top[q] > min_score:
+            s_score[sp], s_a[sp], s_x[sp], s_y[sp], s_h[sp] = top[q], ta[q], tx[q], ty[q], depth
+            sp += 1
+    best, ba, bx, by = min_score, -1, 0, 0
+    cs = np.empty(4)
+    cx = np.empty(4, dtype=np.int64)
+    cy = np.empty(4, dtype=np.int64)
+    while sp > 0:
+        sp -= 1
+        sc, a, x0, y0, h = s_score[sp], s_a[sp], s_x[sp], s_y[sp], s_h[sp]
+        if sc <= best:
+            continue
+        if h == 0:
+            best, ba, bx, by = sc, a, x0, y0
+            continue
+        half = 1 << (h - 1)
+        m = 0
+        for ox in (0, half):
+            for oy in (0, half):
+                if x0 + ox < wx and y0 + oy < wy:
+                    cs[m] = _score(pre, h - 1, pts, a, x0 + ox, y0 + oy)
+                    cx[m], cy[m] = x0 + ox, y0 + oy
+                    m += 1
+        idx = np.argsort(cs[:m])
+        for q in idx:
+            if cs[q] > best:
+                s_score[sp], s_a[sp], s_x[sp], s_y[sp], s_h[sp] = cs[q], a, cx[q], cy[q], h - 1
+                sp += 1
+    return ba, bx, by, best
+
+
+@njit(cache=True)
+def brute_force(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int) -> tuple[int, int, int, float]:
+    """The exhaustive search :func:`branch_and_bound` must agree with."""
+    best, ba, bx, by = -1.0, 0, 0, 0
+    for a in range(pts.shape[0]):
+        for dx in range(wx):
+            for dy in range(wy):
+                s = _score(pre, 0, pts, a, dx, dy)
+                if s > best:
+                    best, ba, bx, by = s, a, dx, dy
+    return ba, bx, by, best
+
+
+@dataclass
+class Match:
+    """A scan placed in a grid: its pose (grid's world frame) and mean probability."""
+
+    pose: np.ndarray
+    score: float
+
+
+class PrecomputedGrid:
+    """The precomputation grids of a finished submap (uint8 probabilities)."""
+
+    def __init__(self, grid: ProbabilityGrid, depth: int = 7) -> None:
+        self.grid = grid
+        self.depth = depth
+        self.pad = (1 << depth) - 1
+        base = np.round(np.clip(grid.prob, 0, 1) * 255).astype(np.uint8)
+        self.stack = _precompute(base, depth, self.pad)
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.stack.nbytes)
+
+    def candidates(self, points: np.ndarray, pose: np.ndarray, linear_window_m: float,
+                   angular_window_rad: float) -> tuple[np.ndarray, np.ndarray, int]:
+        """Angles searched and the points' padded cells at the window's low corner."""
+        g = self.grid
+        res = g.resolution_m
+        step = angular_step(points, res)
+        na = int(np.ceil(angular_window_rad / step))
+        thetas = np.arange(-na, na + 1) * step
+        w = int(np.ceil(linear_window_m / res))
+        cells = np.floor(rotated_cells(points, pose, thetas, g.origin, res)).astype(np.int64)
+        return thetas, cells - w + self.pad, w
+
+    def match(self, points: np.ndarray, pose: np.ndarray, linear_window_m: float,
+              angular_window_rad: float, min_score: float) -> Match | None:
+        """The best pose within the window by branch and bound, or None below
+        ``min_score``."""
+        thetas, cells, w = self.candidates(points, pose, linear_window_m, angular_window_rad)
+        a, dx, dy, score = branch_and_bound(self.stack, cells, 2 * w + 1, 2 * w + 1, min_score)
+        if a < 0:
+            return None
+        res = self.grid.resolution_m
+        return Match(np.array([pose[0] + (dx - w) * res, pose[1] + (dy - w) * res,
+                               pose[2] + thetas[a]]), float(score))

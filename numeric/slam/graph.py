@@ -1,0 +1,340 @@
+"""Graph SLAM with loop closure, beyond the paper: Hess, Kohler, Rapp, Andor, "Real-Time
+Loop Closure in 2D LIDAR SLAM" (ICRA 2016, Cartographer).
+
+Local SLAM (§IV): a scan becomes a node once the robot has moved ``node_linear_m`` /
+``node_angular_rad`` (or ``node_time_s`` passed) since the last node. The node is
+placed by matching the scan against the older of the two active submaps -- first a
+correlative search of a small window around the odometry prediction, then
+Gauss-Newton refinement on the interpolated probability grid with priors towards the
+prediction -- and inserted into both active submaps (a submap is finished after
+``scans_per_submap`` nodes; a new one starts halfway, so two always overlap). Scans
+between nodes take the odometry from their node.
+
+Loop closure (§V): every ``loop_every``-th node is matched by branch and bound against
+each finished submap within ``loop_max_distance_m`` of it, in a window of
+``loop_linear_window_m`` / ``loop_angular_window_rad``; a match above ``loop_min_score``
+(refined by Gauss-Newton) becomes a robust between-edge from the submap's anchor node.
+
+Optimisation: the nodes and edges (local matches, odometry, closures) form a pose graph
+optimised incrementally by iSAM2 (:mod:`numeric.slam.pose_graph`); after a closure the
+whole trajectory moves. Submaps keep their grids in the local-SLAM frame; a submap's
+place in the world is its anchor node's optimised pose. The final map is rebuilt from
+the optimised node poses (:func:`numeric.slam.occupancy.build_occupancy`).
+
+The intensity channel of the paper (eq. 1) enters as an optional extra term: with
+``alpha > 0`` the local match is followed by Intensity-ICP against the previous node's
+scan, initialised at the grid match and accepted only inside eq. 5's box around it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydantic import BaseModel, Field
+
+from numeric.geometry import compose, place, relative
+from numeric.slam.correlative import PrecomputedGrid, correlative_search, refine
+from numeric.slam.gated import GateConfig, inside_gate
+from numeric.slam.intensity_icp import IcpConfig, Reference, intensity_icp
+from numeric.slam.keyframes import Keyframes, MapConfig, moved, voxel_downsample
+from numeric.slam.pose_graph import GraphConfig, PoseGraph
+from numeric.slam.probability_grid import GridConfig, ProbabilityGrid
+from numeric.slam.scan import Scan
+
+
+def _submap_grid() -> GridConfig:
+    # Cartographer's 2D submap model: gentle hits/misses, clamped to [0.1, 0.9]
+    return GridConfig(p_hit=0.55, p_miss=0.49, p_min=0.1, p_max=0.9, max_range_m=30.0)
+
+
+class GraphSlamConfig(BaseModel):
+    """Parameters of graph SLAM; one set for every log (see the README's table)."""
+
+    node_linear_m: float = Field(0.1, ge=0)
+    node_angular_rad: float = Field(0.05, ge=0)
+    node_time_s: float = Field(5.0, gt=0)
+    scans_per_submap: int = Field(90, ge=2)
+    submap: GridConfig = Field(default_factory=_submap_grid)
+    match_voxel_m: float = Field(0.05, gt=0, description="scan down-sampling for matching")
+    local_linear_window_m: float = Field(0.15, ge=0)
+    local_angular_window_rad: float = Field(0.2, ge=0)
+    local_matching: bool = Field(True, description="off: nodes follow odometry (a front "
+                                 "end of odometry alone; loop closure still runs)")
+    local_min_score: float = Field(0.25, ge=0, le=1,
+                                   description="below this the node follows odometry")
+    search_translation_cost: float = Field(0.1, ge=0, description="correlative search: "
+                                           "score x exp(-hypot(c_t |dt|, c_r |dθ|))")
+    search_rotation_cost: float = Field(0.1, ge=0)
+    local_min_degeneracy: float = Field(0.05, ge=0, le=1, description="below this the "
+                                        "weak direction of a local match follows odometry")
+    translation_weight: float = Field(10.0, ge=0, description="refinement prior towards "
+                                      "the correlative search's pose")
+    rotation_weight: float = Field(40.0, ge=0)
+    loop_every: int = Field(3, ge=1, description="nodes between loop-closure searches")
+    loop_max_distance_m: float = Field(15.0, gt=0)
+    loop_linear_window_m: float = Field(5.0, gt=0)
+    loop_angular_window_rad: float = Field(np.radians(30.0), gt=0)
+    loop_min_score: float = Field(0.6, gt=0, le=1)
+    loop_min_degeneracy: float = Field(0.1, ge=0, le=1, description="reject closures "
+                                       "whose match fixes one direction this much less")
+    loop_max_points: int = Field(200, ge=10)
+    loop_depth: int = Field(7, ge=1, le=10)
+    loop_cache: int = Field(48, ge=1, description="precomputed submaps kept in memory")
+    alpha: float = Field(0.0, ge=0, description="intensity weight of eq. 1 (0: off)")
+    icp: IcpConfig = Field(default_factory=IcpConfig)
+    gate: GateConfig = Field(default_factory=lambda: GateConfig(eps_xy_m=0.05, eps_xy_ratio=0,
+                                                               eps_theta_rad=0.03,
+                                                               eps_theta_ratio=0))
+    graph: GraphConfig = Field(default_factory=GraphConfig)
+    map: MapConfig = Field(default_factory=lambda: MapConfig(max_points_m=30.0))
+
+
+@dataclass
+class Submap:
+    """A probability grid in the local-SLAM frame, anchored at one node."""
+
+    anchor: int
+    grid: ProbabilityGrid
+    nodes: list[int] = field(default_factory=list)
+    finished: bool = False
+
+
+@dataclass
+class LoopClosure:
+    """An accepted loop closure: ``node`` matched in ``submap`` (anchored at
+    ``anchor``) with ``score``, placing the node at ``delta`` in the anchor's frame."""
+
+    node: int
+    submap: int
+    anchor: int
+    score: float
+    delta: np.ndarray
+
+
+def rotate_xy(v: np.ndarray, angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])
+
+
+def adaptive_voxel(xy: np.ndarray, max_points: int, voxel_m: float = 0.05) -> np.ndarray:
+    """Down-sample with the smallest voxel (doubling from ``voxel_m``) that leaves at
+    most ``max_points`` points (Hess et al.'s adaptive voxel filter)."""
+    out, _ = voxel_downsample(xy, None, voxel_m)
+    while len(out) > max_points:
+        voxel_m *= 1.5
+        out, _ = voxel_downsample(xy, None, voxel_m)
+    return out
+
+
+@dataclass
+class GraphSlam:
+    """Feed scans with :meth:`process`; read :meth:`trajectory` and :meth:`map_poses`."""
+
+    config: GraphSlamConfig = field(default_factory=GraphSlamConfig)
+    seed: int = 0
+    submaps: list[Submap] = field(default_factory=list)
+    closures: list[LoopClosure] = field(default_factory=list)
+    searches: int = 0
+    degeneracies: list[float] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        cfg = self.config
+        self.keyframes = Keyframes(cfg.map)
+        self.graph = PoseGraph(cfg.graph)
+        self.local: list[np.ndarray] = []  # node poses in the local-SLAM frame
+        self.node_odom: list[np.ndarray] = []
+        self.node_time: list[float] = []
+        self.node_xy: list[np.ndarray] = []  # matching points (robot frame)
+        self._node_scan: list[int] = []
+        self._scan_node: list[int] = []
+        self._scan_delta: list[np.ndarray] = []
+        self.times: list[float] = []
+        self._global = np.zeros((0, 3))
+        self._precomputed: dict[int, PrecomputedGrid] = {}
+        self._prev: tuple[np.ndarray, np.ndarray | None] | None = None  # for alpha > 0
+        self.rng = np.random.default_rng(self.seed)
+        self.weak: np.ndarray | None = None  # weak direction of the last local match
+
+    # -- local SLAM ---------------------------------------------------------------------
+    def active(self) -> list[Submap]:
+        return [s for s in self.submaps if not s.finished][-2:]
+
+    def match_local(self, xy: np.ndarray, predicted: np.ndarray) -> tuple[np.ndarray, float]:
+        """Scan-to-submap matching: correlative search, then Gauss-Newton refinement
+        (Hess et al. §IV-C) against the older active submap."""
+        cfg = self.config
+        grid = self.active()[0].grid
+        pts, _ = voxel_downsample(xy, None, cfg.match_voxel_m)
+        start, _ = correlative_search(grid, pts, predicted, cfg.local_linear_window_m,
+                                      cfg.local_angular_window_rad, cfg.search_translation_cost,
+                                      cfg.search_rotation_cost)
+        r = refine(grid, pts, start, prior=start, translation_weight=cfg.translation_weight,
+                   rotation_weight=cfg.rotation_weight)
+        self.weak = None
+        pose = r.pose
+        if r.degeneracy() < cfg.local_min_degeneracy:
+            # a direction the scan cannot fix (a plain corridor): take odometry's word
+            # for it (Zhang et al. 2016, "solution remapping")
+            _, vec = np.linalg.eigh(r.information[:2, :2])
+            v = vec[:, 0]
+            pose = pose.copy()
+            pose[:2] += v * float(v @ (predicted[:2] - pose[:2]))
+            self.weak = v
+        return pose, r.score
+
+    def intensity_step(self, pose: np.ndarray, xy: np.ndarray,
+                       inten: np.ndarray | None) -> np.ndarray:
+        """The paper's intensity term: Intensity-ICP against the previous node's scan
+        from the grid match, kept inside eq. 5's box around it."""
+        if self._prev is None or inten is None:
+            return pose
+        icp = self.config.icp.model_copy(update={"alpha": self.config.alpha})
+        res = intensity_icp(Reference(self._prev[0], self._prev[1], icp.alpha), xy, inten,
+                            pose, icp)
+        if res.usable(len(xy), icp) and inside_gate(pose, res.pose, np.zeros(3),
+                                                      self.config.gate):
+            return res.pose
+        return pose
+
+    def insert(self, node: int, xy: np.ndarray, misses: np.ndarray) -> None:
+        """Insert the node's scan into the active submaps; start and finish submaps."""
+        cfg = self.config
+        act = self.active()
+        if not act or len(act[-1].nodes) >= cfg.scans_per_submap // 2:
+            self.submaps.append(Submap(node, ProbabilityGrid(cfg.submap)))
+        pose = self.local[node]
+        hits, miss = place(xy, pose), place(misses, pose) if len(misses) else None
+        for s in self.active():
+            s.grid.insert(pose[:2], hits, miss)
+            s.nodes.append(node)
+        for s in self.active():
+            if len(s.nodes) >= cfg.scans_per_submap:
+                s.finished = True
+                s.grid = s.grid.cropped()
+
+    # -- loop closure -------------------------------------------------------------------
+    def precomputed(self, k: int) -> PrecomputedGrid:
+        p = self._precomputed.pop(k, None)
+        if p is None:
+            p = PrecomputedGrid(self.submaps[k].grid, self.config.loop_depth)
+        self._precomputed[k] = p  # most recently used last
+        while len(self._precomputed) > self.config.loop_cache:
+            self._precomputed.pop(next(iter(self._precomputed)))
+        return p
+
+    def search_loops(self, node: int) -> int:
+        """Branch-and-bound matches of ``node`` against the finished submaps near it
+        (Hess et al. §V); accepted matches become robust edges. Returns how many."""
+        cfg = self.config
+        g = self._global
+        pts = adaptive_voxel(self.node_xy[node], cfg.loop_max_points)
+        found = 0
+        for k, s in enumerate(self.submaps):
+            if not s.finished or node in s.nodes:
+                continue
+            a = s.anchor
+            if np.hypot(*(g[a, :2] - g[node, :2])) > cfg.loop_max_distance_m:
+                continue
+            # the node's pose in the submap's (local-SLAM) frame, from the global estimate
+            guess = compose(self.local[a], relative(g[a], g[node]))
+            self.searches += 1
+            m = self.precomputed(k).match(pts, guess, cfg.loop_linear_window_m,
+                                          cfg.loop_angular_window_rad, cfg.loop_min_score)
+            if m is None:
+                continue
+            r = refine(s.grid, self.node_xy[node], m.pose, prior=m.pose,
+                       translation_weight=cfg.translation_weight,
+                       rotation_weight=cfg.rotation_weight)
+            self.degeneracies.append(r.degeneracy())
+            if r.score < cfg.loop_min_score or r.degeneracy() < cfg.loop_min_degeneracy:
+                continue  # refined off the peak, or e.g. a plain corridor: the match
+                # cannot say where along it the scan belongs
+            delta = relative(self.local[a], r.pose)
+            self.graph.add_loop(a, node, delta)
+            self.closures.append(LoopClosure(node, k, a, r.score, delta))
+            found += 1
+        return found
+
+    # -- driver -------------------------------------------------------------------------
+    def process(self, scan: Scan) -> None:
+        xy, inten = scan.points()
+        self.times.append(scan.t)
+        cfg = self.config
+        if not self.local:
+            self._add_node(scan, scan.odom.copy(), scan.odom.copy(), xy, inten)
+            return
+        last = len(self.local) - 1
+        u = relative(self.node_odom[last], scan.odom)
+        if (len(xy) < 8 or not (moved(self.node_odom[last], scan.odom, cfg.node_linear_m,
+                                      cfg.node_angular_rad)
+                                or scan.t - self.node_time[last] >= cfg.node_time_s)):
+            self._scan_node.append(last)
+            self._scan_delta.append(u)
+            return
+        predicted = compose(self.local[last], u)
+        pose, score, self.weak = predicted, 0.0, None
+        if cfg.local_matching:
+            pose, score = self.match_local(xy, predicted)
+        if score < cfg.local_min_score:
+            pose, self.weak = predicted, None
+        elif cfg.alpha > 0:
+            pose = self.intensity_step(pose, xy, inten)
+        delta = relative(self.local[last], pose)
+        node = self._add_node(scan, pose, compose(self._global[last], delta), xy, inten)
+        if score >= cfg.local_min_score:  # else odometry alone links the nodes
+            self.graph.add_local(last, node, delta, None if self.weak is None
+                                 else rotate_xy(self.weak, -self.local[last][2]))
+        self.graph.add_odometry(last, node, u)
+        if node % cfg.loop_every == 0 and self.search_loops(node):
+            self.graph.update()
+            est = self.graph.estimate()
+            self._global = est
+        else:
+            self.graph.update()
+
+    def _add_node(self, scan: Scan, local: np.ndarray, world: np.ndarray, xy: np.ndarray,
+                  inten: np.ndarray | None) -> int:
+        node = len(self.local)
+        self.local.append(local)
+        self.node_odom.append(scan.odom.copy())
+        self.node_time.append(scan.t)
+        self.node_xy.append(voxel_downsample(xy, None, self.config.match_voxel_m)[0])
+        self._node_scan.append(len(self.times) - 1)
+        self._scan_node.append(node)
+        self._scan_delta.append(np.zeros(3))
+        self.graph.add_node(world)
+        self._global = np.vstack([self._global, world[None, :]])
+        misses = scan.misses()
+        self.keyframes.add(len(self.times) - 1, xy, inten, misses)
+        self.insert(node, xy, misses)
+        if self.config.alpha > 0:
+            self._prev = (place(xy, local), inten)
+        return node
+
+    # -- outputs ------------------------------------------------------------------------
+    @property
+    def pose(self) -> np.ndarray:
+        if not self._scan_node:
+            return np.zeros(3)
+        return compose(self._global[self._scan_node[-1]], self._scan_delta[-1])
+
+    def optimise(self) -> np.ndarray:
+        """Optimise the whole graph; the node poses ``(N, 3)``."""
+        self._global = self.graph.poses_now()
+        return self._global
+
+    def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
+        g = self.optimise()
+        poses = compose(g[np.array(self._scan_node)], np.array(self._scan_delta))
+        return np.array(self.times), np.asarray(poses).reshape(-1, 3)
+
+    def map_poses(self) -> np.ndarray:
+        """Optimised poses ``(K, 3)`` of the nodes (the keyframes of the map)."""
+        return self.optimise().copy()
+
+    def loop_closures(self) -> list[tuple[int, int, float]]:
+        """The accepted closures as ``(scan of the submap's anchor, scan matched,
+        score)``, scan indices counted from 0 in the order the scans came."""
+        return [(self._node_scan[c.anchor], self._node_scan[c.node], c.score)
+                for c in self.closures]

@@ -1,0 +1,145 @@
+"""The sparse pose graph of graph SLAM, optimised incrementally with GTSAM's iSAM2
+(Kaess et al. 2012) as in Hess et al. 2016, §V: nodes are the poses of the inserted
+scans, edges are ``Pose2`` between-factors -- consecutive local-SLAM matches (and
+odometry) with Gaussian noise, loop closures with a robust (Huber) noise model so that a
+wrong closure costs linearly rather than quadratically (Hess et al. eq. SPA with the
+Huber loss ρ)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+from pydantic import BaseModel, Field
+
+
+class GraphConfig(BaseModel):
+    """Noise of the edges (standard deviations, m and rad) and iSAM2's settings."""
+
+    local_sigma_m: float = Field(0.02, gt=0, description="consecutive local matches")
+    local_sigma_rad: float = Field(0.005, gt=0)
+    local_sigma_per_m: float = Field(0.02, ge=0, description="... growing per metre moved")
+    odom_sigma_m: float = Field(0.02, gt=0, description="odometry between nodes")
+    odom_sigma_per_m: float = Field(0.1, ge=0, description="... growing per metre moved")
+    odom_sigma_rad: float = Field(0.01, gt=0)
+    odom_sigma_rad_per_rad: float = Field(0.1, ge=0, description="... per radian turned")
+    loop_sigma_m: float = Field(0.05, gt=0, description="loop closures")
+    loop_sigma_rad: float = Field(0.01, gt=0)
+    huber_k: float = Field(0.1, gt=0, description="Huber threshold (whitened units): "
+                           "small, so a wrong closure pulls no harder than a 0.1-sigma one")
+    relinearize_threshold: float = Field(0.01, gt=0)
+    extra_updates: int = Field(3, ge=0, description="iSAM2 sweeps after a loop closure")
+
+
+def _pose(p: np.ndarray) -> gtsam.Pose2:
+    return gtsam.Pose2(float(p[0]), float(p[1]), float(p[2]))
+
+
+@dataclass
+class PoseGraph:
+    """Add nodes and edges in order; :meth:`estimate` is the current optimum."""
+
+    config: GraphConfig = field(default_factory=GraphConfig)
+    closures: int = 0
+
+    def __post_init__(self) -> None:
+        params = gtsam.ISAM2Params()
+        params.setRelinearizeThreshold(self.config.relinearize_threshold)
+        params.relinearizeSkip = 1
+        self.isam = gtsam.ISAM2(params)
+        self._graph = gtsam.NonlinearFactorGraph()
+        self._values = gtsam.Values()
+        self._poses = np.zeros((0, 3))
+        self._dirty = False
+
+    def __len__(self) -> int:
+        return len(self._poses)
+
+    def add_node(self, initial: np.ndarray, prior: bool = False) -> int:
+        """A new node with its initial estimate (world frame); the first is anchored."""
+        k = len(self._poses)
+        self._values.insert(k, _pose(initial))
+        self._poses = np.vstack([self._poses, initial[None, :]])
+        if prior or k == 0:
+            noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, 1e-4]))
+            self._graph.add(gtsam.PriorFactorPose2(k, _pose(initial), noise))
+        return k
+
+    def add_between(self, a: int, b: int, delta: np.ndarray, sigmas: np.ndarray,
+                    robust: bool = False) -> None:
+        """An edge saying node ``b`` is at ``delta`` in node ``a``'s frame."""
+        noise: gtsam.noiseModel.Base = gtsam.noiseModel.Diagonal.Sigmas(
+            np.asarray(sigmas, dtype=float))
+        if robust:
+            noise = gtsam.noiseModel.Robust.Create(
+                gtsam.noiseModel.mEstimator.Huber.Create(self.config.huber_k), noise)
+        self._graph.add(gtsam.BetweenFactorPose2(a, b, _pose(delta), noise))
+
+    def add_local(self, a: int, b: int, delta: np.ndarray,
+                  weak: np.ndarray | None = None) -> None:
+        """A local-SLAM edge; ``weak`` (unit (2,), node a's frame) is a direction the
+        match could not fix, which gets odometry's sigma instead."""
+        c = self.config
+        s = c.local_sigma_m + c.local_sigma_per_m * float(np.hypot(delta[0], delta[1]))
+        if weak is None:
+            self.add_between(a, b, delta, np.array([s, s, c.local_sigma_rad]))
+            return
+        lateral = np.array([-weak[1], weak[0]])
+        cov = np.zeros((3, 3))
+        cov[:2, :2] = (self.odometry_sigmas(delta)[0]**2 * np.outer(weak, weak)
+                       + s**2 * np.outer(lateral, lateral))
+        cov[2, 2] = c.local_sigma_rad**2
+        noise = gtsam.noiseModel.Gaussian.Covariance(cov)
+        self._graph.add(gtsam.BetweenFactorPose2(a, b, _pose(delta), noise))
+
+    def odometry_sigmas(self, delta: np.ndarray) -> np.ndarray:
+        """Sigmas (x, y, theta) of an odometry increment ``delta``."""
+        c = self.config
+        s = c.odom_sigma_m + c.odom_sigma_per_m * float(np.hypot(delta[0], delta[1]))
+        return np.array([s, s, c.odom_sigma_rad + c.odom_sigma_rad_per_rad * abs(delta[2])])
+
+    def add_odometry(self, a: int, b: int, delta: np.ndarray) -> None:
+        self.add_between(a, b, delta, self.odometry_sigmas(delta))
+
+    def add_loop(self, a: int, b: int, delta: np.ndarray, weight: float = 1.0) -> None:
+        c = self.config
+        self.add_between(a, b, delta, np.array([c.loop_sigma_m, c.loop_sigma_m,
+                                                c.loop_sigma_rad]) / weight, robust=True)
+        self.closures += 1
+        self._dirty = True
+
+    def update(self) -> None:
+        """Hand the new nodes and edges to iSAM2 (and sweep again after closures)."""
+        if self._graph.size() == 0 and self._values.size() == 0:
+            return
+        self.isam.update(self._graph, self._values)
+        self._graph = gtsam.NonlinearFactorGraph()
+        self._values = gtsam.Values()
+        if self._dirty:
+            for _ in range(self.config.extra_updates):
+                self.isam.update()
+            self._refresh()
+            self._dirty = False
+
+    def _refresh(self) -> None:
+        est = self.isam.calculateEstimate()
+        n = len(self._poses)
+        self._poses = np.array([[p.x(), p.y(), p.theta()]
+                                for p in (est.atPose2(k) for k in range(n))]).reshape(-1, 3)
+
+    def estimate(self) -> np.ndarray:
+        """Current optimised poses ``(N, 3)`` (the initial guesses for nodes added since
+        the last closure, which iSAM2 has not moved)."""
+        return self._poses.copy()
+
+    def poses_now(self) -> np.ndarray:
+        """Optimise fully and return every node's pose."""
+        self.update()
+        if len(self._poses):
+            self._refresh()
+        return self._poses.copy()
+
+    def set_initial(self, k: int, pose: np.ndarray) -> None:
+        """Keep the Python-side estimate of a node iSAM2 has not yet moved."""
+        self._poses[k] = pose

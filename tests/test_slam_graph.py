@@ -1,0 +1,209 @@
+"""Graph SLAM (Hess et al. 2016): the probability grid, the matchers (branch and bound
+against brute force), the pose graph, and loop closure on a simulated loop."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from numeric.geometry import compose, place, ray_cast, relative
+from numeric.slam.correlative import (
+    PrecomputedGrid,
+    branch_and_bound,
+    brute_force,
+    correlative_search,
+    refine,
+)
+from numeric.slam.graph import GraphSlam, GraphSlamConfig
+from numeric.slam.pose_graph import PoseGraph
+from numeric.slam.probability_grid import GridConfig, ProbabilityGrid
+from numeric.slam.simulate import simulated_log
+
+ANGLES = np.linspace(-np.pi, np.pi, 360, endpoint=False)
+#: a 10 m x 6 m room with a pillar, and a plain 2 m corridor 30 m long
+ROOM = (np.array([[0, 0], [10, 0], [10, 6], [0, 6], [4, 2], [5, 2], [5, 3], [4, 3]], float),
+        np.array([[10, 0], [10, 6], [0, 6], [0, 0], [5, 2], [5, 3], [4, 3], [4, 2]], float))
+CORRIDOR = (np.array([[0, 0], [30, 2]], float), np.array([[30, 0], [0, 2]], float))
+
+
+def scan_at(pose: np.ndarray, walls: tuple[np.ndarray, np.ndarray],
+            max_range: float = 20.0) -> np.ndarray:
+    """Robot-frame returns ``(n, 2)`` of a noise-free 360-beam scan at ``pose``."""
+    r, _ = ray_cast(pose[:2], ANGLES + pose[2], *walls, max_range=max_range)
+    ok = np.isfinite(r)
+    return np.stack([r[ok] * np.cos(ANGLES[ok]), r[ok] * np.sin(ANGLES[ok])], axis=1)
+
+
+def submap(poses: list[np.ndarray], walls: tuple[np.ndarray, np.ndarray],
+           max_range: float = 20.0) -> ProbabilityGrid:
+    g = ProbabilityGrid(GridConfig(p_hit=0.55, p_miss=0.49, p_min=0.1, p_max=0.9))
+    for p in poses:
+        for _ in range(4):
+            g.insert(p[:2], place(scan_at(p, walls, max_range), p))
+    return g
+
+
+@pytest.fixture(scope="module")
+def room_grid() -> ProbabilityGrid:
+    return submap([np.array([2.0, 3.0, 0.0]), np.array([7.0, 3.0, 1.0]),
+                   np.array([8.0, 1.5, 2.0])], ROOM)
+
+
+# -- probability grid ----------------------------------------------------------------------
+def test_beams_clear_free_space_and_mark_their_ends_once_per_scan() -> None:
+    g = ProbabilityGrid(GridConfig(resolution_m=0.1, p_hit=0.7, p_miss=0.4))
+    hits = np.array([[3.05, 0.05], [3.05, 0.15]])
+    g.insert(np.array([0.05, 0.05]), hits)
+    c = np.floor(g.to_cells(hits)).astype(int)
+    assert np.allclose(g.prob[c[:, 0], c[:, 1]], 0.7, atol=1e-6)  # one hit update each
+    o = np.floor(g.to_cells(np.array([1.55, 0.05]))).astype(int)
+    assert g.prob[o[0], o[1]] == pytest.approx(0.4, abs=1e-6)  # passed once, not twice
+    far = np.floor(g.to_cells(np.array([3.55, 0.05]))).astype(int)
+    assert g.prob[far[0], far[1]] == 0.0  # beyond the hit: never observed
+    # a second scan whose beam passes through the first hit cell lowers it, but a
+    # beam ending there in the same scan as another passing through keeps it a hit
+    g.insert(np.array([0.05, 0.05]), np.array([[5.05, 0.05], [3.05, 0.05]]))
+    assert g.prob[c[0, 0], c[0, 1]] > 0.7
+
+
+def test_no_return_beams_clear_only_up_to_the_cap() -> None:
+    g = ProbabilityGrid(GridConfig(resolution_m=0.1, miss_cap_m=2.0))
+    g.insert(np.zeros(2), np.zeros((0, 2)), misses=np.array([[10.0, 0.0]]))
+    assert g.known().sum() == pytest.approx(20, abs=1)
+    assert not np.any(g.prob > 0.5)
+
+
+def test_grid_grows_and_keeps_what_it_holds() -> None:
+    g = ProbabilityGrid(GridConfig(resolution_m=0.1, grow_margin_m=0.5))
+    g.insert(np.zeros(2), np.array([[1.0, 0.0]]))
+    before = g.prob[g.prob > 0.5].copy()
+    g.insert(np.array([20.0, 20.0]), np.array([[21.0, 20.0]]))
+    assert g.prob.shape[0] > 200 and np.sum(g.prob > 0.5) == len(before) + 1
+
+
+# -- matchers ------------------------------------------------------------------------------
+def test_branch_and_bound_equals_brute_force_on_random_cases() -> None:
+    rng = np.random.default_rng(1)
+    for case in range(12):
+        base = ProbabilityGrid(GridConfig(resolution_m=0.1))
+        shape = rng.integers(20, 60, size=2)
+        base.prob = np.clip(rng.random(tuple(shape)) ** 3 + (rng.random(tuple(shape)) < 0.05),
+                            0, 1).astype(np.float32)
+        pre = PrecomputedGrid(base, depth=int(rng.integers(1, 5)))
+        pts = rng.uniform(0, shape.min() * 0.1, size=(int(rng.integers(5, 40)), 2))
+        guess = np.array([rng.uniform(0, 1), rng.uniform(0, 1), rng.uniform(-1, 1)])
+        _, cells, w = pre.candidates(pts, guess, 0.1 * int(rng.integers(2, 12)), 0.2)
+        bf = brute_force(pre.stack, cells, 2 * w + 1, 2 * w + 1)
+        bb = branch_and_bound(pre.stack, cells, 2 * w + 1, 2 * w + 1, -1.0)
+        assert bb[3] == pytest.approx(bf[3], abs=1e-12), case
+        # the pose it names scores what it says
+        a, dx, dy, s = bb
+        from numeric.slam.correlative import _score
+        assert _score(pre.stack, 0, cells, a, dx, dy) == pytest.approx(s)
+        # a threshold above the best finds nothing
+        assert branch_and_bound(pre.stack, cells, 2 * w + 1, 2 * w + 1, bf[3] + 1e-9)[0] == -1
+
+
+def test_loop_closure_matcher_finds_a_scan_far_from_its_guess(room_grid) -> None:  # type: ignore[no-untyped-def]
+    true = np.array([3.0, 4.0, 0.3])
+    pts = scan_at(true, ROOM)[::2]
+    m = PrecomputedGrid(room_grid, 7).match(pts, true + [0.9, -0.7, 0.25], 1.5, 0.4, 0.3)
+    assert m is not None
+    assert np.hypot(*(m.pose[:2] - true[:2])) < 0.1 and abs(m.pose[2] - true[2]) < 0.02
+    r = refine(room_grid, pts, m.pose)
+    assert np.hypot(*(r.pose[:2] - true[:2])) < 0.04 and abs(r.pose[2] - true[2]) < 0.01
+    assert r.degeneracy() > 0.3
+
+
+def test_local_search_and_refinement_recover_a_small_offset(room_grid) -> None:  # type: ignore[no-untyped-def]
+    true = np.array([6.0, 4.5, -0.4])
+    pts = scan_at(true, ROOM)
+    start, _ = correlative_search(room_grid, pts, true + [0.08, -0.06, 0.1], 0.15, 0.2)
+    r = refine(room_grid, pts, start)
+    # within a cell: hits are binned, so a wall on a cell border reads up to half a cell off
+    assert np.hypot(*(r.pose[:2] - true[:2])) < 0.05 and abs(r.pose[2] - true[2]) < 0.01
+
+
+def test_a_plain_corridor_is_degenerate_along_its_length() -> None:
+    pose = np.array([15.0, 1.0, 0.0])
+    g = submap([np.array([x, 1.0, 0.0]) for x in np.arange(8.0, 22.0, 0.5)], CORRIDOR,
+               max_range=5.6)
+    r = refine(g, scan_at(pose, CORRIDOR, 5.6), pose)
+    assert r.degeneracy() < 0.05
+    ev, vec = np.linalg.eigh(r.information[:2, :2])
+    assert abs(vec[0, 0]) > 0.95  # the weak direction is x, along the corridor
+
+
+# -- pose graph ----------------------------------------------------------------------------
+def _drifting_square(g: PoseGraph, drift_rad: float) -> np.ndarray:
+    """A 10 m square driven in 1 m steps with odometry turning ``drift_rad`` too much per
+    step; returns the true poses ``(41, 3)``."""
+    truth = [np.zeros(3)]
+    for k in range(40):
+        truth.append(compose(truth[-1], [1.0, 0.0, np.pi / 2 if k % 10 == 9 else 0.0]))
+    truth_a = np.array(truth)
+    est = truth_a[0]
+    g.add_node(est)
+    for k in range(1, len(truth_a)):
+        d = relative(truth_a[k - 1], truth_a[k]) + [0.0, 0.0, drift_rad]
+        est = compose(est, d)
+        g.add_node(est)
+        g.add_odometry(k - 1, k, d)
+    g.update()
+    return truth_a
+
+
+def test_pose_graph_closes_a_drifting_square() -> None:
+    g = PoseGraph()
+    truth = _drifting_square(g, 0.01)
+    before = np.hypot(*(g.estimate()[-1, :2] - truth[-1, :2]))
+    g.add_loop(0, 40, relative(truth[0], truth[40]))
+    after = g.poses_now()
+    err = np.hypot(*(after[:, :2] - truth[:, :2]).T)
+    assert before > 1.0 and err[-1] < 0.1 * before and err.max() < 0.3 * before
+
+
+def test_a_wrong_closure_pulls_less_with_the_robust_kernel() -> None:
+    wrong = np.array([3.0, -2.0, 0.5])
+    out = {}
+    for robust in (True, False):
+        g = PoseGraph()
+        truth = _drifting_square(g, 0.01)
+        for a, b in ((0, 40), (1, 39), (2, 38), (10, 30)):
+            g.add_loop(a, b, relative(truth[a], truth[b]))
+        if robust:
+            g.add_loop(5, 25, wrong)
+        else:
+            g.add_between(5, 25, wrong, np.array([0.05, 0.05, 0.01]))
+            g.add_loop(0, 40, relative(truth[0], truth[40]))  # one more update sweep
+        out[robust] = np.hypot(*(g.poses_now()[:, :2] - truth[:, :2]).T).max()
+    assert out[True] < 0.5 < out[False]
+
+
+# -- graph SLAM on a simulated loop --------------------------------------------------------
+def test_graph_slam_closes_a_simulated_loop() -> None:
+    log = simulated_log("loop", seed=1, speed_m_s=0.8)
+    truth = log.truth
+    assert truth is not None
+    s = GraphSlam(GraphSlamConfig())
+    online = []
+    closing = None
+    for i, scan in enumerate(log.scans):
+        s.process(scan)
+        online.append(s.pose)
+        if closing is None and any(c.anchor < 45 and s.node_time[c.node] > 0.8 * log.duration_s
+                                   + log.scans[0].t for c in s.closures):
+            closing = i  # the first scan that tied the end of the loop to its start
+    assert closing is not None
+    t, poses = s.trajectory()
+    before = np.hypot(*(np.array(online)[closing - 1, :2] - truth[closing - 1, :2]))
+    after = np.hypot(*(poses[closing - 1, :2] - truth[closing - 1, :2]))
+    odom = np.hypot(*(log.odometry[:, :2] - truth[:, :2]).T).mean()
+    err = np.hypot(*(poses[:, :2] - truth[:, :2]).T)
+    assert before > 0.25 and after < 0.1 and after < before / 4
+    assert err.mean() < odom / 4
+    # the map of the optimised poses: walls where the world has them
+    from numeric.slam.occupancy import OCCUPIED, build_occupancy
+    grid = build_occupancy(s.keyframes, s.map_poses(), 0.05)
+    occ = grid.centres(*np.nonzero(grid.state == OCCUPIED))
+    assert len(occ) > 500
