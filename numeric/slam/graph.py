@@ -76,6 +76,12 @@ class GraphSlamConfig(BaseModel):
     loop_linear_window_m: float = Field(5.0, gt=0)
     loop_angular_window_rad: float = Field(np.radians(30.0), gt=0)
     loop_min_score: float = Field(0.6, gt=0, le=1)
+    loop_angular_step_rad: float = Field(0.005, ge=0, description="coarsest angle step of "
+                                         "the search (the refinement recovers the rest)")
+    loop_track_nodes: int = Field(10, ge=0, description="a submap closed within this many "
+                                  "nodes is searched in the small tracking window only")
+    loop_track_linear_window_m: float = Field(0.5, gt=0)
+    loop_track_angular_window_rad: float = Field(0.15, gt=0)
     loop_min_degeneracy: float = Field(0.1, ge=0, le=1, description="reject closures "
                                        "whose match fixes one direction this much less")
     loop_max_points: int = Field(200, ge=10)
@@ -152,6 +158,7 @@ class GraphSlam:
         self.times: list[float] = []
         self._global = np.zeros((0, 3))
         self._precomputed: dict[int, PrecomputedGrid] = {}
+        self._last_closed: dict[int, int] = {}  # submap -> last node closed against it
         self._prev: tuple[np.ndarray, np.ndarray | None] | None = None  # for alpha > 0
         self.rng = np.random.default_rng(self.seed)
         self.weak: np.ndarray | None = None  # weak direction of the last local match
@@ -239,8 +246,11 @@ class GraphSlam:
             # the node's pose in the submap's (local-SLAM) frame, from the global estimate
             guess = compose(self.local[a], relative(g[a], g[node]))
             self.searches += 1
-            m = self.precomputed(k).match(pts, guess, cfg.loop_linear_window_m,
-                                          cfg.loop_angular_window_rad, cfg.loop_min_score)
+            tracking = node - self._last_closed.get(k, -10**9) <= cfg.loop_track_nodes
+            lin, ang = ((cfg.loop_track_linear_window_m, cfg.loop_track_angular_window_rad)
+                        if tracking else (cfg.loop_linear_window_m, cfg.loop_angular_window_rad))
+            m = self.precomputed(k).match(pts, guess, lin, ang, cfg.loop_min_score,
+                                          cfg.loop_angular_step_rad)
             if m is None:
                 continue
             r = refine(s.grid, self.node_xy[node], m.pose, prior=m.pose,
@@ -253,6 +263,7 @@ class GraphSlam:
             delta = relative(self.local[a], r.pose)
             self.graph.add_loop(a, node, delta)
             self.closures.append(LoopClosure(node, k, a, r.score, delta))
+            self._last_closed[k] = node
             found += 1
         return found
 
