@@ -182,7 +182,7 @@ run(facts, Args, Facts) :-
                               rule_probability/2, parameter/2,
                               eig_point/3, eig_triplet/4, eig_candidate_set/2,
                               map_pose/5, map_info/5, unknown_region/5,
-                              committed_map/1,
+                              committed_map/1, loop_closure/4,
                               vp_candidate/5, vp_unknown/4, vp_group/3, vp_min_area/1]),
                  functor(H, N, A), M:H,
                  format(string(S), "~k", [H]) ),
@@ -220,7 +220,11 @@ run(eigenspace_covering, Args, Cs) :-
             ( covers(W, T, X, Y), triplet_distance(W, T, X, Y, D) ),
             Cs).
 
-run(slam_facts, Args, _{world:W, run:Run, poses:NP, regions:NR}) :-
+%   {world, run, poses: [[X, Y, Th]], info: {...}, regions: [{x, y, area_m2}],
+%    closures?: [[ScanA, ScanB, Score]]}: replaces the world's SLAM facts.
+%   closures is optional (calls stored before loop closures existed have
+%   none): missing means no closures.
+run(slam_facts, Args, _{world:W, run:Run, poses:NP, regions:NR, closures:NC}) :-
     existing_world(Args, W),
     arg_(run, Args, RunText), run_field(RunText, run, Run),
     arg_(poses, Args, Ps0), json_list(Ps0, poses),
@@ -228,17 +232,22 @@ run(slam_facts, Args, _{world:W, run:Run, poses:NP, regions:NR}) :-
     arg_(info, Args, Info0), slam_info(Run, Info0, Info),
     arg_(regions, Args, Rs0), json_list(Rs0, regions),
     foldl(slam_region_item(Run), Rs0, Rs, 0, NR),
-    append([[committed_map(Run), Info], Ps, Rs], Facts),
+    (   get_dict(closures, Args, Cs0) -> true ; Cs0 = [] ),
+    json_list(Cs0, closures),
+    foldl(slam_closure_item(Run), Cs0, Cs, 0, NC),
+    append([[committed_map(Run), Info], Ps, Rs, Cs], Facts),
     replace_slam_facts(W, Facts).
 
 run(slam_summary, Args, _{run:Run, explored_fraction:F, path_length_m:L, resolution_m:Res,
-                         free_m2:Free, occupied_m2:Occ, unknown_m2:Unk, regions:Regions}) :-
+                         free_m2:Free, occupied_m2:Occ, unknown_m2:Unk, regions:Regions,
+                         loop_closures:NC}) :-
     existing_world(Args, W),
     committed_map_run(W, Run),
     world_module(W, M),
     M:map_info(Run, Res, Free, Occ, Unk),
     explored_fraction(W, F),
     map_path_length(W, L),
+    loop_closure_count(W, NC),
     findall(Id-_{id:Id, x:X, y:Y, area_m2:A}, M:unknown_region(Run, Id, X, Y, A), Rs0),
     keysort(Rs0, Rs),
     pairs_values(Rs, Regions).
@@ -405,6 +414,18 @@ slam_region_item(Run, D, unknown_region(Run, I, X, Y, A), I, I1) :-
 slam_region_value(D, I, Key, F, V) :-
     field("regions[~d].~w", [I, Key], F),
     (   get_dict(Key, D, V0) -> V = V0 ; throw(chizu_error(missing(Key), F)) ).
+
+%   One loop closure [ScanA, ScanB, Score]: scan indices (JSON integers >= 0,
+%   not 1.0) with ScanA < ScanB, and a match score in [0, 1].
+slam_closure_item(Run, C, loop_closure(Run, A, B, S), I, I1) :-
+    I1 is I + 1,
+    field("closures[~d]", [I], F),
+    (   is_list(C), C = [A, B, S0] -> true ; throw(chizu_error(invalid_closure, F)) ),
+    (   integer(A), A >= 0 -> true ; throw(chizu_error(invalid_index(A), F)) ),
+    (   integer(B), B >= 0 -> true ; throw(chizu_error(invalid_index(B), F)) ),
+    (   A < B -> true ; throw(chizu_error(unordered_closure(A, B), F)) ),
+    finite_float(F, S0, S),
+    (   S =< 1.0, S >= 0.0 -> true ; throw(chizu_error(invalid_score(S0), F)) ).
 
 %   One candidate {id, type, x, y, r_max}; the id becomes an atom only after
 %   valid_id/1, the type stays a string.

@@ -12,8 +12,9 @@
         next_state/3, state_after/2, covers/3, triplet_distance/4
       - the SLAM map facts and rules (slam.pl), world filled in:
         map_pose/5, map_info/5, unknown_region/5, committed_map/1,
-        explored_fraction/1, unknown_region_within/5,
-        largest_unknown_region/2, map_path_length/1
+        loop_closure/4, explored_fraction/1, unknown_region_within/5,
+        largest_unknown_region/2, map_path_length/1, loop_closure_count/1,
+        closes_loop/2
       - the viewpoint-planning scene and its observation groups
         (grouping.pl), world filled in: vp_candidate/5, vp_unknown/4,
         observation_group/3, same_group/2, joinable/2, candidate_group/2,
@@ -111,10 +112,14 @@ relation_goal(W, map_info(Run, Res, F, O, U), M:map_info(Run, Res, F, O, U)) :- 
 relation_goal(W, unknown_region(Run, Id, X, Y, A), M:unknown_region(Run, Id, X, Y, A)) :-
     world_module(W, M).
 relation_goal(W, committed_map(Run), M:committed_map(Run)) :- world_module(W, M).
+relation_goal(W, loop_closure(Run, A, B, S), M:loop_closure(Run, A, B, S)) :-
+    world_module(W, M).
 relation_goal(W, explored_fraction(F), slam:explored_fraction(W, F)).
 relation_goal(W, unknown_region_within(X, Y, R, Id, D), slam:unknown_region_within(W, X, Y, R, Id, D)).
 relation_goal(W, largest_unknown_region(Id, A), slam:largest_unknown_region(W, Id, A)).
 relation_goal(W, map_path_length(L), slam:map_path_length(W, L)).
+relation_goal(W, loop_closure_count(N), slam:loop_closure_count(W, N)).
+relation_goal(W, closes_loop(A, B), slam:closes_loop(W, A, B)).
 relation_goal(W, vp_candidate(Id, T, X, Y, R), M:vp_candidate(Id, T, X, Y, R)) :-
     world_module(W, M).
 relation_goal(W, vp_unknown(Id, X, Y, A), M:vp_unknown(Id, X, Y, A)) :- world_module(W, M).

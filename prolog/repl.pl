@@ -3,7 +3,9 @@
     world argument:  ?- reachable(a, c, P, M).
     Eigenspace helpers: eig_state_after/2, covers/3, ...; SLAM map helpers:
     explored_fraction(F), largest_unknown_region(Id, A),
-    unknown_region_within(X, Y, R, Id, D), map_path_length(L).
+    unknown_region_within(X, Y, R, Id, D), map_path_length(L),
+    loop_closure_count(N), closes_loop(ScanA, ScanB).  The world's facts
+    (map_pose/5, loop_closure/4, ...) live in its module 'world:W'.
 */
 :- module(repl,
           [ use_world/1,            % +World
@@ -22,6 +24,8 @@
             largest_unknown_region/2, % -Id, -Area
             unknown_region_within/5, % +X, +Y, +R, ?Id, -D
             map_path_length/1,      % -L
+            loop_closure_count/1,   % -N
+            closes_loop/2,          % ?ScanA, ?ScanB
             main/0
           ]).
 :- use_module(library(main), [argv_options/3]).
@@ -83,6 +87,8 @@ explored_fraction(F) :- w(W), slam:explored_fraction(W, F).
 largest_unknown_region(Id, A) :- w(W), slam:largest_unknown_region(W, Id, A).
 unknown_region_within(X, Y, R, Id, D) :- w(W), slam:unknown_region_within(W, X, Y, R, Id, D).
 map_path_length(L) :- w(W), slam:map_path_length(W, L).
+loop_closure_count(N) :- w(W), slam:loop_closure_count(W, N).
+closes_loop(A, B) :- w(W), slam:closes_loop(W, A, B).
 
 %!  main is det.
 %

@@ -14,6 +14,13 @@
                                          >= 0), centroid (X, Y), area
       committed_map(Run)                 Run's map is the world's current map
                                          (at most one per world)
+      loop_closure(Run, ScanA, ScanB, Score)
+                                         the run's SLAM closed a loop: scan ScanB
+                                         matched the submap anchored at scan
+                                         ScanA (integers, 0 =< ScanA < ScanB,
+                                         counted in the order the scans came),
+                                         match score (float in [0, 1]); at most
+                                         one per (Run, ScanA, ScanB)
 
     Run is the run id, an atom matching ^r[0-9a-f]{1,64}$ (valid_run_id/1).
     The rules below only look at the committed run.
@@ -26,8 +33,11 @@
             explored_fraction/2,     % +World, -F
             unknown_region_within/6, % +World, +X, +Y, +R, ?Id, -D
             largest_unknown_region/3, % +World, -Id, -Area
-            map_path_length/2        % +World, -L
+            map_path_length/2,       % +World, -L
+            loop_closure_count/2,    % +World, -N
+            closes_loop/3            % +World, ?ScanA, ?ScanB
           ]).
+:- use_module(library(aggregate)).
 :- use_module(library(apply)).
 :- use_module(library(lists)).
 :- use_module(library(pairs)).
@@ -40,6 +50,7 @@ slam_fact(map_pose/5).
 slam_fact(map_info/5).
 slam_fact(unknown_region/5).
 slam_fact(committed_map/1).
+slam_fact(loop_closure/4).
 
 %!  valid_run_id(+Text) is semidet.
 %
@@ -58,7 +69,7 @@ hex_code(C) :- between(0'a, 0'f, C).
 %   Replaces every slam fact of World by Facts, in a transaction.  Every
 %   fact is checked first (shape, types, ranges; at most one committed_map,
 %   whose run has exactly one map_info; no duplicate pose or region index
-%   within a run); on bad input chizu_error(not_a_fact(F)),
+%   and no duplicate loop closure within a run); on bad input chizu_error(not_a_fact(F)),
 %   chizu_error(invalid_fact(F)) or chizu_error(inconsistent_facts(Why)) is
 %   thrown and nothing changes.  Numbers are stored as floats.
 replace_slam_facts(World, Facts) :-
@@ -85,6 +96,8 @@ normal_fact(unknown_region(R, I, X0, Y0, A0), unknown_region(R, I, X, Y, A)) :-
     run(R), index(I), real(X0, X), real(Y0, Y), nonneg(A0, A).
 normal_fact(committed_map(R), committed_map(R)) :-
     run(R).
+normal_fact(loop_closure(R, A, B, S0), loop_closure(R, A, B, S)) :-
+    run(R), index(A), index(B), A < B, score(S0, S).
 
 run(R) :- atom(R), valid_run_id(R).
 index(I) :- integer(I), I >= 0.
@@ -93,6 +106,7 @@ real(V, F) :-
     catch(F is float(V), _, fail),
     float_class(F, C), memberchk(C, [zero, subnormal, normal]).
 nonneg(V, F) :- real(V, F), F >= 0.0.
+score(V, F) :- nonneg(V, F), F =< 1.0.
 
 consistent(Facts) :-
     findall(R, member(committed_map(R), Facts), Cs),
@@ -107,7 +121,9 @@ consistent(Facts) :-
     findall(R-I, member(map_pose(R, I, _, _, _), Facts), Ps),
     no_duplicates(Ps, map_pose),
     findall(R-I, member(unknown_region(R, I, _, _, _), Facts), Us),
-    no_duplicates(Us, unknown_region).
+    no_duplicates(Us, unknown_region),
+    findall(R-(A-B), member(loop_closure(R, A, B, _), Facts), Ls),
+    no_duplicates(Ls, loop_closure).
 
 no_duplicates(Keys, Kind) :-
     msort(Keys, Sorted),
@@ -190,3 +206,22 @@ path_length([P, Q|Rest], L0, L) :- !,
 path_length(_, L, L).
 
 step_length(X0-Y0, X1-Y1, D) :- D is sqrt((X1 - X0)**2 + (Y1 - Y0)**2).
+
+%!  loop_closure_count(+World, -N) is semidet.
+%
+%   N is the number of loop closures (loop_closure/4) of the committed run,
+%   0 if its SLAM closed none.  Fails if there is no committed map.
+loop_closure_count(World, N) :-
+    committed_run(World, Run),
+    world_module(World, M),
+    aggregate_all(count, M:loop_closure(Run, _, _, _), N).
+
+%!  closes_loop(+World, ?ScanA, ?ScanB) is nondet.
+%
+%   The committed run closed a loop between scans ScanA and ScanB (ScanB
+%   matched the submap anchored at ScanA; ScanA < ScanB).  Fails if there is
+%   no committed map or no such closure.
+closes_loop(World, ScanA, ScanB) :-
+    committed_run(World, Run),
+    world_module(World, M),
+    M:loop_closure(Run, ScanA, ScanB, _).

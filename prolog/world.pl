@@ -41,6 +41,7 @@ world_fact(map_pose/5).             % map_pose(Run, I, X, Y, Th): SLAM keyframe 
 world_fact(map_info/5).             % map_info(Run, Res, Free, Occupied, Unknown)
 world_fact(unknown_region/5).       % unknown_region(Run, Id, X, Y, Area)
 world_fact(committed_map/1).        % committed_map(Run): the world's current map
+world_fact(loop_closure/4).         % loop_closure(Run, ScanA, ScanB, Score): SLAM closure
 world_fact(vp_candidate/5).         % vp_candidate(Id, Type, X, Y, RMax): object candidate
 world_fact(vp_unknown/4).           % vp_unknown(Id, X, Y, Area): unknown region of the grid
 world_fact(vp_group/3).             % vp_group(G, objects|unknown, Members): derived group

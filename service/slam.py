@@ -2,8 +2,9 @@
 read the pose and trajectory, fetch the map (PNG, PGM/YAML), commit it to the world.
 
 Flow: ``numeric.slam`` estimates; committing turns the best map into facts
-(``slam_facts``: keyframe poses, occupancy summary, enclosed unknown regions) in the
-world's knowledge base, where ``prolog/slam.pl`` rules answer questions about it, and
+(``slam_facts``: keyframe poses, occupancy summary, enclosed unknown regions, and the
+loop closures of estimators that find them, e.g. graph SLAM) in the world's knowledge
+base, where ``prolog/slam.pl`` rules answer questions about it, and
 stores the occupancy grid as the world's ``slam_map`` artifact for the planners.
 
 Every accepted scan is stored (SQLite) before the estimator sees it; estimators are
@@ -38,6 +39,16 @@ MAP_ARTIFACT = "slam_map"
 FACTS_ARTIFACT = "slam_facts"
 MAX_SCANS_PER_RUN = 200_000
 UNKNOWN_REGION_MIN_M2 = 0.5
+
+
+def loop_closures(slam: Slam) -> list[list[int | float]]:
+    """The estimator's loop closures as ``[[scan_a, scan_b, score], ...]`` (scan indices
+    in arrival order, score rounded to 4 places); ``[]`` for estimators without any
+    (odom, icp, gated, rbpf have no ``loop_closures`` method)."""
+    found = getattr(slam, "loop_closures", None)
+    if not callable(found):
+        return []
+    return [[int(a), int(b), round(float(score), 4)] for a, b, score in found()]
 
 
 def to_scan(s: ScanIn) -> Scan:
@@ -176,11 +187,13 @@ class SlamService:
         poses = run.slam.map_poses()
         summary = g.summary()
         regions = g.unknown_regions(UNKNOWN_REGION_MIN_M2)
+        async with run.lock:
+            closures = loop_closures(run.slam)
         call = {"world": world, "run": rid,
                 "poses": [[round(float(v), 6) for v in p] for p in poses],
                 "info": {k: summary[k] for k in ("resolution_m", "free_m2", "occupied_m2",
                                                  "unknown_m2")},
-                "regions": regions}
+                "regions": regions, "closures": closures}
         async with self.worlds._write:
             previous = self.store.artifact(world, FACTS_ARTIFACT)
             reply = await self.kb.acall("slam_facts", **call)
@@ -194,7 +207,7 @@ class SlamService:
                     await self.kb.acall("slam_facts", **json.loads(previous))
                 raise
         return {"world": world, "run": rid, "facts": reply, "map": summary,
-                "unknown_regions": regions}
+                "unknown_regions": regions, "loop_closures": len(closures)}
 
     async def summary(self, world: str) -> Any:
         self.worlds.model(world)

@@ -1,23 +1,34 @@
 """SLAM runs over the API: streaming scans, pose, maps, commit into the knowledge base,
-malformed scans, persistence."""
+malformed scans, persistence, loop closures of a graph-SLAM run as facts."""
 
 from __future__ import annotations
 
+import json
+from functools import cache
 from typing import Any
 
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from numeric.slam.scan import LaserLog
 from numeric.slam.simulate import simulated_log
 from service.app import create_app
+from service.kb import KbError
 from service.settings import Settings
+from service.slam import FACTS_ARTIFACT
 
 LOG = simulated_log("room_a", seed=0)
 
 
-def scan_json(i: int) -> dict[str, Any]:
-    s = LOG.scans[i]
+@cache
+def loop_log() -> LaserLog:
+    """The loop tour (about 1000 scans), driven fast enough to close the loop."""
+    return simulated_log("loop", seed=1, speed_m_s=0.8)
+
+
+def scan_json(i: int, log: LaserLog = LOG) -> dict[str, Any]:
+    s = log.scans[i]
     return {"t": s.t, "ranges": np.round(s.ranges, 4).tolist(),
             "intensities": np.round(s.intensities, 1).tolist(),
             "angle_min": float(s.angles[0]), "angle_increment": float(s.angles[1] - s.angles[0]),
@@ -154,3 +165,146 @@ def test_runs_and_maps_survive_restart(tmp_path: Any) -> None:
         after = c.get(f"/worlds/slam_r/slam-runs/{rid}").json()
         assert after["scans"] == 80 and after["pose"] == before["pose"]  # replayed, seeded
         assert c.get("/worlds/slam_r/map").json() == committed
+
+
+def post_log(c: TestClient, world: str, rid: str, log: LaserLog, batch: int = 500) -> None:
+    for k in range(0, len(log.scans), batch):
+        r = c.post(f"/worlds/{world}/slam-runs/{rid}/scans",
+                   json={"scans": [scan_json(i, log)
+                                   for i in range(k, min(k + batch, len(log.scans)))]})
+        assert r.status_code == 200, r.text
+
+
+def closure_facts(c: TestClient, world: str) -> list[str]:
+    return sorted(f for f in c.get(f"/worlds/{world}/facts").json()
+                  if f.startswith("loop_closure("))
+
+
+def test_graph_run_commits_loop_closures(tmp_path: Any) -> None:
+    log = loop_log()
+    settings = Settings(data_dir=tmp_path, demo_world="")
+    with TestClient(create_app(settings)) as c:
+        assert c.post("/worlds", json={"name": "slam_loop", "template": "loop"}).status_code == 201
+        r = c.post("/worlds/slam_loop/slam-runs", json={"method": "graph"})
+        assert r.status_code == 201, r.text
+        rid = r.json()["id"]
+        base = f"/worlds/slam_loop/slam-runs/{rid}"
+        post_log(c, "slam_loop", rid, log)
+        st = c.get(base).json()
+        assert st["scans"] == len(log.scans) and st["options"]["method"] == "graph"
+        pose = c.get(base + "/pose").json()["pose"]
+        truth = log.truth[-1]
+        assert np.hypot(pose["x"] - truth[0], pose["y"] - truth[1]) < 0.5
+        assert c.get(base + "/map.pgm").content.startswith(b"P5\n")
+
+        r = c.post(base + "/commit")
+        assert r.status_code == 200, r.text
+        body = r.json()
+        n = body["loop_closures"]
+        assert n > 0 and body["facts"]["closures"] == n
+        m = c.get("/worlds/slam_loop/map").json()
+        assert m["run"] == rid and m["loop_closures"] == n
+        facts = closure_facts(c, "slam_loop")
+        assert len(facts) == n and all(f.startswith(f"loop_closure({rid},") for f in facts)
+        q = c.post("/worlds/slam_loop/query",
+                   json={"goal": "committed_map(R), loop_closure(R, A, B, S)",
+                         "max_solutions": 1000}).json()
+        body_solutions = q["solutions"]
+        assert len(body_solutions) == n and not q["truncated"]
+        for sol in body_solutions:
+            assert sol["R"] == rid and 0 <= sol["A"] < sol["B"] < len(log.scans)
+            assert 0 <= sol["S"] <= 1
+        # a closure joins the loop's start and end: the matched scan is far later in the
+        # run but near the anchor's place (ground truth)
+        assert any(sol["B"] - sol["A"] > 100 and np.hypot(
+            *(log.truth[sol["A"]][:2] - log.truth[sol["B"]][:2])) < 5.0
+            for sol in body_solutions)
+        q = c.post("/worlds/slam_loop/query", json={"goal": "loop_closure_count(N)"}).json()
+        assert q["solutions"] == [{"N": n}]
+        q = c.post("/worlds/slam_loop/query", json={"goal": "closes_loop(A, B)",
+                                                    "max_solutions": 1000}).json()
+        assert sorted((s["A"], s["B"]) for s in q["solutions"]) == sorted(
+            (s["A"], s["B"]) for s in body_solutions)
+        stored = json.loads(c.app.state.store.artifact("slam_loop", FACTS_ARTIFACT))
+        assert len(stored["closures"]) == n
+        committed = c.get("/worlds/slam_loop/map").json()
+    with TestClient(create_app(settings)) as c:  # facts re-asserted from the artifact
+        assert c.get("/worlds/slam_loop/map").json() == committed
+        assert closure_facts(c, "slam_loop") == facts
+
+
+def test_commit_without_closures(client: TestClient, world: str, run: str) -> None:
+    """A run whose method finds no loop closures (gated) commits none, and replaces
+    the closures a previous commit left."""
+    kb = client.app.state.kb
+    kb.call("slam_facts", world=world, run="rbeef", poses=[[0, 0, 0]],
+            info={"resolution_m": 0.05, "free_m2": 1, "occupied_m2": 1, "unknown_m2": 1},
+            regions=[], closures=[[0, 5, 0.9]])
+    assert closure_facts(client, world) == ["loop_closure(rbeef,0,5,0.9)"]
+    r = client.post(f"/worlds/{world}/slam-runs/{run}/commit")
+    assert r.status_code == 200, r.text
+    assert r.json()["loop_closures"] == 0 and r.json()["facts"]["closures"] == 0
+    assert closure_facts(client, world) == []
+    assert client.get(f"/worlds/{world}/map").json()["loop_closures"] == 0
+
+
+def slam_call(world: str, **over: Any) -> dict[str, Any]:
+    call = {"world": world, "run": "r1", "poses": [[0, 0, 0], [1, 0, 0]],
+            "info": {"resolution_m": 0.05, "free_m2": 4, "occupied_m2": 1, "unknown_m2": 2},
+            "regions": [{"x": 1, "y": 1, "area_m2": 1.0}],
+            "closures": [[0, 7, 0.75], [3, 9, 1.0]]}
+    return {**call, **over}
+
+
+def test_slam_facts_refuses_bad_closures(client: TestClient) -> None:
+    assert client.post("/worlds", json={"name": "slam_bad", "template": "room_a"}
+                       ).status_code == 201
+    kb = client.app.state.kb
+    assert kb.call("slam_facts", **slam_call("slam_bad"))["closures"] == 2
+    before = sorted(kb.call("facts", world="slam_bad"))
+    assert "loop_closure(r1,3,9,1.0)" in before
+    cases = [
+        ([[0, 7, 0.5], [1, 2, 0.5], [3, 3, 0.5], [9, 4, 0.5]], "unordered_closure", "closures[2]"),
+        ([[9, 4, 0.5]], "unordered_closure", "closures[0]"),
+        ([[0, 7, 0.5], [1, 2, 2.0]], "invalid_score", "closures[1]"),
+        ([[1, 2, -0.1]], "invalid_score", "closures[0]"),
+        ([[1, 2, "0.5"]], "invalid_number", "closures[0]"),
+        ([[-1, 2, 0.5]], "invalid_index", "closures[0]"),
+        ([[0, 7, 0.5], [1, 2.5, 0.5]], "invalid_index", "closures[1]"),
+        ([[1, "r1; halt", 0.5]], "invalid_index", "closures[0]"),
+        ([[1, 2]], "invalid_closure", "closures[0]"),
+        ([{"a": 1, "b": 2, "score": 0.5}], "invalid_closure", "closures[0]"),
+        ({"a": 1}, "invalid_list", "closures"),
+    ]
+    for closures, type_, field in cases:
+        with pytest.raises(KbError) as e:
+            kb.call("slam_facts", **slam_call("slam_bad", run="r2", closures=closures))
+        assert (e.value.type, e.value.field) == (type_, field), closures
+    with pytest.raises(KbError) as e:  # the same closure twice
+        kb.call("slam_facts", **slam_call("slam_bad", run="r2",
+                                          closures=[[1, 2, 0.5], [1, 2, 0.6]]))
+    assert e.value.type == "inconsistent_facts"
+    assert sorted(kb.call("facts", world="slam_bad")) == before
+    assert client.get("/worlds/slam_bad/map").json()["loop_closures"] == 2
+    # a call stored before loop closures existed has no closures key: none
+    old = slam_call("slam_bad", run="r3")
+    del old["closures"]
+    assert kb.call("slam_facts", **old)["closures"] == 0
+    assert closure_facts(client, "slam_bad") == []
+    assert client.delete("/worlds/slam_bad").status_code == 204
+
+
+def test_old_facts_artifact_without_closures_restores(tmp_path: Any) -> None:
+    settings = Settings(data_dir=tmp_path, demo_world="")
+    old = slam_call("slam_old", run="r01d")
+    del old["closures"]
+    with TestClient(create_app(settings)) as c:
+        assert c.post("/worlds", json={"name": "slam_old", "template": "room_a"}
+                      ).status_code == 201
+        store = c.app.state.store
+        with store.transaction() as conn:
+            store.put_artifact(conn, "slam_old", FACTS_ARTIFACT, json.dumps(old).encode())
+    with TestClient(create_app(settings)) as c:
+        m = c.get("/worlds/slam_old/map").json()
+        assert m["run"] == "r01d" and m["loop_closures"] == 0
+        assert closure_facts(c, "slam_old") == []
