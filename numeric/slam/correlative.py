@@ -93,13 +93,23 @@ def correlative_search(grid: ProbabilityGrid, points: np.ndarray, pose: np.ndarr
 @njit(cache=True)
 def _refine(prob: np.ndarray, ox: float, oy: float, res: float, pts: np.ndarray,
             x: float, y: float, t: float, px: float, py: float, pt: float,
-            w_occ: float, w_t: float, w_r: float, iters: int,
+            w_occ: float, w_t: float, w_r: float, iters: int, var_floor: float,
             ) -> tuple[float, float, float, float, np.ndarray]:
     n = pts.shape[0]
     wp = w_occ * w_occ / n
     lam = 1e-3
     cost_prev = 1e300
     for _ in range(iters):
+        if var_floor > 0:  # weigh the scan by its own residual spread (IRLS)
+            c, s = math.cos(t), math.sin(t)
+            var = 0.0
+            for k in range(n):
+                qx, qy = pts[k, 0], pts[k, 1]
+                m, _, _ = bilinear(prob, (c * qx - s * qy + x - ox) / res,
+                                   (s * qx + c * qy + y - oy) / res)
+                var += (1.0 - m) ** 2
+            wp = w_occ * w_occ / (n * max(var / n, var_floor))
+            cost_prev = 1e300
         h = np.zeros((3, 3))
         g = np.zeros(3)
         c, s = math.cos(t), math.sin(t)
@@ -180,16 +190,18 @@ class Refined:
 def refine(grid: ProbabilityGrid, points: np.ndarray, pose: np.ndarray,
            prior: np.ndarray | None = None, occupied_weight: float = 1.0,
            translation_weight: float = 10.0, rotation_weight: float = 40.0,
-           iterations: int = 20) -> Refined:
+           iterations: int = 20, residual_floor: float = 0.0) -> Refined:
     """Pose minimising ``sum (w_occ / sqrt(n))^2 (1 - M(T p))^2 + w_t^2 |t - t_prior|^2
     + w_r^2 (theta - theta_prior)^2`` (M the bilinear interpolation of the grid), from
-    ``pose``."""
+    ``pose``. With ``residual_floor > 0`` the scan term is divided by the mean squared
+    residual (at least the floor), so that a scan that fits the grid poorly weighs less
+    against the prior, like a measurement of larger variance."""
     pr = pose if prior is None else prior
     x, y, t, score, info = _refine(grid.prob, float(grid.origin[0]), float(grid.origin[1]),
                              grid.resolution_m, np.ascontiguousarray(points, dtype=float),
                              float(pose[0]), float(pose[1]), float(pose[2]), float(pr[0]),
                              float(pr[1]), float(pr[2]), occupied_weight, translation_weight,
-                             rotation_weight, iterations)
+                             rotation_weight, iterations, residual_floor)
     return Refined(np.array([x, y, (t + np.pi) % (2 * np.pi) - np.pi]), float(score), info)
 
 

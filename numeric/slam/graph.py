@@ -29,6 +29,7 @@ scan, initialised at the grid match and accepted only inside eq. 5's box around 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, Field
@@ -71,11 +72,14 @@ class GraphSlamConfig(BaseModel):
     translation_weight: float = Field(10.0, ge=0, description="refinement prior towards "
                                       "the correlative search's pose")
     rotation_weight: float = Field(40.0, ge=0)
+    refine_prior: Literal["search", "odometry"] = "odometry"
+    local_residual_floor: float = Field(0.01, gt=0)
+    odometry_score_margin: float = Field(0.05, ge=0)
     loop_every: int = Field(3, ge=1, description="nodes between loop-closure searches")
     loop_max_distance_m: float = Field(15.0, gt=0)
     loop_linear_window_m: float = Field(5.0, gt=0)
     loop_angular_window_rad: float = Field(np.radians(30.0), gt=0)
-    loop_min_score: float = Field(0.6, gt=0, le=1)
+    loop_min_score: float = Field(0.5, gt=0, le=1)
     loop_angular_step_rad: float = Field(0.005, ge=0, description="coarsest angle step of "
                                          "the search (the refinement recovers the rest)")
     loop_track_nodes: int = Field(10, ge=0, description="a submap closed within this many "
@@ -167,7 +171,8 @@ class GraphSlam:
     def active(self) -> list[Submap]:
         return [s for s in self.submaps if not s.finished][-2:]
 
-    def match_local(self, xy: np.ndarray, predicted: np.ndarray) -> tuple[np.ndarray, float]:
+    def match_local(self, xy: np.ndarray, predicted: np.ndarray,
+                    u: np.ndarray | None = None) -> tuple[np.ndarray, float]:
         """Scan-to-submap matching: correlative search, then Gauss-Newton refinement
         (Hess et al. §IV-C) against the older active submap."""
         cfg = self.config
@@ -178,6 +183,16 @@ class GraphSlam:
                                       cfg.search_rotation_cost)
         r = refine(grid, pts, start, prior=start, translation_weight=cfg.translation_weight,
                    rotation_weight=cfg.rotation_weight)
+        if cfg.refine_prior == "odometry":
+            # the motion model's own sigmas against a scan weighed by its residuals; kept
+            # unless the scan fits clearly better where the search alone puts it (an
+            # odometry jump)
+            sig = self.graph.odometry_sigmas(np.zeros(3) if u is None else u)
+            ro = refine(grid, pts, start, prior=predicted, occupied_weight=1.0,
+                        translation_weight=1.0 / sig[0], rotation_weight=1.0 / sig[2],
+                        residual_floor=cfg.local_residual_floor)
+            if ro.score >= r.score - cfg.odometry_score_margin:
+                r = ro
         self.weak = None
         pose = r.pose
         if r.degeneracy() < cfg.local_min_degeneracy:
@@ -286,7 +301,7 @@ class GraphSlam:
         predicted = compose(self.local[last], u)
         pose, score, self.weak = predicted, 0.0, None
         if cfg.local_matching:
-            pose, score = self.match_local(xy, predicted)
+            pose, score = self.match_local(xy, predicted, u)
         if score < cfg.local_min_score:
             pose, self.weak = predicted, None
         elif cfg.alpha > 0:

@@ -1,17 +1,25 @@
-"""SLAM benchmark (issue 4): relation errors on the Freiburg logs, the stripe corridor,
-scan-pair alignment against small_gicp, and RBPF throughput.
+"""SLAM benchmark: relation errors on the Freiburg logs for every method and the peers,
+the stripe corridor, scan-pair alignment against small_gicp, and where the time goes.
 
-    .venv/bin/python tests/bench/slam.py [--quick] [--out bench-out]
+    .venv/bin/python tests/bench/slam.py [--quick] [--logs aces,...] [--methods graph,...]
+                                         [--skip-extras] [--out bench-out]
 
---quick runs the first 1500 scans of each log (relations inside that span only).
-Writes OUT/slam.md (the tables) and prints them.
+Every (log, method) runs in a fresh process, one after the other, so that its peak memory
+is its own and the peers (OpenKarto's matcher, small_gicp; tests/bench/slam_peers.py)
+are timed on the same machine in the same run. --quick runs the first 1500 scans of each
+log (relations inside that span only). Writes OUT/slam.md, OUT/slam.json, the
+trajectories (TUM), the maps of graph SLAM and the improved RBPF, and OUT/maps-LOG.png
+(the two side by side).
 """
 
 from __future__ import annotations
 
 import argparse
 import cProfile
+import json
 import pstats
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -28,43 +36,121 @@ from numeric.slam.simulate import simulated_log
 DATA = slam_data_dir() or Path("../shared/data/slam")
 LOGS = [("aces", "aces.recon.clf"), ("mit-csail", "mit-csail.clf"),
         ("fr079", "fr079.recon.clf"), ("fr-clinic", "fr-clinic.recon.clf")]
-#: SOURCES.md: abs trans (m) - SM / RBPF (GMapping) secondary source; Graph Mapping
-#: and Cartographer from Hess et al. 2016, Table II.
+#: SOURCES.md, abs trans (m): SM and RBPF (GMapping) from a secondary source quoting
+#: Kümmerle et al. 2009; Graph Mapping and Cartographer from Hess et al. 2016, Table II.
 PUBLISHED = {"aces": (0.173, 0.060, 0.044, 0.0375), "mit-csail": (0.106, 0.049, 0.004, 0.0319),
              "fr079": (0.258, 0.061, 0.056, 0.0452), "fr-clinic": (0.434, 0.637, 0.143, 0.1078)}
-METHODS = [("odom", {}), ("icp", {}), ("gated", {}),
-           ("rbpf", {"proposal": "odometry"}), ("rbpf", {"proposal": "gated-icp"})]
+#: (label, SlamOptions fields) of chizu's methods; "karto" and "small_gicp" are the peers
+#: of tests/bench/slam_peers.py, run the same way.
+METHODS: dict[str, dict[str, str]] = {
+    "odom": {"method": "odom"}, "icp": {"method": "icp"}, "gated": {"method": "gated"},
+    "rbpf (paper proposal)": {"method": "rbpf", "proposal": "odometry"},
+    "rbpf (improved)": {"method": "rbpf", "proposal": "improved"},
+    "graph": {"method": "graph"},
+    "karto": {}, "small_gicp": {}}
+LOOP_GAP_S = 60.0
 
 
-def accuracy(quick: bool, lines: list[str]) -> dict[str, float]:
-    lines += ["## Relation errors (Kümmerle et al. 2009), mean ± std",
-              "", "| log | scans | method | trans (m) | rot (deg) | time (s) | x real time |",
-              "|---|---|---|---|---|---|---|"]
-    rt_factor: dict[str, float] = {}
-    for name, f in LOGS:
-        log = read_log(DATA / name / f)
-        if quick:
-            log = log.head(1500)
-        rt, rd = read_relations(DATA / name / f"{name}.relations")
-        keep = (rt[:, 1] <= log.scans[-1].t + 1e-6) & (rt[:, 0] >= log.scans[0].t - 1e-6)
-        rt, rd = rt[keep], rd[keep]
-        for method, extra in METHODS:
-            opts = SlamOptions(method=method, map_resolution_m=0.1,  # type: ignore[arg-type]
-                               **extra)
-            _, res = run_log(log, opts)
-            e = relation_errors(res.times, res.poses, rt, rd)
-            label = method + (f" ({extra['proposal']})" if extra else "")
-            rt_x = log.duration_s / res.seconds
-            if method == "rbpf" and extra.get("proposal") == "odometry":
-                rt_factor[name] = rt_x
-            lines.append(f"| {name} | {len(log)} | {label} | {e.trans_m:.3f} ± {e.trans_std_m:.3f}"
-                         f" | {e.rot_deg:.2f} ± {e.rot_std_deg:.2f} | {res.seconds:.1f} "
-                         f"| {rt_x:.1f} |")
+def one_run(name: str, label: str, quick: bool, out: Path) -> dict[str, float | str]:
+    """Run ``label`` over log ``name`` in this process: relation errors on all relations
+    and on the loop-spanning ones (time gap > 60 s), seconds, real-time factor, peak
+    memory of this process; writes the trajectory and the map under ``out``."""
+    import resource
+
+    from numeric.slam.logs import write_tum
+    from tests.bench.slam_peers import peer_odometry
+
+    f = dict(LOGS)[name]
+    log = read_log(DATA / name / f)
+    if quick:
+        log = log.head(1500)
+    rt, rd = read_relations(DATA / name / f"{name}.relations")
+    keep = (rt[:, 1] <= log.scans[-1].t + 1e-6) & (rt[:, 0] >= log.scans[0].t - 1e-6)
+    rt, rd = rt[keep], rd[keep]
+    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    slug = label.split()[0] + ("-improved" if "improved" in label else "")
+    if label in ("karto", "small_gicp"):
+        times, poses, seconds = peer_odometry(log, label)
+        closures = 0
+    else:
+        opts = SlamOptions(map_resolution_m=0.05, **METHODS[label])  # type: ignore[arg-type]
+        slam, res = run_log(log, opts)
+        times, poses, seconds = res.times, res.poses, res.seconds
+        closures = len(getattr(slam, "closures", []))
+        if label in ("graph", "rbpf (improved)"):
+            (out / f"map-{name}-{slug}.png").write_bytes(res.map.to_png())
+            (out / f"map-{name}-{slug}.pgm").write_bytes(res.map.to_pgm())
+    write_tum(out / f"traj-{name}-{slug}.tum", times, poses)
+    e = relation_errors(times, poses, rt, rd)
+    loop = (rt[:, 1] - rt[:, 0]) > LOOP_GAP_S
+    el = relation_errors(times, poses, rt[loop], rd[loop]) if np.any(loop) else None
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return {"log": name, "method": label, "scans": len(log), "duration_s": log.duration_s,
+            "trans": e.trans_m, "trans_std": e.trans_std_m, "rot": e.rot_deg,
+            "rot_std": e.rot_std_deg, "n": e.n,
+            "loop_trans": el.trans_m if el else float("nan"),
+            "loop_trans_std": el.trans_std_m if el else float("nan"),
+            "loop_rot": el.rot_deg if el else float("nan"), "loop_n": el.n if el else 0,
+            "seconds": seconds, "realtime": log.duration_s / max(seconds, 1e-9),
+            "peak_rss_mb": rss / 1024.0, "peak_rss_base_mb": base / 1024.0,
+            "closures": closures}
+
+
+def run_isolated(name: str, label: str, quick: bool, out: Path) -> dict[str, float | str]:
+    """:func:`one_run` in a fresh process, so that peak memory is this run's alone."""
+    cmd = [sys.executable, str(Path(__file__)), "--one", name, label, "--out", str(out)]
+    if quick:
+        cmd.append("--quick")
+    r = subprocess.run(cmd, capture_output=True, text=True, cwd=Path(__file__).parents[2])
+    if r.returncode != 0:
+        raise RuntimeError(f"{name} / {label} failed:\n{r.stderr[-3000:]}")
+    return dict(json.loads(r.stdout.strip().splitlines()[-1]))
+
+
+def maps_figure(out: Path, names: list[str]) -> None:
+    """Per log, the improved RBPF's map beside the graph SLAM map."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from PIL import Image
+
+    for name in names:
+        pngs = [out / f"map-{name}-{m}.png" for m in ("rbpf-improved", "graph")]
+        if not all(p.exists() for p in pngs):
+            continue
+        fig, axes = plt.subplots(1, 2, figsize=(14, 7))
+        for ax, p, title in zip(axes, pngs, ("RBPF, improved proposal (512 particles)",
+                                             "graph SLAM"), strict=True):
+            ax.imshow(Image.open(p))
+            ax.set_title(f"{name}: {title}")
+            ax.axis("off")
+        fig.tight_layout()
+        fig.savefig(out / f"maps-{name}.png", dpi=110)
+        plt.close(fig)
+
+
+def accuracy(quick: bool, out: Path, names: list[str], labels: list[str],
+             lines: list[str]) -> list[dict[str, float | str]]:
+    lines += ["## Relation errors (Kümmerle et al. 2009), mean ± std, all relations and "
+              f"loop-spanning ones (time gap > {LOOP_GAP_S:.0f} s)", "",
+              "| log | method | trans (m) | rot (deg) | loop trans (m) | loop rot (deg) | "
+              "time (s) | x real time | peak RSS (MB) |", "|---|---|---|---|---|---|---|---|---|"]
+    rows = []
+    for name in names:
+        for label in labels:
+            r = run_isolated(name, label, quick, out)
+            rows.append(r)
+            lines.append(f"| {name} | {label} | {r['trans']:.3f} ± {r['trans_std']:.3f} | "
+                         f"{r['rot']:.2f} ± {r['rot_std']:.2f} | {r['loop_trans']:.3f} ± "
+                         f"{r['loop_trans_std']:.3f} | {r['loop_rot']:.2f} | "
+                         f"{r['seconds']:.1f} | {r['realtime']:.1f} | {r['peak_rss_mb']:.0f} |")
             print(lines[-1], flush=True)
         sm, rb, gm, carto = PUBLISHED[name]
-        lines.append(f"| {name} | | published SM / RBPF (GMapping) / graph / Cartographer | "
-                     f"{sm} / {rb} / {gm} / {carto} | | | |")
-    return rt_factor
+        lines.append(f"| {name} | published SM / GMapping / Graph Mapping / Cartographer | "
+                     f"{sm} / {rb} / {gm} / {carto} | | | | | | |")
+    (out / "slam.json").write_text(json.dumps(rows, indent=1))
+    return rows
 
 
 def corridor(lines: list[str]) -> None:
@@ -161,41 +247,53 @@ def _sg(sg, kind: str, xa: np.ndarray, xb: np.ndarray, init: np.ndarray) -> np.n
 
 def profile(lines: list[str]) -> None:
     log = read_log(DATA / "mit-csail" / "mit-csail.clf").head(600)
-    prof = cProfile.Profile()
-    prof.enable()
-    _, res = run_log(log, SlamOptions(method="rbpf", particles=512))
-    prof.disable()
-    st = pstats.Stats(prof)
-    rows = sorted(((v[3], k) for k, v in st.stats.items()),  # type: ignore[attr-defined]
-                  key=lambda r: -r[0])
-    lines += ["", f"## Where RBPF time goes (mit-csail, 600 scans, 512 particles, "
-              f"{res.seconds:.1f} s; cumulative share of the run)", ""]
-    seen = 0
-    for cum, (fname, _line, func) in rows:
-        if any(s in fname for s in ("numeric/slam", "numeric/geometry")) and seen < 8:
-            lines.append(f"- `{Path(fname).name}:{func}`: {100 * cum / res.seconds:.0f} %")
-            seen += 1
+    for label in ("rbpf (improved)", "graph"):
+        prof = cProfile.Profile()
+        prof.enable()
+        _, res = run_log(log, SlamOptions(**METHODS[label]))  # type: ignore[arg-type]
+        prof.disable()
+        st = pstats.Stats(prof)
+        rows = sorted(((v[3], k) for k, v in st.stats.items()),  # type: ignore[attr-defined]
+                      key=lambda r: -r[0])
+        lines += ["", f"## Where the time goes: {label} (mit-csail, 600 scans, "
+                  f"{res.seconds:.1f} s; cumulative share of the run)", ""]
+        seen = 0
+        for cum, (fname, _line, func) in rows:
+            if any(s in fname for s in ("numeric/slam", "numeric/geometry")) and seen < 8:
+                lines.append(f"- `{Path(fname).name}:{func}`: {100 * cum / res.seconds:.0f} %")
+                seen += 1
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default="bench-out")
+    ap.add_argument("--logs", default=",".join(n for n, _ in LOGS))
+    ap.add_argument("--methods", default=",".join(METHODS))
+    ap.add_argument("--one", nargs=2, metavar=("LOG", "METHOD"), help=argparse.SUPPRESS)
+    ap.add_argument("--skip-extras", action="store_true",
+                    help="only the relation-error table (no corridor, pairs, profile)")
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(exist_ok=True)
+    if args.one:
+        print(json.dumps(one_run(args.one[0], args.one[1], args.quick, out)))
+        return
+    names = args.logs.split(",")
+    labels = args.methods.split(",")
     scope = "quick: first 1500 scans per log" if args.quick else "full logs"
     lines = [f"# SLAM benchmark ({scope})", ""]
-    rt = accuracy(args.quick, lines)
-    corridor(lines)
-    peers(lines, 60 if args.quick else 200)
-    lines += ["", "## RBPF throughput (512 particles, odometry proposal)", "",
-              "| log | x real time |", "|---|---|"]
-    lines += [f"| {k} | {v:.1f} |" for k, v in rt.items()]
-    profile(lines)
+    accuracy(args.quick, out, names, labels, lines)
+    maps_figure(out, names)
+    if not args.skip_extras:
+        corridor(lines)
+        peers(lines, 60 if args.quick else 200)
+        profile(lines)
     (out / "slam.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 
 if __name__ == "__main__":
+    if __package__ in (None, ""):  # run as a script: make `tests.bench` importable
+        sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
     main()
