@@ -77,11 +77,20 @@ class GraphSlamConfig(BaseModel):
     odometry_score_margin: float = Field(0.05, ge=0)
     loop_every: int = Field(3, ge=1, description="nodes between loop-closure searches")
     loop_max_distance_m: float = Field(15.0, gt=0)
+    loop_max_submaps: int = Field(1000, ge=1, description="nearest finished submaps "
+                                  "searched in the full window per node (tracked ones: all)")
+    loop_coarsen: int = Field(2, ge=1, le=8, description="branch and bound on a grid this "
+                              "many times coarser (max-pooled); the refinement is on the "
+                              "submap's own")
     loop_linear_window_m: float = Field(5.0, gt=0)
     loop_angular_window_rad: float = Field(np.radians(30.0), gt=0)
     loop_min_score: float = Field(0.5, gt=0, le=1)
     loop_angular_step_rad: float = Field(0.005, ge=0, description="coarsest angle step of "
                                          "the search (the refinement recovers the rest)")
+    loop_verify_nodes: int = Field(15, ge=1, description="a first closure to a submap "
+                                   "waits this many nodes for a consistent second one")
+    loop_verify_m: float = Field(0.3, gt=0)
+    loop_verify_rad: float = Field(0.05, gt=0)
     loop_track_nodes: int = Field(10, ge=0, description="a submap closed within this many "
                                   "nodes is searched in the small tracking window only")
     loop_track_linear_window_m: float = Field(0.5, gt=0)
@@ -89,7 +98,7 @@ class GraphSlamConfig(BaseModel):
     loop_min_degeneracy: float = Field(0.1, ge=0, le=1, description="reject closures "
                                        "whose match fixes one direction this much less")
     loop_max_points: int = Field(200, ge=10)
-    loop_depth: int = Field(7, ge=1, le=10)
+    loop_depth: int = Field(6, ge=1, le=10)
     loop_cache: int = Field(48, ge=1, description="precomputed submaps kept in memory")
     alpha: float = Field(0.0, ge=0, description="intensity weight of eq. 1 (0: off)")
     icp: IcpConfig = Field(default_factory=IcpConfig)
@@ -163,6 +172,7 @@ class GraphSlam:
         self._global = np.zeros((0, 3))
         self._precomputed: dict[int, PrecomputedGrid] = {}
         self._last_closed: dict[int, int] = {}  # submap -> last node closed against it
+        self._pending: dict[int, LoopClosure] = {}  # submap -> match awaiting confirmation
         self._prev: tuple[np.ndarray, np.ndarray | None] | None = None  # for alpha > 0
         self.rng = np.random.default_rng(self.seed)
         self.weak: np.ndarray | None = None  # weak direction of the last local match
@@ -239,7 +249,8 @@ class GraphSlam:
     def precomputed(self, k: int) -> PrecomputedGrid:
         p = self._precomputed.pop(k, None)
         if p is None:
-            p = PrecomputedGrid(self.submaps[k].grid, self.config.loop_depth)
+            p = PrecomputedGrid(self.submaps[k].grid.coarsened(self.config.loop_coarsen),
+                                self.config.loop_depth)
         self._precomputed[k] = p  # most recently used last
         while len(self._precomputed) > self.config.loop_cache:
             self._precomputed.pop(next(iter(self._precomputed)))
@@ -252,16 +263,25 @@ class GraphSlam:
         g = self._global
         pts = adaptive_voxel(self.node_xy[node], cfg.loop_max_points)
         found = 0
+        near = []
         for k, s in enumerate(self.submaps):
             if not s.finished or node in s.nodes:
                 continue
+            d = float(np.hypot(*(g[s.anchor, :2] - g[node, :2])))
+            if d <= cfg.loop_max_distance_m:
+                near.append((d, k))
+        wide = 0
+        for _, k in sorted(near):
+            s = self.submaps[k]
             a = s.anchor
-            if np.hypot(*(g[a, :2] - g[node, :2])) > cfg.loop_max_distance_m:
-                continue
+            tracking = node - self._last_closed.get(k, -10**9) <= cfg.loop_track_nodes
+            if not tracking:
+                if wide >= cfg.loop_max_submaps:
+                    continue
+                wide += 1
             # the node's pose in the submap's (local-SLAM) frame, from the global estimate
             guess = compose(self.local[a], relative(g[a], g[node]))
             self.searches += 1
-            tracking = node - self._last_closed.get(k, -10**9) <= cfg.loop_track_nodes
             lin, ang = ((cfg.loop_track_linear_window_m, cfg.loop_track_angular_window_rad)
                         if tracking else (cfg.loop_linear_window_m, cfg.loop_angular_window_rad))
             m = self.precomputed(k).match(pts, guess, lin, ang, cfg.loop_min_score,
@@ -276,11 +296,38 @@ class GraphSlam:
                 continue  # refined off the peak, or e.g. a plain corridor: the match
                 # cannot say where along it the scan belongs
             delta = relative(self.local[a], r.pose)
-            self.graph.add_loop(a, node, delta)
-            self.closures.append(LoopClosure(node, k, a, r.score, delta))
-            self._last_closed[k] = node
+            c = LoopClosure(node, k, a, r.score, delta)
+            if not tracking:
+                # a first match against this submap must be confirmed by another one
+                # from a nearby node that moves the trajectory the same way (perceptual
+                # aliasing rarely repeats consistently)
+                pend = self._pending.get(k)
+                self._pending[k] = c
+                if pend is None or node - pend.node > cfg.loop_verify_nodes or not (
+                        self._consistent(pend, c)):
+                    continue
+                self._accept(pend)
+                found += 1
+            self._accept(c)
             found += 1
         return found
+
+    def _correction(self, c: LoopClosure) -> np.ndarray:
+        """The world-frame transform that moves the node to where the closure puts it."""
+        g = self._global
+        implied = compose(g[c.anchor], c.delta)
+        return compose(implied, relative(g[c.node], np.zeros(3)))
+
+    def _consistent(self, a: LoopClosure, b: LoopClosure) -> bool:
+        d = relative(self._correction(a), self._correction(b))
+        cfg = self.config
+        return bool(np.hypot(d[0], d[1]) <= cfg.loop_verify_m
+                    and abs(d[2]) <= cfg.loop_verify_rad)
+
+    def _accept(self, c: LoopClosure) -> None:
+        self.graph.add_loop(c.anchor, c.node, c.delta)
+        self.closures.append(c)
+        self._last_closed[c.submap] = c.node
 
     # -- driver -------------------------------------------------------------------------
     def process(self, scan: Scan) -> None:

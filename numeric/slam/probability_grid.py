@@ -202,3 +202,18 @@ class ProbabilityGrid:
         return ProbabilityGrid(self.config, self.origin + np.array([i0, j0]) * res,
                                np.ascontiguousarray(self.prob[i0:i1, j0:j1]),
                                np.ascontiguousarray(self.stamp[i0:i1, j0:j1]), self.scans)
+
+    def coarsened(self, factor: int) -> ProbabilityGrid:
+        """The grid at ``factor`` times the cell size, each cell the maximum of the
+        ``factor x factor`` cells it covers (so no wall is lost: what branch and bound
+        needs to bound scores from above)."""
+        if factor == 1:
+            return self
+        nx, ny = self.shape
+        px, py = (-nx) % factor, (-ny) % factor
+        p = np.pad(self.prob, ((0, px), (0, py)))
+        p = p.reshape(p.shape[0] // factor, factor, p.shape[1] // factor, factor).max(axis=(1, 3))
+        cfg = self.config.model_copy(update={"resolution_m": self.resolution_m * factor})
+        return ProbabilityGrid(cfg, self.origin.copy(), np.ascontiguousarray(p),
+                               np.zeros(p.shape, dtype=np.int32), self.scans)
+
