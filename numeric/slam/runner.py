@@ -11,6 +11,7 @@ from typing import Literal, Protocol
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from numeric.errors import InvalidInput
 from numeric.slam.gated import SingleHypothesisSlam
 from numeric.slam.graph import GraphSlam, GraphSlamConfig
 from numeric.slam.intensity_icp import IcpConfig
@@ -80,5 +81,19 @@ def run_log(log: LaserLog, options: SlamOptions,
             progress(i + 1)
     seconds = time.perf_counter() - t0
     times, poses = slam.trajectory()
-    grid = build_occupancy(slam.keyframes, slam.map_poses(), options.map_resolution_m)
-    return slam, SlamResult(times, poses, grid, seconds)
+    return slam, SlamResult(times, poses, whole_map(slam, options.map_resolution_m), seconds)
+
+
+def whole_map(slam: Slam, resolution_m: float) -> OccupancyMap:
+    """The run's map at ``resolution_m``, or at the finest doubling of it that fits the
+    grid size limit (a hospital floor at 5 cm does not): a long run is never lost to
+    its map."""
+    poses = slam.map_poses()
+    for _ in range(6):
+        try:
+            return build_occupancy(slam.keyframes, poses, resolution_m)
+        except InvalidInput as e:
+            if e.field != "resolution_m":
+                raise
+            resolution_m *= 2
+    return build_occupancy(slam.keyframes, poses, resolution_m)

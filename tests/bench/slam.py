@@ -119,13 +119,15 @@ def maps_figure(out: Path, names: list[str]) -> None:
     import matplotlib.pyplot as plt
     from PIL import Image
 
+    titles = {"rbpf-improved": "RBPF, improved proposal (512 particles)",
+              "graph": "graph SLAM"}
     for name in names:
-        pngs = [out / f"map-{name}-{m}.png" for m in ("rbpf-improved", "graph")]
-        if not all(p.exists() for p in pngs):
+        have = [(out / f"map-{name}-{m}.png", t) for m, t in titles.items()
+                if (out / f"map-{name}-{m}.png").exists()]
+        if not have:
             continue
-        fig, axes = plt.subplots(1, 2, figsize=(14, 7))
-        for ax, p, title in zip(axes, pngs, ("RBPF, improved proposal (512 particles)",
-                                             "graph SLAM"), strict=True):
+        fig, axes = plt.subplots(1, len(have), figsize=(7 * len(have), 7), squeeze=False)
+        for ax, (p, title) in zip(axes[0], have, strict=True):
             ax.imshow(Image.open(p))
             ax.set_title(f"{name}: {title}")
             ax.axis("off")
