@@ -177,20 +177,6 @@ def corridor(lines: list[str]) -> None:
         print(lines[-1], flush=True)
 
 
-def _extrude(xy: np.ndarray) -> np.ndarray:
-    """2-D scan -> 3-D wall strips (z = -0.2..0.2) so normals/covariances are defined."""
-    return np.vstack([np.column_stack([xy, np.full(len(xy), z)])
-                      for z in (-0.2, -0.1, 0, 0.1, 0.2)])
-
-
-def _t4(p: np.ndarray) -> np.ndarray:
-    c, s = np.cos(p[2]), np.sin(p[2])
-    t = np.eye(4)
-    t[:2, :2] = [[c, -s], [s, c]]
-    t[:2, 3] = p[:2]
-    return t
-
-
 def peers(lines: list[str], pairs_per_log: int) -> None:
     import small_gicp
 
@@ -246,6 +232,8 @@ def align(label: str, sg, xa: np.ndarray, xb: np.ndarray,  # type: ignore[no-unt
 
 
 def _sg(sg, kind: str, xa: np.ndarray, xb: np.ndarray, init: np.ndarray) -> np.ndarray:  # type: ignore[no-untyped-def]
+    from tests.bench.slam_peers import _extrude, _t4
+
     r = sg.align(_extrude(xa), _extrude(xb), _t4(init), registration_type=kind,
                  downsampling_resolution=0.05, max_correspondence_distance=1.0, num_threads=1,
                  max_iterations=40)
