@@ -115,7 +115,9 @@ def slam(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .bag (or b
          method: str = typer.Option("rbpf", help="odom | icp | gated | rbpf | graph"),
          particles: int = typer.Option(512, min=1, max=4096),
          alpha: float = typer.Option(0.0, min=0.0, help="intensity weight (eqs. 1, 9)"),
-         proposal: str = typer.Option("odometry", help="RBPF proposal: odometry | gated-icp"),
+         proposal: str = typer.Option(
+             "improved", help="RBPF proposal: improved (Grisetti et al. 2007, the default) | "
+             "odometry (the paper's eq. 7) | gated-icp"),
          max_range: float = typer.Option(40.0, min=0.1, help="usable range (m)"),
          resolution: float = typer.Option(0.05, min=0.01, help="map cell size (m)"),
          limit: int = typer.Option(0, min=0, help="only the first N scans (0: all)"),

@@ -204,7 +204,7 @@ def test_gated_slam_beats_odometry_in_the_room(room_log) -> None:  # type: ignor
 
 
 def test_rbpf_tracks_and_keeps_maps_without_copies(room_log) -> None:  # type: ignore[no-untyped-def]
-    cfg = RbpfConfig(particles=64, seed=1)
+    cfg = RbpfConfig(particles=64, seed=1, proposal="odometry")
     s = RbpfSlam(cfg)
     for scan in room_log.scans:
         s.process(scan)

@@ -31,7 +31,9 @@ class SlamOptions(BaseModel):
     particles: int = Field(512, ge=1, le=4096)
     alpha: float = Field(0.0, ge=0, le=1.0, allow_inf_nan=False,
                          description="intensity weight of eqs. 1 and 9 (m² per unit²)")
-    proposal: Literal["odometry", "gated-icp"] = "odometry"
+    proposal: Literal["improved", "odometry", "gated-icp"] = Field(
+        "improved", description="rbpf: improved (Grisetti et al. 2007, scan-matched Gaussian "
+        "per particle), odometry (the paper's eq. 7) or gated-icp")
     resample: Literal["always", "ess"] = "ess"
     sigma_z: float = Field(0.0005, gt=0, le=10, allow_inf_nan=False)
     map_resolution_m: float = Field(0.05, ge=0.01, le=1.0, allow_inf_nan=False)

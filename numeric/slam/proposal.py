@@ -1,0 +1,714 @@
+"""The improved proposal of Grisetti, Stachniss & Burgard, "Improved Techniques for Grid
+Mapping with Rao-Blackwellized Particle Filters", IEEE T-RO 23(1), 2007 (GMapping), on
+chizu's keyframe likelihood fields.
+
+Per particle i, with x_{t-1} its pose, u_t the odometry increment and m its own map (its
+keyframe poses; the scans and their :class:`~numeric.slam.keyframes.LikelihoodField`
+grids are shared):
+
+1. **scan matching** (§IV-A): start at the odometry prediction ``x' = x_{t-1} (+) u_t``
+   and find the mode x̂ by Levenberg-Marquardt (Gauss-Newton with a damping that only
+   accepts improving steps, and a 5 cm / 0.025 rad trust region) on the capped squared
+   distances of the scan's beams to the map, bilinearly interpolated in the per-keyframe
+   squared-distance grids (the likelihood field of eq. 9 of the chizu paper, with its
+   intensity term when ``alpha > 0``). The paper matches ``argmax_x p(z_t | m, x)``;
+   by default (``match_prior``) the matcher maximises τ = ``p(z_t|m,x) p(x|x_{t-1},u_t)``
+   itself, whose mode is the same wherever the scan constrains the pose, but which stays
+   at the odometry along a corridor's axis instead of wandering on the likelihood's
+   flat, noisy floor (on fr-clinic's long corridors that wandering cost metres). Full
+   evaluations take the minimum over all chosen keyframes and remember each beam's two
+   best; the iterations in between and the samples of step 2 look only at those two.
+   Once per update the
+   best particle is matched from several headings (:func:`robust_increment`) and every
+   particle starts from ``x_{t-1} (+) û`` with the increment û found there: odometry
+   headings can be off by more than the matcher's basin in fast turns, and all
+   particles share that error;
+2. **sampling around the mode** (§IV-A, "the interval L^(i)"): K = 27 poses
+   ``x_j = x̂ + δ_j`` with δ_j on the grid ``{-Δ, 0, Δ}^3``, each with the target
+   ``τ(x_j) = p(z_t | m, x_j) · p(x_j | x_{t-1}, u_t)``. Δ per axis is the standard
+   deviation of the Laplace approximation of τ at x̂ (:func:`sample_steps`), floored at
+   ``sample_min_*``: the samples resolve the peak along directions the scan constrains
+   and follow the motion model along those it does not (a corridor's axis);
+3. **Gaussian fit** (eqs. 14-16, :func:`gaussian_fit`): ``μ = 1/η Σ_j x_j τ(x_j)``,
+   ``Σ = 1/η Σ_j τ(x_j) (x_j - μ)(x_j - μ)^T`` and ``η = Σ_j τ(x_j)``; the new pose is
+   drawn from N(μ, Σ) and the importance weight becomes ``w_t = w_{t-1} · η`` (η times the
+   grid cell volume ΔV, so that it estimates ``∫ p(z|m,x) p(x|x_{t-1},u) dx`` and stays
+   comparable with the weight of a particle that fell back to the motion model).
+   Everything is done with log values (log-sum-exp), so nothing underflows. The RBPF
+   multiplies the log increments by ``weight_gain`` (as GMapping smooths its weights);
+4. **fallback**: when the match fails (fewer than ``min_inliers`` /
+   ``min_match_fraction`` of the beams within the cutoff at x̂) the particle is drawn from
+   the motion model and weighted by ``p(z_t | m, x_t)`` -- the plain RBPF step.
+
+The measurement model is the likelihood field:
+``log p(z | m, x) = -Σ_b ρ_b(x) / (2 σ²)`` with ``ρ_b = min(cutoff², min_k min_band
+(d_k,band(T s_b)² + alpha (l_k,band - l_b)²))``, the minimum over the chosen keyframes k
+(each placed at the particle's own pose for it) and intensity bands. The motion model is
+the Gaussian of eq. 7 of the chizu paper on the increment in the frame of x_{t-1}.
+
+All particles are handled in one numba kernel (:func:`propose_all`, serial: the machine
+is shared); the RBPF passes particles that are exact copies (same pose and same map, as
+resampling makes them) once.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+from pydantic import BaseModel, Field
+
+from numeric.slam.keyframes import LikelihoodField
+
+_LOG_2PI = math.log(2.0 * math.pi)
+_MAX_STEP_M = 0.05  # largest Levenberg-Marquardt step (trust region)
+_MAX_STEP_RAD = 0.025
+
+
+class ImprovedConfig(BaseModel):
+    """Parameters of the improved proposal (Grisetti et al. 2007, §IV).
+
+    ``sigma_m`` is the σ of the likelihood field (GMapping's ``lsigma`` is 0.075 m on
+    ``exp(-d²/lsigma)``, i.e. σ ≈ 0.19 m, on a 5 cm grid with sub-cell hit means; chizu's
+    fields are quantised to their 5 cm cells, so a few cm is the floor of the
+    residuals). ``weight_gain`` tempers the log weight increments (GMapping divides
+    them by ``ogain`` = 3 times the particle count); 1 is the paper's weight.
+    """
+
+    sigma_m: float = Field(0.05, gt=0, description="σ of the likelihood field (m)")
+    cutoff_m: float = Field(0.3, gt=0, description="residual cap of the matcher and of "
+                            "p(z|m,x) (at most the fields' own cutoff)")
+    weight_gain: float = Field(0.01, gt=0, le=1.0,
+                               description="log-weight increments are multiplied by this")
+    sample_min_xy_m: float = Field(0.005, gt=0, description="smallest Δ of the samples (m)")
+    sample_min_theta_rad: float = Field(0.002, gt=0, description="... and in heading (rad)")
+    max_iterations: int = Field(12, ge=1, le=200, description="LM iterations of the matcher")
+    min_match_fraction: float = Field(0.3, ge=0, le=1,
+                                      description="match fails below this inlier fraction")
+    min_inliers: int = Field(10, ge=1)
+    match_prior: bool = Field(True, description="the matcher maximises τ = p(z|m,x) "
+                              "p(x|x_{t-1},u), not p(z|m,x) alone")
+    start_margin: float = Field(50.0, ge=0, description="log-likelihood units another start "
+                                "must beat the odometry start by")
+    start_headings_rad: tuple[float, ...] = Field(
+        (0.0, -0.1, 0.1, -0.2, 0.2, -0.35, 0.35),
+        description="heading offsets of the multi-start match that corrects the odometry "
+                    "increment once per update (one value: no correction)")
+
+
+@dataclass(frozen=True)
+class FieldPack:
+    """The chosen keyframes' likelihood fields as the kernels read them: every field's
+    squared-distance grid ``(bands, nx, ny)`` flattened into one ``grid`` (and the
+    intensity grids into ``inten``, or one dummy value when no intensity is used),
+    ``meta (K, 4)`` = offset, bands, nx, ny per keyframe, ``origins (K, 2)`` (m) and the
+    common ``inv_res`` (1/m). One copy per filter update: a flat buffer is what keeps
+    the innermost lookup a plain array read."""
+
+    grid: np.ndarray
+    inten: np.ndarray
+    meta: np.ndarray
+    origins: np.ndarray
+    inv_res: float
+
+    @staticmethod
+    def of(fields: list[LikelihoodField], with_intensity: bool) -> FieldPack:
+        meta = np.zeros((len(fields), 4), dtype=np.int64)
+        off = 0
+        for k, f in enumerate(fields):
+            nb, nx, ny = f.dist2.shape
+            meta[k] = (off, nb, nx, ny)
+            off += nb * nx * ny
+        grid = np.concatenate([f.dist2.ravel() for f in fields]).astype(np.float32, copy=False)
+        inten = (np.concatenate([f.inten.ravel() for f in fields]).astype(np.float32, copy=False)
+                 if with_intensity else np.zeros(1, dtype=np.float32))
+        origins = np.array([f.origin for f in fields], dtype=float).reshape(-1, 2)
+        return FieldPack(grid, inten, meta, origins, 1.0 / fields[0].res)
+
+
+# -- numba kernels --------------------------------------------------------------------------
+@njit(cache=True)
+def _bilinear1(grid: np.ndarray, off: int, nx: int, ny: int, ox: float, oy: float,
+               inv_res: float, qx: float, qy: float,
+               cut2: float) -> tuple[float, float, float]:
+    """:func:`_lookup` for one band and no intensity (the innermost loop's common case)."""
+    u = (qx - ox) * inv_res - 0.5
+    v = (qy - oy) * inv_res - 0.5
+    if not (u >= 0.0 and v >= 0.0):
+        return cut2, 0.0, 0.0
+    i = int(u)
+    j = int(v)
+    if i + 1 >= nx or j + 1 >= ny:
+        return cut2, 0.0, 0.0
+    fu = u - i
+    fv = v - j
+    base = off + i * ny + j
+    p00 = grid[base]
+    p01 = grid[base + 1]
+    p10 = grid[base + ny]
+    p11 = grid[base + ny + 1]
+    val = (p00 * (1.0 - fu) * (1.0 - fv) + p10 * fu * (1.0 - fv)
+           + p01 * (1.0 - fu) * fv + p11 * fu * fv)
+    gx = ((p10 - p00) * (1.0 - fv) + (p11 - p01) * fv) * inv_res
+    gy = ((p01 - p00) * (1.0 - fu) + (p11 - p10) * fu) * inv_res
+    return val, gx, gy
+
+
+@njit(cache=True)
+def _lookup(grid: np.ndarray, gint: np.ndarray, off: int, nb: int, nx: int, ny: int,
+            ox: float, oy: float, inv_res: float, qx: float, qy: float, li: float,
+            alpha: float, cut2: float) -> tuple[float, float, float]:
+    """Capped augmented squared residual at the keyframe-frame point (qx, qy) and its
+    gradient (per m): :func:`_bilinear1` per intensity band plus
+    ``alpha (l_band - li)^2`` with the nearest cell's intensity, the minimum over
+    bands; ``cut2`` and no gradient outside the grid."""
+    best = cut2
+    gx = 0.0
+    gy = 0.0
+    u = (qx - ox) * inv_res - 0.5
+    v = (qy - oy) * inv_res - 0.5
+    for b in range(nb):
+        boff = off + b * nx * ny
+        val, bgx, bgy = _bilinear1(grid, boff, nx, ny, ox, oy, inv_res, qx, qy, cut2)
+        if val >= cut2:  # capped, or outside the grid: the intensity only adds
+            continue
+        if alpha > 0.0:
+            i = int(u)
+            j = int(v)
+            near = (i + (1 if u - i >= 0.5 else 0)) * ny + j + (1 if v - j >= 0.5 else 0)
+            dl = gint[boff + near] - li
+            val += alpha * dl * dl
+        if val < best:
+            best = val
+            gx = bgx
+            gy = bgy
+    return best, gx, gy
+
+
+@njit(cache=True)
+def _score(x: float, y: float, th: float, pts: np.ndarray, li: np.ndarray, alpha: float,
+           grid: np.ndarray, gint: np.ndarray, meta: np.ndarray, origins: np.ndarray,
+           inv_res: float, kpose: np.ndarray, cut2: float, grad: bool, h: np.ndarray,
+           g: np.ndarray, cand: np.ndarray, mode: int, work: np.ndarray,
+           iwork: np.ndarray) -> tuple[float, int]:
+    """Σ_b ρ_b at pose (x, y, th) and the number of beams under the cutoff; with
+    ``grad`` also the Gauss-Newton system ``h = Σ J^T J``, ``g = Σ J^T e`` of the
+    residuals ``e_b = sqrt(ρ_b)`` (derivatives by the world-frame pose).
+
+    ``kpose (K, 4)``: the particle's pose of each keyframe as (cos, sin, x, y). ``mode``
+    0: all keyframes; 1: all keyframes, and ``cand (B, 2)`` records each beam's two best
+    keyframes (-1 where none is under the cutoff); 2: only the keyframes in ``cand``
+    (the cheap evaluation near a pose where ``cand`` was recorded). ``work (6, B)`` and
+    ``iwork (2, B)`` are scratch."""
+    c = math.cos(th)
+    s = math.sin(th)
+    n_b = pts.shape[0]
+    n_k = kpose.shape[0]
+    use_i = alpha > 0.0
+    wx = work[0]
+    wy = work[1]
+    best = work[2]
+    second = work[3]
+    bgx = work[4]
+    bgy = work[5]
+    k1 = iwork[0]
+    k2 = iwork[1]
+    for b in range(n_b):
+        wx[b] = x + c * pts[b, 0] - s * pts[b, 1]
+        wy[b] = y + s * pts[b, 0] + c * pts[b, 1]
+        best[b] = cut2
+        second[b] = cut2
+        bgx[b] = 0.0
+        bgy[b] = 0.0
+        k1[b] = -1
+        k2[b] = -1
+    if mode < 2:  # keyframe by keyframe: its constants loaded once, a tight beam loop
+        for k in range(n_k):
+            ck = kpose[k, 0]
+            sk = kpose[k, 1]
+            tx = kpose[k, 2]
+            ty = kpose[k, 3]
+            off = meta[k, 0]
+            nb = meta[k, 1]
+            nx = meta[k, 2]
+            ny = meta[k, 3]
+            ox = origins[k, 0]
+            oy = origins[k, 1]
+            geo = nb == 1 and not use_i
+            for b in range(n_b):
+                dx = wx[b] - tx
+                dy = wy[b] - ty
+                qx = ck * dx + sk * dy
+                qy = -sk * dx + ck * dy
+                if geo:
+                    val, gqx, gqy = _bilinear1(grid, off, nx, ny, ox, oy, inv_res, qx, qy,
+                                               cut2)
+                else:
+                    val, gqx, gqy = _lookup(grid, gint, off, nb, nx, ny, ox, oy, inv_res, qx,
+                                            qy, li[b] if use_i else 0.0, alpha, cut2)
+                if val < second[b]:
+                    if val < best[b]:
+                        second[b] = best[b]
+                        k2[b] = k1[b]
+                        best[b] = val
+                        k1[b] = k
+                        bgx[b] = ck * gqx - sk * gqy
+                        bgy[b] = sk * gqx + ck * gqy
+                    else:
+                        second[b] = val
+                        k2[b] = k
+        if mode == 1:
+            for b in range(n_b):
+                cand[b, 0] = k1[b]
+                cand[b, 1] = k2[b]
+    else:
+        for b in range(n_b):
+            for m in range(cand.shape[1]):
+                k = cand[b, m]
+                if k < 0:
+                    continue
+                ck = kpose[k, 0]
+                sk = kpose[k, 1]
+                dx = wx[b] - kpose[k, 2]
+                dy = wy[b] - kpose[k, 3]
+                qx = ck * dx + sk * dy
+                qy = -sk * dx + ck * dy
+                if meta[k, 1] == 1 and not use_i:
+                    val, gqx, gqy = _bilinear1(grid, meta[k, 0], meta[k, 2], meta[k, 3],
+                                               origins[k, 0], origins[k, 1], inv_res, qx, qy,
+                                               cut2)
+                else:
+                    val, gqx, gqy = _lookup(grid, gint, meta[k, 0], meta[k, 1], meta[k, 2],
+                                            meta[k, 3], origins[k, 0], origins[k, 1],
+                                            inv_res, qx, qy, li[b] if use_i else 0.0, alpha,
+                                            cut2)
+                if val < best[b]:
+                    best[b] = val
+                    bgx[b] = ck * gqx - sk * gqy
+                    bgy[b] = sk * gqx + ck * gqy
+    total = 0.0
+    inl = 0
+    if grad:
+        h[:, :] = 0.0
+        g[:] = 0.0
+    for b in range(n_b):
+        rb = best[b]
+        total += rb
+        if rb < cut2:
+            inl += 1
+            if grad:
+                e = math.sqrt(rb)
+                if e > 1e-6:
+                    f = 0.5 / e
+                    j0 = bgx[b] * f
+                    j1 = bgy[b] * f
+                    j2 = (bgx[b] * (y - wy[b]) + bgy[b] * (wx[b] - x)) * f
+                    h[0, 0] += j0 * j0
+                    h[0, 1] += j0 * j1
+                    h[0, 2] += j0 * j2
+                    h[1, 1] += j1 * j1
+                    h[1, 2] += j1 * j2
+                    h[2, 2] += j2 * j2
+                    g[0] += j0 * e
+                    g[1] += j1 * e
+                    g[2] += j2 * e
+    if grad:
+        h[1, 0] = h[0, 1]
+        h[2, 0] = h[0, 2]
+        h[2, 1] = h[1, 2]
+    return total, inl
+
+
+@njit(cache=True)
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+@njit(cache=True)
+def _motion_logp(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, x: float, y: float,
+                 th: float) -> float:
+    """log N(relative(x0, x) - u; 0, diag(sig^2)): the odometry motion model (eq. 7 of
+    the chizu paper) as a normalised density."""
+    c = math.cos(x0[2])
+    s = math.sin(x0[2])
+    dx = x - x0[0]
+    dy = y - x0[1]
+    w0 = (c * dx + s * dy - u[0]) / sig[0]
+    w1 = (-s * dx + c * dy - u[1]) / sig[1]
+    w2 = _wrap(th - x0[2] - u[2]) / sig[2]
+    return (-0.5 * (w0 * w0 + w1 * w1 + w2 * w2) - math.log(sig[0] * sig[1] * sig[2])
+            - 1.5 * _LOG_2PI)
+
+
+@njit(cache=True)
+def _solve3(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> bool:
+    """``out = a^-1 b`` for a 3x3 (cofactors); False when (nearly) singular."""
+    c00 = a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]
+    c01 = a[1, 2] * a[2, 0] - a[1, 0] * a[2, 2]
+    c02 = a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]
+    det = a[0, 0] * c00 + a[0, 1] * c01 + a[0, 2] * c02
+    scale = abs(a[0, 0] * a[1, 1] * a[2, 2]) + 1e-300
+    if not abs(det) > 1e-12 * scale:
+        return False
+    c10 = a[0, 2] * a[2, 1] - a[0, 1] * a[2, 2]
+    c11 = a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0]
+    c12 = a[0, 1] * a[2, 0] - a[0, 0] * a[2, 1]
+    c20 = a[0, 1] * a[1, 2] - a[0, 2] * a[1, 1]
+    c21 = a[0, 2] * a[1, 0] - a[0, 0] * a[1, 2]
+    c22 = a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]
+    out[0] = (c00 * b[0] + c10 * b[1] + c20 * b[2]) / det
+    out[1] = (c01 * b[0] + c11 * b[1] + c21 * b[2]) / det
+    out[2] = (c02 * b[0] + c12 * b[1] + c22 * b[2]) / det
+    return True
+
+
+@njit(cache=True)
+def gaussian_fit(offsets: np.ndarray, log_tau: np.ndarray,
+                 ) -> tuple[np.ndarray, np.ndarray, float]:
+    """Eqs. 14-16 of Grisetti et al. 2007 for K sampled points: ``offsets (K, 3)`` the
+    points x_j (relative to any centre; angles unwrapped), ``log_tau (K,)`` their
+    ``log τ(x_j) = log p(z|m,x_j) + log p(x_j|x_{t-1},u_t)``. Returns
+    ``μ = Σ_j x_j τ_j / η`` (3,), ``Σ = Σ_j τ_j (x_j - μ)(x_j - μ)^T / η`` (3, 3) and
+    ``log η = log Σ_j τ_j``, computed as ``m + log Σ_j exp(log τ_j - m)`` with
+    ``m = max_j log τ_j`` so that nothing underflows (``-inf`` when every τ_j is 0)."""
+    n = offsets.shape[0]
+    m = -np.inf
+    for j in range(n):
+        if log_tau[j] > m:
+            m = log_tau[j]
+    mu = np.zeros(3)
+    cov = np.zeros((3, 3))
+    if not m > -np.inf:
+        return mu, cov, -np.inf
+    w = np.empty(n)
+    eta = 0.0
+    for j in range(n):
+        w[j] = math.exp(log_tau[j] - m)
+        eta += w[j]
+    for j in range(n):
+        for a in range(3):
+            mu[a] += w[j] * offsets[j, a]
+    mu /= eta
+    for j in range(n):
+        for a in range(3):
+            da = offsets[j, a] - mu[a]
+            for b in range(3):
+                cov[a, b] += w[j] * da * (offsets[j, b] - mu[b])
+    cov /= eta
+    return mu, cov, m + math.log(eta)
+
+
+@njit(cache=True)
+def _cholesky3(a: np.ndarray, floor: np.ndarray) -> np.ndarray:
+    """Lower Cholesky factor of a 3x3 covariance whose diagonal is floored first."""
+    s = a.copy()
+    for i in range(3):
+        if s[i, i] < floor[i]:
+            s[i, i] = floor[i]
+    low = np.zeros((3, 3))
+    for i in range(3):
+        for j in range(i + 1):
+            acc = s[i, j]
+            for k in range(j):
+                acc -= low[i, k] * low[j, k]
+            if i == j:
+                low[i, i] = math.sqrt(max(acc, floor[i]))
+            else:
+                low[i, j] = acc / low[j, j]
+    return low
+
+
+@njit(cache=True)
+def _energy(cost: float, x: float, y: float, t: float, inv_2s2: float, prior: np.ndarray,
+            ) -> float:
+    """``-log τ`` up to a constant: ``Σ_b ρ_b / (2σ²)`` plus the motion model's
+    ``½ Σ_i ((x_i - x'_i) / σ_i)²``; ``prior (2, 3)`` = x' and 1/σ² (zeros: no prior)."""
+    dt = _wrap(t - prior[0, 2])
+    return cost * inv_2s2 + 0.5 * (prior[1, 0] * (x - prior[0, 0]) ** 2
+                                   + prior[1, 1] * (y - prior[0, 1]) ** 2
+                                   + prior[1, 2] * dt * dt)
+
+
+@njit(cache=True)
+def _lm(pose: np.ndarray, pts: np.ndarray, li: np.ndarray, alpha: float, grid: np.ndarray,
+        gint: np.ndarray, meta: np.ndarray, origins: np.ndarray, inv_res: float,
+        kpose: np.ndarray, cut2: float, max_iter: int, cand: np.ndarray, work: np.ndarray,
+        iwork: np.ndarray, inv_2s2: float, prior: np.ndarray) -> None:
+    """Levenberg-Marquardt on :func:`_energy` from ``pose`` (updated in place), evaluating
+    only each beam's candidate keyframes ``cand`` (mode 2 of :func:`_score`)."""
+    h = np.zeros((3, 3))
+    g = np.zeros(3)
+    hn = np.zeros((3, 3))
+    gn = np.zeros(3)
+    a = np.zeros((3, 3))
+    rhs = np.zeros(3)
+    step = np.zeros(3)
+    x, y, t = pose[0], pose[1], pose[2]
+    cost, inl = _score(x, y, t, pts, li, alpha, grid, gint, meta, origins, inv_res, kpose,
+                       cut2, True, h, g, cand, 2, work, iwork)
+    e = _energy(cost, x, y, t, inv_2s2, prior)
+    lam = 1e-3
+    k2 = 2.0 * inv_2s2
+    for _ in range(max_iter):
+        if inl < 3:
+            break
+        d = (x - prior[0, 0], y - prior[0, 1], _wrap(t - prior[0, 2]))
+        for r in range(3):
+            for q in range(3):
+                a[r, q] = k2 * h[r, q]
+            a[r, r] += prior[1, r]
+            a[r, r] += lam * a[r, r] + 1e-9
+            rhs[r] = -(k2 * g[r] + prior[1, r] * d[r])
+        if not _solve3(a, rhs, step):
+            break
+        # a trust region: Gauss-Newton on a truncated cost can jump into another basin
+        f = max(math.hypot(step[0], step[1]) / _MAX_STEP_M, abs(step[2]) / _MAX_STEP_RAD)
+        if f > 1.0:
+            step /= f
+        nx, ny, nt = x + step[0], y + step[1], t + step[2]
+        c2, i2 = _score(nx, ny, nt, pts, li, alpha, grid, gint, meta, origins, inv_res,
+                        kpose, cut2, True, hn, gn, cand, 2, work, iwork)
+        e2 = _energy(c2, nx, ny, nt, inv_2s2, prior)
+        if e2 < e:
+            x, y, t, e, inl = nx, ny, nt, e2, i2
+            h[:, :] = hn
+            g[:] = gn
+            lam = max(lam * 0.3, 1e-7)
+            if abs(step[0]) < 1e-4 and abs(step[1]) < 1e-4 and abs(step[2]) < 1e-4:
+                break
+        else:
+            lam *= 10.0
+            if lam > 1e4:
+                break
+    pose[0] = x
+    pose[1] = y
+    pose[2] = t
+
+
+@njit(cache=True)
+def scan_match(start: np.ndarray, pts: np.ndarray, li: np.ndarray, alpha: float,
+               grid: np.ndarray, gint: np.ndarray, meta: np.ndarray, origins: np.ndarray,
+               inv_res: float, kpose: np.ndarray, cut2: float, max_iter: int,
+               cand: np.ndarray, h: np.ndarray, work: np.ndarray, iwork: np.ndarray,
+               inv_2s2: float, prior: np.ndarray) -> tuple[np.ndarray, float, int]:
+    """Step 1: x̂ = argmax_x p(z|m,x) p(x|x_{t-1},u) (:func:`_energy`; ``prior`` all zero:
+    argmax p(z|m,x) alone) from ``start``: rounds of a full evaluation (which records
+    each beam's two best keyframes in ``cand`` and the Gauss-Newton ``J^T J`` in ``h``)
+    followed by Levenberg-Marquardt on those candidates, until a round moves the pose
+    by less than half a grid cell and 0.01 rad (at most three rounds). Returns x̂ and
+    Σ_b ρ_b and the inlier count of the last full evaluation (less than that much away
+    from x̂, as are ``cand`` and ``h``)."""
+    pose = start.copy()
+    g = np.zeros(3)
+    tol = 0.5 / inv_res
+    cost = 0.0
+    inl = 0
+    for _ in range(3):
+        cost, inl = _score(pose[0], pose[1], pose[2], pts, li, alpha, grid, gint, meta,
+                           origins, inv_res, kpose, cut2, True, h, g, cand, 1, work, iwork)
+        x0, y0, t0 = pose[0], pose[1], pose[2]
+        _lm(pose, pts, li, alpha, grid, gint, meta, origins, inv_res, kpose, cut2, max_iter,
+            cand, work, iwork, inv_2s2, prior)
+        if abs(pose[0] - x0) < tol and abs(pose[1] - y0) < tol and abs(pose[2] - t0) < 0.01:
+            break
+    pose[2] = _wrap(pose[2])
+    return pose, cost, inl
+
+
+@njit(cache=True)
+def _prior(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, use: bool) -> np.ndarray:
+    """``(2, 3)``: the odometry prediction x' = x0 (+) u and 1/σ² of the motion model
+    (world axes: σ_x = σ_y), or zeros in the second row when ``use`` is False."""
+    out = np.zeros((2, 3))
+    c = math.cos(x0[2])
+    s = math.sin(x0[2])
+    out[0, 0] = x0[0] + c * u[0] - s * u[1]
+    out[0, 1] = x0[1] + s * u[0] + c * u[1]
+    out[0, 2] = x0[2] + u[2]
+    if use:
+        for i in range(3):
+            out[1, i] = 1.0 / (sig[i] * sig[i])
+    return out
+
+
+@njit(cache=True)
+def sample_steps(h: np.ndarray, inv_s2: float, sig: np.ndarray, floor: np.ndarray,
+                 out: np.ndarray) -> None:
+    """Δ per axis of the sample grid: the standard deviations of the Laplace
+    approximation of τ at x̂ -- information ``J^T J / σ² + diag(1/sig²)`` (likelihood
+    plus motion model) -- floored at ``floor``. This is the "meaningful area" of §IV-A
+    that the scan matcher determines: the samples then resolve the peak along
+    directions the scan constrains and follow the motion model along those it does
+    not (a corridor's axis)."""
+    a = h * inv_s2
+    for i in range(3):
+        a[i, i] += 1.0 / (sig[i] * sig[i])
+    e = np.zeros(3)
+    col = np.zeros(3)
+    for i in range(3):
+        e[:] = 0.0
+        e[i] = 1.0
+        if _solve3(a, e, col) and col[i] > 0.0:
+            out[i] = max(math.sqrt(col[i]), floor[i])
+        else:
+            out[i] = max(sig[i], floor[i])
+
+
+@njit(cache=True)
+def _kposes(kf_pose: np.ndarray, p: int, out: np.ndarray) -> None:
+    for k in range(kf_pose.shape[0]):
+        out[k, 0] = math.cos(kf_pose[k, p, 2])
+        out[k, 1] = math.sin(kf_pose[k, p, 2])
+        out[k, 2] = kf_pose[k, p, 0]
+        out[k, 3] = kf_pose[k, p, 1]
+
+
+@njit(cache=True)
+def robust_increment(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, pts: np.ndarray,
+                     li: np.ndarray, alpha: float, grid: np.ndarray, gint: np.ndarray,
+                     meta: np.ndarray, origins: np.ndarray, inv_res: float,
+                     kf_pose: np.ndarray, cut2: float, inv_2s2: float, max_iter: int,
+                     headings: np.ndarray, margin: float, use_prior: bool) -> np.ndarray:
+    """The increment from ``x0`` (one particle, ``kf_pose (K, 1, 3)`` its map) to the best
+    of several scan matches started at ``x0 (+) u`` turned by each of ``headings`` (rad),
+    best by ``log p(z|m,x) + log p(x|x0,u)``; a start other than the first wins only by
+    more than ``margin`` (the likelihood field is sharp and, without free-space
+    evidence, ambiguous: small differences favour wrong alignments as often as right
+    ones). Odometry headings can be off by more than the matcher's basin during fast
+    turns; the particles being close, one robust start serves them all."""
+    kpose = np.empty((kf_pose.shape[0], 4))
+    _kposes(kf_pose, 0, kpose)
+    cand = np.full((pts.shape[0], 2), -1, dtype=np.int64)
+    work = np.empty((6, pts.shape[0]))
+    iwork = np.empty((2, pts.shape[0]), dtype=np.int64)
+    h = np.zeros((3, 3))
+    c0 = math.cos(x0[2])
+    s0 = math.sin(x0[2])
+    start = np.empty(3)
+    best = -np.inf
+    out = u.copy()
+    prior = _prior(x0, u, sig, use_prior)
+    for o in headings:
+        start[0] = x0[0] + c0 * u[0] - s0 * u[1]
+        start[1] = x0[1] + s0 * u[0] + c0 * u[1]
+        start[2] = x0[2] + u[2] + o
+        hat, cost, _ = scan_match(start, pts, li, alpha, grid, gint, meta, origins, inv_res,
+                                  kpose, cut2, max_iter, cand, h, work, iwork, inv_2s2,
+                                  prior)
+        score = -cost * inv_2s2 + _motion_logp(x0, u, sig, hat[0], hat[1], hat[2])
+        if best == -np.inf:
+            score += margin
+        if score > best:
+            best = score
+            dx = hat[0] - x0[0]
+            dy = hat[1] - x0[1]
+            out[0] = c0 * dx + s0 * dy
+            out[1] = -s0 * dx + c0 * dy
+            out[2] = _wrap(hat[2] - x0[2])
+    return out
+
+
+@njit(cache=True)
+def propose_all(x_prev: np.ndarray, u: np.ndarray, u_start: np.ndarray, sig: np.ndarray,
+                pts: np.ndarray,
+                li: np.ndarray, alpha: float, grid: np.ndarray, gint: np.ndarray,
+                meta: np.ndarray, origins: np.ndarray, inv_res: float, kf_pose: np.ndarray,
+                cut2: float, inv_2s2: float, min_delta: np.ndarray, max_iter: int,
+                min_inliers: int, use_prior: bool,
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Steps 1-3 for every particle ``x_prev (U, 3)`` with keyframe poses
+    ``kf_pose (K, U, 3)``: scan matching from ``x_{t-1} (+) u_start`` (``u_t``, or the
+    increment :func:`robust_increment` found for the best particle), the 27 samples
+    ``x̂ + {-Δ, 0, Δ}^3`` (Δ from :func:`sample_steps`, evaluated on x̂'s two best
+    keyframes per beam) and the Gaussian fit. ``sig`` (3,) is the motion model's sigma
+    (x, y in the frame of x_{t-1}, which the steps treat as world axes: equal sigmas).
+    Returns μ (U, 3) as absolute poses, the Cholesky factors of Σ (U, 3, 3),
+    ``log η + log ΔV`` (U,), whether the match succeeded (U,) and x̂ (U, 3)."""
+    n_u = x_prev.shape[0]
+    mu_out = np.zeros((n_u, 3))
+    chol_out = np.zeros((n_u, 3, 3))
+    logeta = np.full(n_u, -np.inf)
+    ok = np.zeros(n_u, dtype=np.bool_)
+    xhat = np.zeros((n_u, 3))
+    grid27 = np.zeros((27, 3))
+    j = 0
+    for a in range(-1, 2):
+        for b in range(-1, 2):
+            for c in range(-1, 2):
+                grid27[j, 0] = a
+                grid27[j, 1] = b
+                grid27[j, 2] = c
+                j += 1
+    offs = np.zeros((27, 3))
+    delta = np.zeros(3)
+    floor = np.empty(3)
+    kpose = np.empty((kf_pose.shape[0], 4))
+    cand = np.full((pts.shape[0], 2), -1, dtype=np.int64)
+    work = np.empty((6, pts.shape[0]))
+    iwork = np.empty((2, pts.shape[0]), dtype=np.int64)
+    h = np.zeros((3, 3))
+    g = np.zeros(3)
+    log_tau = np.empty(27)
+    start = np.empty(3)
+    for p in range(n_u):
+        _kposes(kf_pose, p, kpose)
+        x0 = x_prev[p]
+        c0 = math.cos(x0[2])
+        s0 = math.sin(x0[2])
+        start[0] = x0[0] + c0 * u_start[0] - s0 * u_start[1]  # x' = x_{t-1} (+) u
+        start[1] = x0[1] + s0 * u_start[0] + c0 * u_start[1]
+        start[2] = x0[2] + u_start[2]
+        hat, _, inl = scan_match(start, pts, li, alpha, grid, gint, meta, origins, inv_res,
+                                 kpose, cut2, max_iter, cand, h, work, iwork, inv_2s2,
+                                 _prior(x0, u, sig, use_prior))
+        xhat[p] = hat
+        if inl < min_inliers:
+            continue
+        sample_steps(h, 2.0 * inv_2s2, sig, min_delta, delta)
+        for j in range(27):
+            for a in range(3):
+                offs[j, a] = grid27[j, a] * delta[a]
+            cx = hat[0] + offs[j, 0]
+            cy = hat[1] + offs[j, 1]
+            ct = hat[2] + offs[j, 2]
+            cost, _ = _score(cx, cy, ct, pts, li, alpha, grid, gint, meta, origins, inv_res,
+                             kpose, cut2, False, h, g, cand, 2, work, iwork)
+            log_tau[j] = -cost * inv_2s2 + _motion_logp(x0, u, sig, cx, cy, ct)
+        mu, cov, le = gaussian_fit(offs, log_tau)
+        if not le > -np.inf:
+            continue
+        mu_out[p, 0] = hat[0] + mu[0]
+        mu_out[p, 1] = hat[1] + mu[1]
+        mu_out[p, 2] = _wrap(hat[2] + mu[2])
+        for a in range(3):
+            floor[a] = (1e-3 * delta[a]) ** 2
+        chol_out[p] = _cholesky3(cov, floor)
+        logeta[p] = le + math.log(delta[0] * delta[1] * delta[2])
+        ok[p] = True
+    return mu_out, chol_out, logeta, ok, xhat
+
+
+@njit(cache=True)
+def loglik_all(poses: np.ndarray, pts: np.ndarray, li: np.ndarray, alpha: float,
+               grid: np.ndarray, gint: np.ndarray, meta: np.ndarray, origins: np.ndarray,
+               inv_res: float, kf_pose: np.ndarray, cut2: float,
+               inv_2s2: float) -> np.ndarray:
+    """``log p(z | m, x) = -Σ_b ρ_b / (2σ²)`` of each pose ``(P, 3)`` against its own map
+    ``kf_pose (K, P, 3)`` (the weight of a particle drawn from the motion model)."""
+    n_p = poses.shape[0]
+    out = np.empty(n_p)
+    kpose = np.empty((kf_pose.shape[0], 4))
+    cand = np.zeros((1, 2), dtype=np.int64)
+    work = np.empty((6, pts.shape[0]))
+    iwork = np.empty((2, pts.shape[0]), dtype=np.int64)
+    h = np.zeros((3, 3))
+    g = np.zeros(3)
+    for p in range(n_p):
+        _kposes(kf_pose, p, kpose)
+        cost, _ = _score(poses[p, 0], poses[p, 1], poses[p, 2], pts, li, alpha, grid, gint,
+                         meta, origins, inv_res, kpose, cut2, False, h, g, cand, 0, work,
+                         iwork)
+        out[p] = -cost * inv_2s2
+    return out
