@@ -207,3 +207,20 @@ def test_graph_slam_closes_a_simulated_loop() -> None:
     grid = build_occupancy(s.keyframes, s.map_poses(), 0.05)
     occ = grid.centres(*np.nonzero(grid.state == OCCUPIED))
     assert len(occ) > 500
+
+
+def test_reading_a_graph_run_does_not_change_it() -> None:
+    """The service reads /pose, /trajectory and the map while scans stream in: those
+    reads must not move the estimator (a restart replays a run to the same state), and
+    /pose must be where the trajectory ends."""
+    log = simulated_log("loop", seed=1, speed_m_s=0.8).head(400)
+    quiet, read = GraphSlam(GraphSlamConfig()), GraphSlam(GraphSlamConfig())
+    for i, scan in enumerate(log.scans):
+        quiet.process(scan)
+        read.process(scan)
+        if i % 40 == 39:
+            _, poses = read.trajectory()
+            assert np.allclose(read.pose, poses[-1], atol=1e-9)
+            read.map_poses()
+    assert len(quiet.closures) > 0 and len(read.closures) == len(quiet.closures)
+    assert np.array_equal(quiet.trajectory()[1], read.trajectory()[1])

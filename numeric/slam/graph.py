@@ -388,14 +388,17 @@ class GraphSlam:
     # -- outputs ------------------------------------------------------------------------
     @property
     def pose(self) -> np.ndarray:
+        """The latest scan's pose on iSAM2's current estimate of its node: the pose the
+        trajectory ends with."""
         if not self._scan_node:
             return np.zeros(3)
-        return compose(self._global[self._scan_node[-1]], self._scan_delta[-1])
+        return compose(self.graph.pose_of(self._scan_node[-1]), self._scan_delta[-1])
 
     def optimise(self) -> np.ndarray:
-        """Optimise the whole graph; the node poses ``(N, 3)``."""
-        self._global = self.graph.poses_now()
-        return self._global
+        """iSAM2's current estimate of every node ``(N, 3)``. Reading it changes nothing:
+        the loop-closure search keeps its own estimate, so a run fed the same scans
+        ends the same whether or not (and how often) it was read in between."""
+        return self.graph.poses_now()
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         g = self.optimise()

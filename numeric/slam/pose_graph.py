@@ -133,6 +133,13 @@ class PoseGraph:
         the last closure, which iSAM2 has not moved)."""
         return self._poses.copy()
 
+    def pose_of(self, k: int) -> np.ndarray:
+        """iSAM2's current estimate of node ``k`` (what :meth:`poses_now` would say of
+        it), without solving for the others."""
+        self.update()
+        p = self.isam.calculateEstimatePose2(k)
+        return np.array([p.x(), p.y(), p.theta()])
+
     def poses_now(self) -> np.ndarray:
         """Optimise fully and return every node's pose."""
         self.update()
