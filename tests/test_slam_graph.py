@@ -224,3 +224,30 @@ def test_reading_a_graph_run_does_not_change_it() -> None:
             read.map_poses()
     assert len(quiet.closures) > 0 and len(read.closures) == len(quiet.closures)
     assert np.array_equal(quiet.trajectory()[1], read.trajectory()[1])
+
+
+def test_the_search_overrides_odometry_by_a_margin_that_follows_its_recent_wins() -> None:
+    """A gain of 0.13 over the odometry-held match: taken after the search has beaten
+    the odometry at a fifth of the recent nodes (odometry that is often wrong), refused
+    after it never did (odometry that has held), where only a gain above the quiet
+    margin is; below the plain margin nothing is taken."""
+    cfg = GraphSlamConfig()
+    noisy, quiet = GraphSlam(cfg), GraphSlam(cfg)
+    for i in range(100):
+        noisy.search_overrides_odometry(0.2 if i % 5 == 0 else 0.0)
+        quiet.search_overrides_odometry(0.0)
+    assert noisy.search_overrides_odometry(0.13) is True
+    assert quiet.search_overrides_odometry(0.13) is False
+    assert quiet.search_overrides_odometry(cfg.odometry_quiet_margin + 0.01) is True
+    assert noisy.search_overrides_odometry(cfg.odometry_score_margin - 0.01) is False
+    # in between, the margin is interpolated linearly in the share of recent wins
+    for below in (True, False):
+        mid = GraphSlam(cfg)
+        for i in range(100):  # wins at i = 40, 80 are kept by the 100-node window ...
+            mid.search_overrides_odometry(0.2 if i % 40 == 0 else 0.0)
+        rate = 3 / 100  # ... with the one being decided
+        quiet = 1 - rate / cfg.odometry_noisy_rate
+        margin = cfg.odometry_score_margin + (cfg.odometry_quiet_margin
+                                              - cfg.odometry_score_margin) * quiet
+        assert mid.search_overrides_odometry(margin + (-0.01 if below else 0.01)) is not below
+    assert GraphSlam(cfg).search_overrides_odometry(0.06) is True  # no history yet

@@ -28,6 +28,7 @@ scan, initialised at the grid match and accepted only inside eq. 5's box around 
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -74,7 +75,16 @@ class GraphSlamConfig(BaseModel):
     rotation_weight: float = Field(40.0, ge=0)
     refine_prior: Literal["search", "odometry"] = "odometry"
     local_residual_floor: float = Field(0.01, gt=0)
-    odometry_score_margin: float = Field(0.05, ge=0)
+    odometry_score_margin: float = Field(0.05, ge=0, description="the search's match "
+                                         "replaces the odometry-held one when it scores "
+                                         "this much better, while the scans keep "
+                                         "contradicting the odometry ...")
+    odometry_quiet_margin: float = Field(0.5, ge=0, description="... and this much when "
+                                         "they rarely do")
+    odometry_noisy_rate: float = Field(0.05, gt=0, le=1, description="share of recent "
+                                       "nodes won by the search from which the odometry "
+                                       "counts as noisy (margin odometry_score_margin)")
+    odometry_rate_nodes: int = Field(100, ge=10, description="recent nodes of that share")
     loop_every: int = Field(3, ge=1, description="nodes between loop-closure searches")
     loop_max_distance_m: float = Field(15.0, gt=0)
     loop_max_submaps: int = Field(1000, ge=1, description="nearest finished submaps "
@@ -176,6 +186,8 @@ class GraphSlam:
         self._prev: tuple[np.ndarray, np.ndarray | None] | None = None  # for alpha > 0
         self.rng = np.random.default_rng(self.seed)
         self.weak: np.ndarray | None = None  # weak direction of the last local match
+        # per recent node: did the search beat the odometry by odometry_score_margin?
+        self._search_won: deque[bool] = deque(maxlen=self.config.odometry_rate_nodes)
 
     # -- local SLAM ---------------------------------------------------------------------
     def active(self) -> list[Submap]:
@@ -196,12 +208,12 @@ class GraphSlam:
         if cfg.refine_prior == "odometry":
             # the motion model's own sigmas against a scan weighed by its residuals; kept
             # unless the scan fits clearly better where the search alone puts it (an
-            # odometry jump)
+            # odometry jump; how clearly: search_overrides_odometry)
             sig = self.graph.odometry_sigmas(np.zeros(3) if u is None else u)
             ro = refine(grid, pts, start, prior=predicted, occupied_weight=1.0,
                         translation_weight=1.0 / sig[0], rotation_weight=1.0 / sig[2],
                         residual_floor=cfg.local_residual_floor)
-            if ro.score >= r.score - cfg.odometry_score_margin:
+            if not self.search_overrides_odometry(r.score - ro.score):
                 r = ro
         self.weak = None
         pose = r.pose
@@ -214,6 +226,27 @@ class GraphSlam:
             pose[:2] += v * float(v @ (predicted[:2] - pose[:2]))
             self.weak = v
         return pose, r.score
+
+    def search_overrides_odometry(self, gain: float) -> bool:
+        """Whether the search's match, scoring ``gain`` more than the match held near
+        the odometry, replaces it. The margin it must beat follows how often the scans
+        have contradicted the odometry lately: ``odometry_score_margin`` when the search
+        won at least ``odometry_noisy_rate`` of the last ``odometry_rate_nodes`` nodes
+        by that margin (fr079's odometry, degrees off in every turn: 44 % of its nodes),
+        rising linearly to ``odometry_quiet_margin`` when it never did (fr-clinic's,
+        confirmed to a fraction of a degree: 2.5 %), so that one ambiguous scan in a
+        doorway or an open hall cannot turn the map by degrees."""
+        cfg = self.config
+        won = gain > cfg.odometry_score_margin
+        self._search_won.append(won)
+        if not won:
+            return False
+        n = len(self._search_won)
+        rate = sum(self._search_won) / n if n >= 10 else 1.0
+        quiet = max(0.0, 1.0 - rate / cfg.odometry_noisy_rate)
+        margin = cfg.odometry_score_margin + (cfg.odometry_quiet_margin
+                                              - cfg.odometry_score_margin) * quiet
+        return gain > margin
 
     def intensity_step(self, pose: np.ndarray, xy: np.ndarray,
                        inten: np.ndarray | None) -> np.ndarray:
