@@ -8,7 +8,8 @@ correlative search of a small window around the odometry prediction, then
 Gauss-Newton refinement on the interpolated probability grid with priors towards the
 prediction -- and inserted into both active submaps (a submap is finished after
 ``scans_per_submap`` nodes; a new one starts halfway, so two always overlap). Scans
-between nodes take the odometry from their node.
+between nodes are matched the same way but inserted nowhere: their pose relative to
+their node comes from the match, not from the odometry (:meth:`GraphSlam.track`).
 
 Loop closure (§V): every ``loop_every``-th node is matched by branch and bound against
 each finished submap within ``loop_max_distance_m`` of it, in a window of
@@ -63,6 +64,9 @@ class GraphSlamConfig(BaseModel):
     local_angular_window_rad: float = Field(0.2, ge=0)
     local_matching: bool = Field(True, description="off: nodes follow odometry (a front "
                                  "end of odometry alone; loop closure still runs)")
+    track_linear_window_m: float = Field(0.05, ge=0, description="search window of "
+                                         "scans between nodes (GraphSlam.track)")
+    track_angular_window_rad: float = Field(0.05, ge=0)
     local_min_score: float = Field(0.25, ge=0, le=1,
                                    description="below this the node follows odometry")
     search_translation_cost: float = Field(0.1, ge=0, description="correlative search: "
@@ -194,18 +198,27 @@ class GraphSlam:
         return [s for s in self.submaps if not s.finished][-2:]
 
     def match_local(self, xy: np.ndarray, predicted: np.ndarray,
-                    u: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+                    u: np.ndarray | None = None, record: bool = True,
+                    window: tuple[float, float] | None = None) -> tuple[np.ndarray, float]:
         """Scan-to-submap matching: correlative search, then Gauss-Newton refinement
-        (Hess et al. §IV-C) against the older active submap."""
+        (Hess et al. §IV-C) against the older active submap. ``record``: the outcome
+        counts towards :meth:`search_overrides_odometry`'s statistics (nodes only);
+        ``window``: the search's (linear m, angular rad) window instead of the local
+        one, (0, 0): no search, only the refinement held near the odometry."""
         cfg = self.config
         grid = self.active()[0].grid
         pts, _ = voxel_downsample(xy, None, cfg.match_voxel_m)
-        start, _ = correlative_search(grid, pts, predicted, cfg.local_linear_window_m,
-                                      cfg.local_angular_window_rad, cfg.search_translation_cost,
-                                      cfg.search_rotation_cost)
-        r = refine(grid, pts, start, prior=start, translation_weight=cfg.translation_weight,
-                   rotation_weight=cfg.rotation_weight)
-        if cfg.refine_prior == "odometry":
+        r = None
+        start = predicted
+        lin, ang = window or (cfg.local_linear_window_m, cfg.local_angular_window_rad)
+        if lin > 0 or ang > 0:
+            start, _ = correlative_search(grid, pts, predicted, lin, ang,
+                                          cfg.search_translation_cost,
+                                          cfg.search_rotation_cost)
+            r = refine(grid, pts, start, prior=start,
+                       translation_weight=cfg.translation_weight,
+                       rotation_weight=cfg.rotation_weight)
+        if cfg.refine_prior == "odometry" or r is None:
             # the motion model's own sigmas against a scan weighed by its residuals; kept
             # unless the scan fits clearly better where the search alone puts it (an
             # odometry jump; how clearly: search_overrides_odometry)
@@ -213,7 +226,7 @@ class GraphSlam:
             ro = refine(grid, pts, start, prior=predicted, occupied_weight=1.0,
                         translation_weight=1.0 / sig[0], rotation_weight=1.0 / sig[2],
                         residual_floor=cfg.local_residual_floor)
-            if not self.search_overrides_odometry(r.score - ro.score):
+            if r is None or not self.search_overrides_odometry(r.score - ro.score, record):
                 r = ro
         self.weak = None
         pose = r.pose
@@ -227,7 +240,24 @@ class GraphSlam:
             self.weak = v
         return pose, r.score
 
-    def search_overrides_odometry(self, gain: float) -> bool:
+    def track(self, xy: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """The pose of a scan that does not become a node, relative to the last node:
+        matched against the submap like a node but in the smaller ``track_*`` window
+        (it is within a node's step, 0.1 m / 0.05 rad, of its node), so its pose does
+        not inherit the odometry's error since the node; inserted nowhere and not part
+        of the graph; the odometry increment ``u`` when matching is off or fails."""
+        cfg = self.config
+        if not cfg.local_matching or not self.local:
+            return u
+        last = len(self.local) - 1
+        weak = self.weak
+        pose, score = self.match_local(xy, compose(self.local[last], u), u, record=False,
+                                       window=(cfg.track_linear_window_m,
+                                               cfg.track_angular_window_rad))
+        self.weak = weak
+        return relative(self.local[last], pose) if score >= cfg.local_min_score else u
+
+    def search_overrides_odometry(self, gain: float, record: bool = True) -> bool:
         """Whether the search's match, scoring ``gain`` more than the match held near
         the odometry, replaces it. The margin it must beat follows how often the scans
         have contradicted the odometry lately: ``odometry_score_margin`` when the search
@@ -238,11 +268,13 @@ class GraphSlam:
         doorway or an open hall cannot turn the map by degrees."""
         cfg = self.config
         won = gain > cfg.odometry_score_margin
-        self._search_won.append(won)
+        hist = self._search_won
+        if record:
+            hist.append(won)
         if not won:
             return False
-        n = len(self._search_won)
-        rate = sum(self._search_won) / n if n >= 10 else 1.0
+        n = len(hist)
+        rate = sum(hist) / n if n >= 10 else 1.0
         quiet = max(0.0, 1.0 - rate / cfg.odometry_noisy_rate)
         margin = cfg.odometry_score_margin + (cfg.odometry_quiet_margin
                                               - cfg.odometry_score_margin) * quiet
@@ -376,7 +408,7 @@ class GraphSlam:
                                       cfg.node_angular_rad)
                                 or scan.t - self.node_time[last] >= cfg.node_time_s)):
             self._scan_node.append(last)
-            self._scan_delta.append(u)
+            self._scan_delta.append(self.track(xy, u) if len(xy) >= 8 else u)
             return
         predicted = compose(self.local[last], u)
         pose, score, self.weak = predicted, 0.0, None
