@@ -277,3 +277,30 @@ def test_scans_between_nodes_do_not_inherit_an_odometry_glitch() -> None:
     e = relative(relative(truth[node_of], truth[hit]), relative(p[node_of], p[hit]))
     assert np.degrees(np.abs(e[:, 2])).mean() < 0.5
     assert np.hypot(e[:, 0], e[:, 1]).mean() < 0.02
+
+
+def test_the_loop_search_widens_with_the_path_since_the_last_closure() -> None:
+    """Nodes following odometry alone, candidate submaps 2 m away at most: with the
+    window growing by 0.1 m per m travelled without a closure, submaps farther away are
+    searched too (the outcome on a drifting loop is measured on the real logs)."""
+    log = simulated_log("loop", seed=1, speed_m_s=0.8)
+    searched = {}
+    for growth in (0.0, 0.1):
+        s = GraphSlam(GraphSlamConfig(local_matching=False, loop_max_distance_m=2.0,
+                                      loop_window_growth=growth))
+        for scan in log.scans:
+            s.process(scan)
+        searched[growth] = s.searches
+        assert s._travel[-1] > 30 and np.all(np.diff(s._travel) >= 0)
+    assert searched[0.1] > searched[0.0] > 0
+
+
+def test_no_closure_is_accepted_twice() -> None:
+    """Without the tracking window every match to a submap goes through confirmation:
+    a confirmed pair is accepted once, and neither of its matches can confirm again."""
+    log = simulated_log("loop", seed=1, speed_m_s=0.8)
+    s = GraphSlam(GraphSlamConfig(loop_track_nodes=0))
+    for scan in log.scans:
+        s.process(scan)
+    pairs = [(c.anchor, c.node) for c in s.closures]
+    assert len(pairs) > 10 and len(set(pairs)) == len(pairs)

@@ -13,8 +13,10 @@ their node comes from the match, not from the odometry (:meth:`GraphSlam.track`)
 
 Loop closure (§V): every ``loop_every``-th node is matched by branch and bound against
 each finished submap within ``loop_max_distance_m`` of it, in a window of
-``loop_linear_window_m`` / ``loop_angular_window_rad``; a match above ``loop_min_score``
-(refined by Gauss-Newton) becomes a robust between-edge from the submap's anchor node.
+``loop_linear_window_m`` / ``loop_angular_window_rad`` (both growing with the path
+travelled since the last accepted closure); a match above ``loop_min_score``, refined
+by Gauss-Newton to above ``loop_min_refined_score``, becomes a robust between-edge from
+the submap's anchor node once a nearby node confirms it.
 
 Optimisation: the nodes and edges (local matches, odometry, closures) form a pose graph
 optimised incrementally by iSAM2 (:mod:`numeric.slam.pose_graph`); after a closure the
@@ -98,7 +100,18 @@ class GraphSlamConfig(BaseModel):
                               "submap's own")
     loop_linear_window_m: float = Field(5.0, gt=0)
     loop_angular_window_rad: float = Field(np.radians(30.0), gt=0)
-    loop_min_score: float = Field(0.5, gt=0, le=1)
+    loop_min_score: float = Field(0.5, gt=0, le=1, description="branch and bound's score "
+                                  "(on the max-pooled grid) a closure needs ...")
+    loop_min_refined_score: float = Field(0.4, gt=0, le=1, description="... and its "
+                                          "refinement's on the submap's own grid (lower: "
+                                          "max-pooling inflates the first; fr-clinic's "
+                                          "correct local matches score 0.42-0.46)")
+    loop_window_growth: float = Field(0.01, ge=0, description="the candidate radius and "
+                                      "linear window grow by this many m per m travelled "
+                                      "since the last accepted closure (drift) ...")
+    loop_window_growth_rad: float = Field(0.0002, ge=0, description="... and the angular "
+                                          "window by this many rad per m")
+    loop_max_growth_m: float = Field(20.0, ge=0, description="cap of the linear growth")
     loop_angular_step_rad: float = Field(0.005, ge=0, description="coarsest angle step of "
                                          "the search (the refinement recovers the rest)")
     loop_verify_nodes: int = Field(15, ge=1, description="a first closure to a submap "
@@ -190,6 +203,8 @@ class GraphSlam:
         self._prev: tuple[np.ndarray, np.ndarray | None] | None = None  # for alpha > 0
         self.rng = np.random.default_rng(self.seed)
         self.weak: np.ndarray | None = None  # weak direction of the last local match
+        self._travel: list[float] = []  # path length (local frame) up to each node
+        self._closed_at = 0.0  # path length at the last accepted closure
         # per recent node: did the search beat the odometry by odometry_score_margin?
         self._search_won: deque[bool] = deque(maxlen=self.config.odometry_rate_nodes)
 
@@ -329,11 +344,16 @@ class GraphSlam:
         pts = adaptive_voxel(self.node_xy[node], cfg.loop_max_points)
         found = 0
         near = []
+        # the longer since the last closure, the farther the estimate may have drifted
+        # from the old submaps: the radius and the window grow with the path since then
+        since = self._travel[node] - self._closed_at
+        grow = min(cfg.loop_window_growth * since, cfg.loop_max_growth_m)
+        grow_rad = min(cfg.loop_window_growth_rad * since, np.pi - cfg.loop_angular_window_rad)
         for k, s in enumerate(self.submaps):
             if not s.finished or node in s.nodes:
                 continue
             d = float(np.hypot(*(g[s.anchor, :2] - g[node, :2])))
-            if d <= cfg.loop_max_distance_m:
+            if d <= cfg.loop_max_distance_m + grow:
                 near.append((d, k))
         wide = 0
         for _, k in sorted(near):
@@ -348,7 +368,8 @@ class GraphSlam:
             guess = compose(self.local[a], relative(g[a], g[node]))
             self.searches += 1
             lin, ang = ((cfg.loop_track_linear_window_m, cfg.loop_track_angular_window_rad)
-                        if tracking else (cfg.loop_linear_window_m, cfg.loop_angular_window_rad))
+                        if tracking else (cfg.loop_linear_window_m + grow,
+                                          cfg.loop_angular_window_rad + grow_rad))
             m = self.precomputed(k).match(pts, guess, lin, ang, cfg.loop_min_score,
                                           cfg.loop_angular_step_rad)
             if m is None:
@@ -357,7 +378,8 @@ class GraphSlam:
                        translation_weight=cfg.translation_weight,
                        rotation_weight=cfg.rotation_weight)
             self.degeneracies.append(r.degeneracy())
-            if r.score < cfg.loop_min_score or r.degeneracy() < cfg.loop_min_degeneracy:
+            if (r.score < cfg.loop_min_refined_score
+                    or r.degeneracy() < cfg.loop_min_degeneracy):
                 continue  # refined off the peak, or e.g. a plain corridor: the match
                 # cannot say where along it the scan belongs
             delta = relative(self.local[a], r.pose)
@@ -371,6 +393,7 @@ class GraphSlam:
                 if pend is None or node - pend.node > cfg.loop_verify_nodes or not (
                         self._consistent(pend, c)):
                     continue
+                del self._pending[k]  # both accepted below: neither may pend again
                 self._accept(pend)
                 found += 1
             self._accept(c)
@@ -393,6 +416,7 @@ class GraphSlam:
         self.graph.add_loop(c.anchor, c.node, c.delta)
         self.closures.append(c)
         self._last_closed[c.submap] = c.node
+        self._closed_at = max(self._closed_at, self._travel[c.node])
 
     # -- driver -------------------------------------------------------------------------
     def process(self, scan: Scan) -> None:
@@ -434,6 +458,8 @@ class GraphSlam:
     def _add_node(self, scan: Scan, local: np.ndarray, world: np.ndarray, xy: np.ndarray,
                   inten: np.ndarray | None) -> int:
         node = len(self.local)
+        self._travel.append(0.0 if not self.local else self._travel[-1] + float(
+            np.hypot(*(local[:2] - self.local[-1][:2]))))
         self.local.append(local)
         self.node_odom.append(scan.odom.copy())
         self.node_time.append(scan.t)
