@@ -202,7 +202,6 @@ class GraphSlam:
         self._pending: dict[int, LoopClosure] = {}  # submap -> match awaiting confirmation
         self._prev: tuple[np.ndarray, np.ndarray | None] | None = None  # for alpha > 0
         self.rng = np.random.default_rng(self.seed)
-        self.weak: np.ndarray | None = None  # weak direction of the last local match
         self._travel: list[float] = []  # path length (local frame) up to each node
         self._closed_at = 0.0  # path length at the last accepted closure
         # per recent node: did the search beat the odometry by odometry_score_margin?
@@ -214,26 +213,23 @@ class GraphSlam:
 
     def match_local(self, xy: np.ndarray, predicted: np.ndarray,
                     u: np.ndarray | None = None, record: bool = True,
-                    window: tuple[float, float] | None = None) -> tuple[np.ndarray, float]:
+                    window: tuple[float, float] | None = None,
+                    ) -> tuple[np.ndarray, float, np.ndarray | None]:
         """Scan-to-submap matching: correlative search, then Gauss-Newton refinement
-        (Hess et al. §IV-C) against the older active submap. ``record``: the outcome
-        counts towards :meth:`search_overrides_odometry`'s statistics (nodes only);
-        ``window``: the search's (linear m, angular rad) window instead of the local
-        one, (0, 0): no search, only the refinement held near the odometry."""
+        (Hess et al. §IV-C) against the older active submap. Returns the pose, its
+        score and the direction the match could not fix (``None`` when it fixed both).
+        ``record``: the outcome counts towards :meth:`search_overrides_odometry`'s
+        statistics (nodes only); ``window``: the search's (linear m, angular rad)
+        window instead of the local one."""
         cfg = self.config
         grid = self.active()[0].grid
         pts, _ = voxel_downsample(xy, None, cfg.match_voxel_m)
-        r = None
-        start = predicted
         lin, ang = window or (cfg.local_linear_window_m, cfg.local_angular_window_rad)
-        if lin > 0 or ang > 0:
-            start, _ = correlative_search(grid, pts, predicted, lin, ang,
-                                          cfg.search_translation_cost,
-                                          cfg.search_rotation_cost)
-            r = refine(grid, pts, start, prior=start,
-                       translation_weight=cfg.translation_weight,
-                       rotation_weight=cfg.rotation_weight)
-        if cfg.refine_prior == "odometry" or r is None:
+        start, _ = correlative_search(grid, pts, predicted, lin, ang,
+                                      cfg.search_translation_cost, cfg.search_rotation_cost)
+        r = refine(grid, pts, start, prior=start, translation_weight=cfg.translation_weight,
+                   rotation_weight=cfg.rotation_weight)
+        if cfg.refine_prior == "odometry":
             # the motion model's own sigmas against a scan weighed by its residuals; kept
             # unless the scan fits clearly better where the search alone puts it (an
             # odometry jump; how clearly: search_overrides_odometry)
@@ -241,19 +237,18 @@ class GraphSlam:
             ro = refine(grid, pts, start, prior=predicted, occupied_weight=1.0,
                         translation_weight=1.0 / sig[0], rotation_weight=1.0 / sig[2],
                         residual_floor=cfg.local_residual_floor)
-            if r is None or not self.search_overrides_odometry(r.score - ro.score, record):
+            if not self.search_overrides_odometry(r.score - ro.score, record):
                 r = ro
-        self.weak = None
         pose = r.pose
-        if r.degeneracy() < cfg.local_min_degeneracy:
-            # a direction the scan cannot fix (a plain corridor): take odometry's word
-            # for it (Zhang et al. 2016, "solution remapping")
-            _, vec = np.linalg.eigh(r.information[:2, :2])
-            v = vec[:, 0]
-            pose = pose.copy()
-            pose[:2] += v * float(v @ (predicted[:2] - pose[:2]))
-            self.weak = v
-        return pose, r.score
+        if r.degeneracy() >= cfg.local_min_degeneracy:
+            return pose, r.score, None
+        # a direction the scan cannot fix (a plain corridor): take odometry's word for
+        # it (Zhang et al. 2016, "solution remapping")
+        _, vec = np.linalg.eigh(r.information[:2, :2])
+        v = vec[:, 0]
+        pose = pose.copy()
+        pose[:2] += v * float(v @ (predicted[:2] - pose[:2]))
+        return pose, r.score, v
 
     def track(self, xy: np.ndarray, u: np.ndarray) -> np.ndarray:
         """The pose of a scan that does not become a node, relative to the last node:
@@ -262,14 +257,12 @@ class GraphSlam:
         not inherit the odometry's error since the node; inserted nowhere and not part
         of the graph; the odometry increment ``u`` when matching is off or fails."""
         cfg = self.config
-        if not cfg.local_matching or not self.local:
+        if not cfg.local_matching:
             return u
         last = len(self.local) - 1
-        weak = self.weak
-        pose, score = self.match_local(xy, compose(self.local[last], u), u, record=False,
-                                       window=(cfg.track_linear_window_m,
-                                               cfg.track_angular_window_rad))
-        self.weak = weak
+        pose, score, _ = self.match_local(xy, compose(self.local[last], u), u, record=False,
+                                          window=(cfg.track_linear_window_m,
+                                                  cfg.track_angular_window_rad))
         return relative(self.local[last], pose) if score >= cfg.local_min_score else u
 
     def search_overrides_odometry(self, gain: float, record: bool = True) -> bool:
@@ -435,18 +428,18 @@ class GraphSlam:
             self._scan_delta.append(self.track(xy, u) if len(xy) >= 8 else u)
             return
         predicted = compose(self.local[last], u)
-        pose, score, self.weak = predicted, 0.0, None
+        pose, score, weak = predicted, 0.0, None
         if cfg.local_matching:
-            pose, score = self.match_local(xy, predicted, u)
+            pose, score, weak = self.match_local(xy, predicted, u)
         if score < cfg.local_min_score:
-            pose, self.weak = predicted, None
+            pose, weak = predicted, None
         elif cfg.alpha > 0:
             pose = self.intensity_step(pose, xy, inten)
         delta = relative(self.local[last], pose)
         node = self._add_node(scan, pose, compose(self._global[last], delta), xy, inten)
         if score >= cfg.local_min_score:  # else odometry alone links the nodes
-            self.graph.add_local(last, node, delta, None if self.weak is None
-                                 else rotate_xy(self.weak, -self.local[last][2]))
+            self.graph.add_local(last, node, delta, None if weak is None
+                                 else rotate_xy(weak, -self.local[last][2]))
         self.graph.add_odometry(last, node, u)
         if node % cfg.loop_every == 0 and self.search_loops(node):
             self.graph.update()
