@@ -306,13 +306,15 @@ class RbpfSlam:
             self._scan_delta.append(relative(self._anchor_odom, scan.odom))
             return
         u = relative(self._anchor_odom, scan.odom)
-        pick = np.linspace(0, len(xy) - 1, min(cfg.beams, len(xy))).astype(int)
+        cand = np.arange(len(xy))
         if improved:
             # beams beyond the keyframes' max_points_m can never find a map point: the
             # beams are picked among the others (in halls most returns are that far)
             near = np.flatnonzero(np.hypot(xy[:, 0], xy[:, 1]) <= cfg.map.max_points_m)
             if len(near) >= 8:
-                pick = near[np.linspace(0, len(near) - 1, min(cfg.beams, len(near))).astype(int)]
+                cand = near
+        pick = cand[np.linspace(0, len(cand) - 1, min(cfg.beams, len(cand))).astype(int)]
+        if improved:
             ll = self.improved_step(u, xy[pick], None if inten is None else inten[pick])
         else:
             um = self.matched_increment(u, xy, inten) if cfg.proposal == "gated-icp" else None
