@@ -114,6 +114,27 @@ def _predict(last_odom: np.ndarray, last_pose: np.ndarray, odom: np.ndarray) -> 
     return compose(last_pose, relative(last_odom, odom))
 
 
+def sequential(log: LaserLog,
+               correct: Callable[[int, Scan, np.ndarray], np.ndarray]) -> PeerResult:
+    """OpenKarto's sequential front end around a scan matcher: a scan is processed only
+    when the sensor has moved enough since the last processed one (:func:`moved_enough`),
+    starting from the odometry increment since then applied to that scan's corrected
+    pose (:func:`_predict`); ``correct(i, scan, predicted)`` returns its corrected pose.
+    The scans in between keep the prediction. Times the loop."""
+    last: tuple[float, np.ndarray] | None = None
+    last_odom = last_pose = np.zeros(3)
+    poses = np.empty((len(log), 3))
+    t_start = time.perf_counter()
+    for i, scan in enumerate(log.scans):
+        pose = scan.odom.copy() if last is None else _predict(last_odom, last_pose, scan.odom)
+        s_odom = _sensor_odom(scan)
+        if moved_enough(last, scan.t, s_odom):
+            pose = correct(i, scan, pose)
+            last, last_odom, last_pose = (scan.t, s_odom), scan.odom.copy(), pose
+        poses[i] = pose
+    return log.times, poses, time.perf_counter() - t_start
+
+
 def raw_odometry(log: LaserLog) -> PeerResult:
     t0 = time.perf_counter()
     poses = log.odometry
@@ -154,25 +175,18 @@ def karto_odometry(log: LaserLog, range_threshold_m: float = RANGE_THRESHOLD_M,
 
     lasers: dict[tuple[int, float, float], Any] = {}
     running: list[Any] = []        # ks.LocalizedRangeScan; corrected_pose = sensor pose
-    last: tuple[float, np.ndarray] | None = None
-    last_odom = last_pose = np.zeros(3)
-    poses = np.empty((len(log), 3))
-    t_start = time.perf_counter()
-    for i, scan in enumerate(log.scans):
-        pose = scan.odom.copy() if last is None else _predict(last_odom, last_pose, scan.odom)
-        s_odom = _sensor_odom(scan)
-        if not moved_enough(last, scan.t, s_odom):
-            poses[i] = pose
-            continue
+
+    def correct(i: int, scan: Scan, pose: np.ndarray) -> np.ndarray:
         a = scan.angles
         key = (len(a), float(a[0]), float(a[1] - a[0]))
         if key not in lasers:
             lasers[key] = ks.LaserScanConfig(key[1], float(a[-1]), key[2], scan.min_range_m,
                                              scan.max_range_m, range_threshold_m, "laser")
         sensor = compose(pose, scan.sensor_pose)
-        kscan = ks.LocalizedRangeScan(lasers[key], ranges(scan), ks.Pose2(*s_odom),
-                                      ks.Pose2(*sensor), i, scan.t)
-        if last is not None:
+        kscan = ks.LocalizedRangeScan(lasers[key], ranges(scan),
+                                      ks.Pose2(*_sensor_odom(scan)), ks.Pose2(*sensor), i,
+                                      scan.t)
+        if running:  # not the first processed scan
             best = matcher.match_scan(kscan, running, True, True).best_pose
             sensor = np.array([best.x, best.y, best.yaw])
             kscan.corrected_pose = ks.Pose2(*sensor)
@@ -184,9 +198,9 @@ def karto_odometry(log: LaserLog, range_threshold_m: float = RANGE_THRESHOLD_M,
             if len(running) <= SCAN_BUFFER_SIZE and d2 <= SCAN_BUFFER_MAX_DISTANCE_M**2 - 1e-6:
                 break
             running.pop(0)
-        last, last_odom, last_pose = (scan.t, s_odom), scan.odom.copy(), pose
-        poses[i] = pose
-    return log.times, poses, time.perf_counter() - t_start
+        return pose
+
+    return sequential(log, correct)
 
 
 def _extrude(xy: np.ndarray) -> np.ndarray:
@@ -209,15 +223,8 @@ def gicp_odometry(log: LaserLog, local_map_scans: int = GICP_LOCAL_MAP_SCANS) ->
     import small_gicp as sg
 
     keyframes: list[np.ndarray] = []      # world-frame 2-D points of processed scans
-    last: tuple[float, np.ndarray] | None = None
-    last_odom = last_pose = np.zeros(3)
-    poses = np.empty((len(log), 3))
-    t_start = time.perf_counter()
-    for i, scan in enumerate(log.scans):
-        pose = scan.odom.copy() if last is None else _predict(last_odom, last_pose, scan.odom)
-        if not moved_enough(last, scan.t, _sensor_odom(scan)):
-            poses[i] = pose
-            continue
+
+    def correct(i: int, scan: Scan, pose: np.ndarray) -> np.ndarray:
         xy, _ = scan.points()
         if keyframes and len(xy) >= 10:
             target = np.vstack(keyframes[-local_map_scans:]) - pose[:2]   # near the origin
@@ -233,9 +240,9 @@ def gicp_odometry(log: LaserLog, local_map_scans: int = GICP_LOCAL_MAP_SCANS) ->
         keyframes.append(place(xy, pose))
         if len(keyframes) > local_map_scans:
             keyframes.pop(0)
-        last, last_odom, last_pose = (scan.t, _sensor_odom(scan)), scan.odom.copy(), pose
-        poses[i] = pose
-    return log.times, poses, time.perf_counter() - t_start
+        return pose
+
+    return sequential(log, correct)
 
 
 #: Peers run by default, in table order. ``karto`` uses OpenKarto's defaults throughout;
