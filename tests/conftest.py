@@ -41,7 +41,8 @@ def free_port() -> int:
 class LiveServer:
     """``chizu serve`` in a subprocess on a free loopback port."""
 
-    def __init__(self, data_dir: Path, demo: bool = False) -> None:
+    def __init__(self, data_dir: Path, demo: bool = False,
+                 start_timeout_s: float = 60.0) -> None:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         env = {**os.environ, "CHIZU_DATA_DIR": str(data_dir), "CHIZU_PORT": str(self.port),
@@ -52,7 +53,7 @@ class LiveServer:
         self._log = self.log_path.open("ab")
         self.proc = subprocess.Popen([sys.executable, "-m", "service.cli", "serve"], env=env,
                                      cwd=ROOT, stdout=self._log, stderr=subprocess.STDOUT)
-        deadline = time.monotonic() + 60
+        deadline = time.monotonic() + start_timeout_s
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
                 raise RuntimeError(f"server exited: {self.log_path.read_text()}")
@@ -79,7 +80,8 @@ def live_server_factory() -> Iterator[type[LiveServer]]:
     started: list[LiveServer] = []
 
     class Factory(LiveServer):
-        def __init__(self, data_dir: Path, demo: bool = False) -> None:
+        def __init__(self, data_dir: Path, demo: bool = False,
+                 start_timeout_s: float = 60.0) -> None:
             super().__init__(data_dir, demo)
             started.append(self)
 

@@ -35,8 +35,6 @@ import json
 import math
 import os
 import re
-import socket
-import subprocess
 import sys
 import tempfile
 import time
@@ -54,6 +52,7 @@ sys.path.insert(0, str(ROOT))
 from numeric.slam.datasets import slam_data_dir  # noqa: E402
 from numeric.slam.logs import read_log  # noqa: E402
 from numeric.slam.scan import Scan  # noqa: E402
+from tests.conftest import LiveServer  # noqa: E402
 
 WORLD = "stream"
 PROBLEM = "application/problem+json"
@@ -65,36 +64,12 @@ def default_log() -> Path:
     return d / "aces" / "aces.recon.clf"
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-class Server:
-    """``python -m service.cli serve`` (what ``make run`` starts) on a free port."""
+class Server(LiveServer):
+    """``python -m service.cli serve`` (what ``make run`` starts) on a free port, with
+    its CPU time and peak memory."""
 
     def __init__(self, data_dir: Path) -> None:
-        self.port = free_port()
-        self.url = f"http://127.0.0.1:{self.port}"
-        env = {**os.environ, "CHIZU_DATA_DIR": str(data_dir), "CHIZU_PORT": str(self.port),
-               "CHIZU_HOST": "127.0.0.1", "CHIZU_DEMO_WORLD": ""}
-        self.log_path = data_dir / "server.log"
-        self._log = self.log_path.open("ab")
-        self.proc = subprocess.Popen([sys.executable, "-m", "service.cli", "serve"], env=env,
-                                     cwd=ROOT, stdout=self._log, stderr=subprocess.STDOUT)
-        deadline = time.monotonic() + 90
-        while time.monotonic() < deadline:
-            if self.proc.poll() is not None:
-                raise RuntimeError(f"server exited: {self.log_path.read_text()[-3000:]}")
-            try:
-                if httpx.get(self.url + "/health", timeout=2).status_code == 200:
-                    return
-            except httpx.HTTPError:
-                pass
-            time.sleep(0.2)
-        self.stop()
-        raise RuntimeError("server did not start")
+        super().__init__(data_dir, start_timeout_s=90.0)
 
     def cpu_s(self) -> float:
         """User + system CPU seconds of the server process so far."""
@@ -106,15 +81,6 @@ class Server:
             if line.startswith("VmHWM:"):
                 return int(line.split()[1]) / 1024
         return float("nan")
-
-    def stop(self) -> None:
-        self.proc.terminate()
-        try:
-            self.proc.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
-        self._log.close()
 
 
 def busy_jiffies() -> int:
