@@ -518,15 +518,22 @@ def scan_match(start: np.ndarray, pts: np.ndarray, li: np.ndarray, alpha: float,
 
 
 @njit(cache=True)
+def _compose(x0: np.ndarray, u: np.ndarray, out: np.ndarray) -> None:
+    """``out = x0 (+) u``: the increment ``u`` (in the frame of ``x0``) applied to ``x0``,
+    the heading left unwrapped."""
+    c = math.cos(x0[2])
+    s = math.sin(x0[2])
+    out[0] = x0[0] + c * u[0] - s * u[1]
+    out[1] = x0[1] + s * u[0] + c * u[1]
+    out[2] = x0[2] + u[2]
+
+
+@njit(cache=True)
 def _prior(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, use: bool) -> np.ndarray:
     """``(2, 3)``: the odometry prediction x' = x0 (+) u and 1/σ² of the motion model
     (world axes: σ_x = σ_y), or zeros in the second row when ``use`` is False."""
     out = np.zeros((2, 3))
-    c = math.cos(x0[2])
-    s = math.sin(x0[2])
-    out[0, 0] = x0[0] + c * u[0] - s * u[1]
-    out[0, 1] = x0[1] + s * u[0] + c * u[1]
-    out[0, 2] = x0[2] + u[2]
+    _compose(x0, u, out[0])
     if use:
         for i in range(3):
             out[1, i] = 1.0 / (sig[i] * sig[i])
@@ -591,9 +598,8 @@ def robust_increment(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, pts: np.nda
     out = u.copy()
     prior = _prior(x0, u, sig, use_prior)
     for o in headings:
-        start[0] = x0[0] + c0 * u[0] - s0 * u[1]
-        start[1] = x0[1] + s0 * u[0] + c0 * u[1]
-        start[2] = x0[2] + u[2] + o
+        start[:] = prior[0]  # x0 (+) u, turned by o
+        start[2] += o
         hat, cost, _ = scan_match(start, pts, li, alpha, grid, gint, meta, origins, inv_res,
                                   kpose, cut2, max_iter, cand, h, work, iwork, inv_2s2,
                                   prior)
@@ -655,11 +661,7 @@ def propose_all(x_prev: np.ndarray, u: np.ndarray, u_start: np.ndarray, sig: np.
     for p in range(n_u):
         _kposes(kf_pose, p, kpose)
         x0 = x_prev[p]
-        c0 = math.cos(x0[2])
-        s0 = math.sin(x0[2])
-        start[0] = x0[0] + c0 * u_start[0] - s0 * u_start[1]  # x' = x_{t-1} (+) u
-        start[1] = x0[1] + s0 * u_start[0] + c0 * u_start[1]
-        start[2] = x0[2] + u_start[2]
+        _compose(x0, u_start, start)  # x' = x_{t-1} (+) u
         hat, _, inl = scan_match(start, pts, li, alpha, grid, gint, meta, origins, inv_res,
                                  kpose, cut2, max_iter, cand, h, work, iwork, inv_2s2,
                                  _prior(x0, u, sig, use_prior))
