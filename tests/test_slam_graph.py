@@ -102,6 +102,35 @@ def test_branch_and_bound_equals_brute_force_on_random_cases() -> None:
         assert _score(pre.stack, 0, cells, a, dx, dy) == pytest.approx(s)
         # a threshold above the best finds nothing
         assert branch_and_bound(pre.stack, cells, 2 * w + 1, 2 * w + 1, bf[3] + 1e-9)[0] == -1
+        # the second peak: the best outside a disk around the first, as brute force has it
+        r = int(rng.integers(0, w + 1))
+        bf2 = brute_force(pre.stack, cells, 2 * w + 1, 2 * w + 1, dx, dy, r)
+        bb2 = branch_and_bound(pre.stack, cells, 2 * w + 1, 2 * w + 1, -1.0, dx, dy, r)
+        assert (bb2[1] - dx) ** 2 + (bb2[2] - dy) ** 2 > r * r, case
+        assert bb2[3] == pytest.approx(bf2[3], abs=1e-12), case
+        assert bb2[3] <= bb[3] + 1e-12
+
+
+def test_the_uniqueness_test_flags_a_scan_that_fits_two_places(room_grid) -> None:  # type: ignore[no-untyped-def]
+    """A corridor with two identical pillar pairs 6 m apart: a scan that sees one pair
+    (short range) fits at both, so a second peak as good lies beyond the exclusion
+    radius; in the room (one pillar) the best pose is unique."""
+    posts = [np.array([[x, 0.5], [x + 0.4, 0.5], [x + 0.4, 0.9], [x, 0.9]]) for x in (9.0, 15.0)]
+    a = np.vstack([CORRIDOR[0], *posts])
+    b = np.vstack([CORRIDOR[1], *[np.roll(q, -1, axis=0) for q in posts]])
+    walls = (a, b)
+    grid = submap([np.array([x, 1.5, 0.0]) for x in (8.0, 10.0, 14.0, 16.0)], walls, 3.0)
+    true = np.array([9.5, 1.5, 0.0])
+    pts = scan_at(true, walls, 3.0)
+    pre = PrecomputedGrid(grid, 7)
+    guess = true + [0.2, 0.0, 0.02]
+    m = pre.match(pts, guess, 7.0, 0.1, 0.3, exclusion_m=1.0, second_ratio=0.9)
+    assert m is not None and m.second >= 0.9 * m.score
+    assert pre.match(pts, guess, 0.5, 0.1, 0.3, exclusion_m=0.0) is not None
+    r_true = np.array([3.0, 4.0, 0.3])
+    m = PrecomputedGrid(room_grid, 7).match(scan_at(r_true, ROOM)[::2], r_true + [0.3, 0.2, 0.05],
+                                            2.0, 0.2, 0.3, exclusion_m=1.0, second_ratio=0.9)
+    assert m is not None and m.second == 0.0
 
 
 def test_loop_closure_matcher_finds_a_scan_far_from_its_guess(room_grid) -> None:  # type: ignore[no-untyped-def]
@@ -280,14 +309,15 @@ def test_scans_between_nodes_do_not_inherit_an_odometry_glitch() -> None:
 
 
 def test_the_loop_search_widens_with_the_path_since_the_last_closure() -> None:
-    """Nodes following odometry alone, candidate submaps 2 m away at most: with the
-    window growing by 0.1 m per m travelled without a closure, submaps farther away are
-    searched too (the outcome on a drifting loop is measured on the real logs)."""
+    """Nodes following odometry alone, candidate submaps 2 m away at most, no match good
+    enough to close (so nothing resets the growth): with the window growing by 0.1 m
+    per m travelled without a closure, submaps farther away are searched too (the
+    outcome on a drifting loop is measured on the real logs)."""
     log = simulated_log("loop", seed=1, speed_m_s=0.8)
     searched = {}
     for growth in (0.0, 0.1):
         s = GraphSlam(GraphSlamConfig(local_matching=False, loop_max_distance_m=2.0,
-                                      loop_window_growth=growth))
+                                      loop_window_growth=growth, loop_min_score=1.0))
         for scan in log.scans:
             s.process(scan)
         searched[growth] = s.searches

@@ -245,10 +245,14 @@ def _score(pre: np.ndarray, h: int, pts: np.ndarray, a: int, dx: int, dy: int) -
 
 @njit(cache=True)
 def branch_and_bound(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int,
-                     min_score: float) -> tuple[int, int, int, float]:
+                     min_score: float, ex_x: int = 0, ex_y: int = 0,
+                     ex_r: int = -1) -> tuple[int, int, int, float]:
     """Best ``(angle index, dx, dy, score)`` over offsets ``[0, wx) x [0, wy)`` with a
     score above ``min_score`` (angle -1 when none), Hess et al. Algorithm 3. ``pts (A,
-    n, 2)`` are the points' cells at offset (0, 0) in ``pre``'s padded frame."""
+    n, 2)`` are the points' cells at offset (0, 0) in ``pre``'s padded frame. Offsets
+    within ``ex_r`` cells of ``(ex_x, ex_y)`` are excluded (``ex_r < 0``: none): the
+    search for a second peak away from the first. A node's bound still covers the
+    excluded offsets it contains, so it stays an upper bound."""
     depth = pre.shape[0] - 1
     na = pts.shape[0]
     step = 1 << depth
@@ -283,7 +287,7 @@ def branch_and_bound(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int,
     # most of the tree at once
     ca, cx0, cy0 = na // 2, wx // 2, wy // 2
     sc0 = _score(pre, 0, pts, ca, cx0, cy0)
-    if sc0 > best:
+    if sc0 > best and (cx0 - ex_x) ** 2 + (cy0 - ex_y) ** 2 > ex_r * ex_r:
         best, ba, bx, by = sc0, ca, cx0, cy0
     cs = np.empty(4)
     cx = np.empty(4, dtype=np.int64)
@@ -294,7 +298,8 @@ def branch_and_bound(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int,
         if sc <= best:
             continue
         if h == 0:
-            best, ba, bx, by = sc, a, x0, y0
+            if (x0 - ex_x) ** 2 + (y0 - ex_y) ** 2 > ex_r * ex_r:
+                best, ba, bx, by = sc, a, x0, y0
             continue
         half = 1 << (h - 1)
         m = 0
@@ -313,12 +318,15 @@ def branch_and_bound(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int,
 
 
 @njit(cache=True)
-def brute_force(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int) -> tuple[int, int, int, float]:
+def brute_force(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int, ex_x: int = 0,
+                ex_y: int = 0, ex_r: int = -1) -> tuple[int, int, int, float]:
     """The exhaustive search :func:`branch_and_bound` must agree with."""
     best, ba, bx, by = -1.0, 0, 0, 0
     for a in range(pts.shape[0]):
         for dx in range(wx):
             for dy in range(wy):
+                if (dx - ex_x) ** 2 + (dy - ex_y) ** 2 <= ex_r * ex_r:
+                    continue
                 s = _score(pre, 0, pts, a, dx, dy)
                 if s > best:
                     best, ba, bx, by = s, a, dx, dy
@@ -327,10 +335,13 @@ def brute_force(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int) -> tuple[int
 
 @dataclass
 class Match:
-    """A scan placed in a grid: its pose (grid's world frame) and mean probability."""
+    """A scan placed in a grid: its pose (grid's world frame) and mean probability, and
+    the best score found at least ``exclusion_m`` away from it (``second``, when asked
+    for; 0 when nothing there passes the threshold)."""
 
     pose: np.ndarray
     score: float
+    second: float = 0.0
 
 
 class PrecomputedGrid:
@@ -363,15 +374,28 @@ class PrecomputedGrid:
 
     def match(self, points: np.ndarray, pose: np.ndarray, linear_window_m: float,
               angular_window_rad: float, min_score: float,
-              min_step_rad: float = 0.0) -> Match | None:
+              min_step_rad: float = 0.0, exclusion_m: float = 0.0,
+              second_ratio: float = 1.0) -> Match | None:
         """The best pose within the window by branch and bound, or None below
         ``min_score``. A ``min_step_rad`` coarser than Hess et al.'s eq. 7 step trades
-        the far points' alignment (refined afterwards) for speed."""
+        the far points' alignment (refined afterwards) for speed.
+
+        With ``exclusion_m > 0`` a second search finds the best pose at least that far
+        from the first, among those scoring above ``second_ratio`` times the first's
+        score (``Match.second``): a peak as good elsewhere in the window means the scan
+        fits the submap in two places (a corridor's repeated doors), a test of the
+        match's uniqueness after Olson, "Real-Time Correlative Scan Matching" (ICRA
+        2009, §IV: a match is only as good as the response's spread)."""
         thetas, cells, w = self.candidates(points, pose, linear_window_m, angular_window_rad,
                                            min_step_rad)
         a, dx, dy, score = branch_and_bound(self.stack, cells, 2 * w + 1, 2 * w + 1, min_score)
         if a < 0:
             return None
         res = self.grid.resolution_m
+        second = 0.0
+        if exclusion_m > 0:
+            b = branch_and_bound(self.stack, cells, 2 * w + 1, 2 * w + 1,
+                                 second_ratio * score, dx, dy, int(np.ceil(exclusion_m / res)))
+            second = float(b[3]) if b[0] >= 0 else 0.0
         return Match(np.array([pose[0] + (dx - w) * res, pose[1] + (dy - w) * res,
-                               pose[2] + thetas[a]]), float(score))
+                               pose[2] + thetas[a]]), float(score), second)
