@@ -392,10 +392,22 @@ class PrecomputedGrid:
         if a < 0:
             return None
         res = self.grid.resolution_m
-        second = 0.0
+        m = Match(np.array([pose[0] + (dx - w) * res, pose[1] + (dy - w) * res,
+                            pose[2] + thetas[a]]), float(score))
         if exclusion_m > 0:
-            b = branch_and_bound(self.stack, cells, 2 * w + 1, 2 * w + 1,
-                                 second_ratio * score, dx, dy, int(np.ceil(exclusion_m / res)))
-            second = float(b[3]) if b[0] >= 0 else 0.0
-        return Match(np.array([pose[0] + (dx - w) * res, pose[1] + (dy - w) * res,
-                               pose[2] + thetas[a]]), float(score), second)
+            m.second = self.second_score(points, pose, linear_window_m, angular_window_rad,
+                                         m, exclusion_m, second_ratio, min_step_rad)
+        return m
+
+    def second_score(self, points: np.ndarray, pose: np.ndarray, linear_window_m: float,
+                     angular_window_rad: float, best: Match, exclusion_m: float,
+                     ratio: float, min_step_rad: float = 0.0) -> float:
+        """The best score in the same window (centred at ``pose``) at least
+        ``exclusion_m`` from ``best``, if above ``ratio`` times its score, else 0."""
+        thetas, cells, w = self.candidates(points, pose, linear_window_m, angular_window_rad,
+                                           min_step_rad)
+        res = self.grid.resolution_m
+        ex = np.round((best.pose[:2] - pose[:2]) / res).astype(int) + w
+        b = branch_and_bound(self.stack, cells, 2 * w + 1, 2 * w + 1, ratio * best.score,
+                             int(ex[0]), int(ex[1]), int(np.ceil(exclusion_m / res)))
+        return float(b[3]) if b[0] >= 0 else 0.0

@@ -380,12 +380,10 @@ class GraphSlam:
             lin, ang = ((cfg.loop_track_linear_window_m, cfg.loop_track_angular_window_rad)
                         if tracking else (min(cfg.loop_linear_window_m + grow, near_m),
                                           cfg.loop_angular_window_rad + grow_rad))
-            m = self.precomputed(k).match(pts, guess, lin, ang, cfg.loop_min_score,
-                                          cfg.loop_angular_step_rad,
-                                          0.0 if tracking else cfg.loop_unique_m,
-                                          cfg.loop_unique_ratio)
-            if m is None or m.second > 0:
-                continue  # nothing there, or the scan fits two places (aliasing)
+            pre = self.precomputed(k)
+            m = pre.match(pts, guess, lin, ang, cfg.loop_min_score, cfg.loop_angular_step_rad)
+            if m is None:
+                continue
             r = refine(s.grid, self.node_xy[node], m.pose, prior=m.pose,
                        translation_weight=cfg.translation_weight,
                        rotation_weight=cfg.rotation_weight)
@@ -394,6 +392,10 @@ class GraphSlam:
                     or r.degeneracy() < cfg.loop_min_degeneracy):
                 continue  # refined off the peak, or e.g. a plain corridor: the match
                 # cannot say where along it the scan belongs
+            if not tracking and cfg.loop_unique_m > 0 and pre.second_score(
+                    pts, guess, lin, ang, m, cfg.loop_unique_m, cfg.loop_unique_ratio,
+                    cfg.loop_angular_step_rad) > 0:
+                continue  # the scan fits two places in the window (aliasing)
             delta = relative(self.local[a], r.pose)
             c = LoopClosure(node, k, a, r.score, delta)
             if not tracking:
