@@ -244,3 +244,13 @@ def test_lookup_is_the_bilinear_minimum_over_intensity_bands() -> None:
                 near = inten[b, i + (fu >= 0.5), j + (fv >= 0.5)]
                 expect = min(expect, bil + alpha * (near - li) ** 2)
         assert val == pytest.approx(expect, abs=1e-6)
+
+
+def test_the_paper_proposals_keep_their_reference_unless_a_map_is_given() -> None:
+    """The improved proposal matches against about the last 15 m of keyframes; the
+    paper's proposals keep the 8 + 8 reference their figures were made with."""
+    assert RbpfConfig().map.recent_keyframes == 50
+    assert RbpfConfig(proposal="odometry").map.recent_keyframes == 8
+    assert RbpfConfig(proposal="gated-icp").map.nearby_radius_m == 6.0
+    given = RbpfConfig(proposal="odometry", map={"recent_keyframes": 3})  # type: ignore[arg-type]
+    assert given.map.recent_keyframes == 3
