@@ -124,13 +124,14 @@ def test_the_uniqueness_test_flags_a_scan_that_fits_two_places(room_grid) -> Non
     pts = scan_at(true, walls, 3.0)
     pre = PrecomputedGrid(grid, 7)
     guess = true + [0.2, 0.0, 0.02]
-    m = pre.match(pts, guess, 7.0, 0.1, 0.3, exclusion_m=1.0, second_ratio=0.9)
-    assert m is not None and m.second >= 0.9 * m.score
-    assert pre.match(pts, guess, 0.5, 0.1, 0.3, exclusion_m=0.0) is not None
+    m = pre.match(pts, guess, 7.0, 0.1, 0.3)
+    assert m is not None and pre.second_score(pts, guess, 7.0, 0.1, m, 1.0, 0.9) >= 0.9 * m.score
+    assert pre.match(pts, guess, 0.5, 0.1, 0.3) is not None
     r_true = np.array([3.0, 4.0, 0.3])
-    m = PrecomputedGrid(room_grid, 7).match(scan_at(r_true, ROOM)[::2], r_true + [0.3, 0.2, 0.05],
-                                            2.0, 0.2, 0.3, exclusion_m=1.0, second_ratio=0.9)
-    assert m is not None and m.second == 0.0
+    room = PrecomputedGrid(room_grid, 7)
+    r_pts, r_guess = scan_at(r_true, ROOM)[::2], r_true + [0.3, 0.2, 0.05]
+    m = room.match(r_pts, r_guess, 2.0, 0.2, 0.3)
+    assert m is not None and room.second_score(r_pts, r_guess, 2.0, 0.2, m, 1.0, 0.9) == 0.0
 
 
 def test_loop_closure_matcher_finds_a_scan_far_from_its_guess(room_grid) -> None:  # type: ignore[no-untyped-def]

@@ -335,13 +335,10 @@ def brute_force(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int, ex_x: int = 
 
 @dataclass
 class Match:
-    """A scan placed in a grid: its pose (grid's world frame) and mean probability, and
-    the best score found at least ``exclusion_m`` away from it (``second``, when asked
-    for; 0 when nothing there passes the threshold)."""
+    """A scan placed in a grid: its pose (grid's world frame) and mean probability."""
 
     pose: np.ndarray
     score: float
-    second: float = 0.0
 
 
 class PrecomputedGrid:
@@ -374,36 +371,28 @@ class PrecomputedGrid:
 
     def match(self, points: np.ndarray, pose: np.ndarray, linear_window_m: float,
               angular_window_rad: float, min_score: float,
-              min_step_rad: float = 0.0, exclusion_m: float = 0.0,
-              second_ratio: float = 1.0) -> Match | None:
+              min_step_rad: float = 0.0) -> Match | None:
         """The best pose within the window by branch and bound, or None below
         ``min_score``. A ``min_step_rad`` coarser than Hess et al.'s eq. 7 step trades
-        the far points' alignment (refined afterwards) for speed.
-
-        With ``exclusion_m > 0`` a second search finds the best pose at least that far
-        from the first, among those scoring above ``second_ratio`` times the first's
-        score (``Match.second``): a peak as good elsewhere in the window means the scan
-        fits the submap in two places (a corridor's repeated doors), a test of the
-        match's uniqueness after Olson, "Real-Time Correlative Scan Matching" (ICRA
-        2009, §IV: a match is only as good as the response's spread)."""
+        the far points' alignment (refined afterwards) for speed."""
         thetas, cells, w = self.candidates(points, pose, linear_window_m, angular_window_rad,
                                            min_step_rad)
         a, dx, dy, score = branch_and_bound(self.stack, cells, 2 * w + 1, 2 * w + 1, min_score)
         if a < 0:
             return None
         res = self.grid.resolution_m
-        m = Match(np.array([pose[0] + (dx - w) * res, pose[1] + (dy - w) * res,
-                            pose[2] + thetas[a]]), float(score))
-        if exclusion_m > 0:
-            m.second = self.second_score(points, pose, linear_window_m, angular_window_rad,
-                                         m, exclusion_m, second_ratio, min_step_rad)
-        return m
+        return Match(np.array([pose[0] + (dx - w) * res, pose[1] + (dy - w) * res,
+                               pose[2] + thetas[a]]), float(score))
 
     def second_score(self, points: np.ndarray, pose: np.ndarray, linear_window_m: float,
                      angular_window_rad: float, best: Match, exclusion_m: float,
                      ratio: float, min_step_rad: float = 0.0) -> float:
-        """The best score in the same window (centred at ``pose``) at least
-        ``exclusion_m`` from ``best``, if above ``ratio`` times its score, else 0."""
+        """The best score in :meth:`match`'s window (centred at ``pose``) at least
+        ``exclusion_m`` from ``best``, if above ``ratio`` times its score, else 0: a
+        peak as good elsewhere in the window means the scan fits the submap in two
+        places (a corridor's repeated doors) -- a test of the match's uniqueness after
+        Olson, "Real-Time Correlative Scan Matching" (ICRA 2009, §IV: a match is only
+        as good as the response's spread)."""
         thetas, cells, w = self.candidates(points, pose, linear_window_m, angular_window_rad,
                                            min_step_rad)
         res = self.grid.resolution_m
