@@ -335,3 +335,21 @@ def test_no_closure_is_accepted_twice() -> None:
         s.process(scan)
     pairs = [(c.anchor, c.node) for c in s.closures]
     assert len(pairs) > 10 and len(set(pairs)) == len(pairs)
+
+
+def test_the_loop_log_says_why_each_match_was_or_was_not_a_closure() -> None:
+    log = simulated_log("loop", seed=1, speed_m_s=0.8)
+    s = GraphSlam(GraphSlamConfig(loop_track_nodes=0))
+    s.loop_log = []
+    for scan in log.scans:
+        s.process(scan)
+    outcomes = [o for _, _, o, _ in s.loop_log]
+    # without tracking every acceptance confirms a pending match: two closures each
+    assert 2 * outcomes.count("accepted") == len(s.closures) > 0
+    assert len(s.loop_log) == s.searches
+    assert outcomes.count("pending") >= outcomes.count("accepted")
+    assert set(outcomes) <= {"none", "refined", "degenerate", "aliased", "pending",
+                             "inconsistent", "accepted"}
+    for node, k, o, score in s.loop_log:
+        assert 0 <= k < len(s.submaps) and 0 <= node < len(s.local)
+        assert (score == 0.0) == (o == "none")

@@ -198,6 +198,12 @@ class GraphSlam:
     closures: list[LoopClosure] = field(default_factory=list)
     searches: int = 0
     degeneracies: list[float] = field(default_factory=list)
+    # when a list: one (node, submap, outcome, score) per loop search -- why a loop did
+    # or did not close. Outcome: "none" (nothing above loop_min_score), "refined",
+    # "degenerate", "aliased" (failed that test), "pending" (awaits confirmation),
+    # "inconsistent" (contradicts the pending one), "accepted" (with the pending match
+    # it confirms, if any); score: the refined match's
+    loop_log: list[tuple[int, int, str, float]] | None = None
 
     def __post_init__(self) -> None:
         cfg = self.config
@@ -383,18 +389,23 @@ class GraphSlam:
             pre = self.precomputed(k)
             m = pre.match(pts, guess, lin, ang, cfg.loop_min_score, cfg.loop_angular_step_rad)
             if m is None:
+                self._log(node, k, "none", 0.0)
                 continue
             r = refine(s.grid, self.node_xy[node], m.pose, prior=m.pose,
                        translation_weight=cfg.translation_weight,
                        rotation_weight=cfg.rotation_weight)
             self.degeneracies.append(r.degeneracy())
-            if (r.score < cfg.loop_min_refined_score
-                    or r.degeneracy() < cfg.loop_min_degeneracy):
-                continue  # refined off the peak, or e.g. a plain corridor: the match
-                # cannot say where along it the scan belongs
+            if r.score < cfg.loop_min_refined_score:
+                self._log(node, k, "refined", r.score)
+                continue  # refined off the peak
+            if r.degeneracy() < cfg.loop_min_degeneracy:
+                self._log(node, k, "degenerate", r.score)
+                continue  # e.g. a plain corridor: the match cannot say where along it
+                # the scan belongs
             if not tracking and cfg.loop_unique_m > 0 and pre.second_score(
                     pts, guess, lin, ang, m, cfg.loop_unique_m, cfg.loop_unique_ratio,
                     cfg.loop_angular_step_rad) > 0:
+                self._log(node, k, "aliased", r.score)
                 continue  # the scan fits two places in the window (aliasing)
             delta = relative(self.local[a], r.pose)
             c = LoopClosure(node, k, a, r.score, delta)
@@ -404,15 +415,23 @@ class GraphSlam:
                 # aliasing rarely repeats consistently)
                 pend = self._pending.get(k)
                 self._pending[k] = c
-                if pend is None or node - pend.node > cfg.loop_verify_nodes or not (
-                        self._consistent(pend, c)):
+                if pend is None or node - pend.node > cfg.loop_verify_nodes:
+                    self._log(node, k, "pending", r.score)
+                    continue
+                if not self._consistent(pend, c):
+                    self._log(node, k, "inconsistent", r.score)
                     continue
                 del self._pending[k]  # both accepted below: neither may pend again
                 self._accept(pend)
                 found += 1
             self._accept(c)
+            self._log(node, k, "accepted", r.score)
             found += 1
         return found
+
+    def _log(self, node: int, submap: int, outcome: str, score: float) -> None:
+        if self.loop_log is not None:
+            self.loop_log.append((node, submap, outcome, score))
 
     def _correction(self, c: LoopClosure) -> np.ndarray:
         """The world-frame transform that moves the node to where the closure puts it."""
