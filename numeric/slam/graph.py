@@ -6,7 +6,9 @@ Local SLAM (§IV): a scan becomes a node once the robot has moved ``node_linear_
 placed by matching the scan against the older of the two active submaps -- first a
 correlative search of a small window around the odometry prediction, then
 Gauss-Newton refinement on the interpolated probability grid with priors towards the
-prediction -- and inserted into both active submaps (a submap is finished after
+prediction; when the search's best lies on its window's edge it is repeated in a
+``local_escalation`` times wider window and kept if it fits clearly better -- and
+inserted into both active submaps (a submap is finished after
 ``scans_per_submap`` nodes; a new one starts halfway, so two always overlap). Scans
 between nodes are matched the same way but inserted nowhere: their pose relative to
 their node comes from the match, not from the odometry (:meth:`GraphSlam.track`).
@@ -71,6 +73,9 @@ class GraphSlamConfig(BaseModel):
     local_angular_window_rad: float = Field(0.2, ge=0)
     local_matching: bool = Field(True, description="off: nodes follow odometry (a front "
                                  "end of odometry alone; loop closure still runs)")
+    local_escalation: float = Field(3.0, ge=1, description="when the search's best lies "
+                                    "on its window's edge it is repeated in a window "
+                                    "this many times wider (1: never)")
     track_linear_window_m: float = Field(0.05, ge=0, description="search window of "
                                          "scans between nodes (GraphSlam.track)")
     track_angular_window_rad: float = Field(0.05, ge=0)
@@ -246,8 +251,19 @@ class GraphSlam:
         grid = self.active()[0].grid
         pts, _ = voxel_downsample(xy, None, cfg.match_voxel_m)
         lin, ang = window or (cfg.local_linear_window_m, cfg.local_angular_window_rad)
-        start, _ = correlative_search(grid, pts, predicted, lin, ang,
-                                      cfg.search_translation_cost, cfg.search_rotation_cost)
+        start, score = correlative_search(grid, pts, predicted, lin, ang,
+                                          cfg.search_translation_cost,
+                                          cfg.search_rotation_cost)
+        w = np.ceil(lin / grid.resolution_m) * grid.resolution_m
+        if cfg.local_escalation > 1 and np.max(np.abs(start[:2] - predicted[:2])) > w - 1e-6:
+            # the best lies on the window's edge: the odometry may be farther off than
+            # the window allows (fr079's odometry reads forward while the robot backs
+            # up); a wider search's best replaces it if it fits clearly better
+            wide, wide_score = correlative_search(
+                grid, pts, predicted, cfg.local_escalation * lin, ang,
+                cfg.search_translation_cost, cfg.search_rotation_cost)
+            if wide_score > score + cfg.odometry_score_margin:
+                start = wide
         r = refine(grid, pts, start, prior=start, translation_weight=cfg.translation_weight,
                    rotation_weight=cfg.rotation_weight)
         if cfg.refine_prior == "odometry":
