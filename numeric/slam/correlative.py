@@ -37,6 +37,12 @@ def angular_step(points: np.ndarray, resolution_m: float) -> float:
     return float(np.arccos(1.0 - resolution_m**2 / (2.0 * r * r)))
 
 
+def window_cells(linear_window_m: float, resolution_m: float) -> int:
+    """Half-width in cells of a search window of ``linear_window_m``: offsets run over
+    ``-w .. w`` cells, so the window's edge lies ``w`` cells from its centre."""
+    return int(np.ceil(linear_window_m / resolution_m))
+
+
 def rotated_cells(points: np.ndarray, pose: np.ndarray, thetas: np.ndarray,
                   origin: np.ndarray, resolution_m: float) -> np.ndarray:
     """Continuous cell coordinates ``(A, n, 2)`` of robot-frame ``points (n, 2)`` at the
@@ -83,7 +89,7 @@ def correlative_search(grid: ProbabilityGrid, points: np.ndarray, pose: np.ndarr
     na = int(np.ceil(angular_window_rad / step))
     thetas = np.arange(-na, na + 1) * step
     cells = rotated_cells(points, pose, thetas, grid.origin, res)
-    w = int(np.ceil(linear_window_m / res))
+    w = window_cells(linear_window_m, res)
     a, dx, dy, score = _search_window(grid.prob, cells, w, res, thetas, translation_cost,
                                       rotation_cost)
     return np.array([pose[0] + dx * res, pose[1] + dy * res, pose[2] + thetas[a]]), score
@@ -365,7 +371,7 @@ class PrecomputedGrid:
         step = max(angular_step(points, res), min_step_rad)
         na = int(np.ceil(angular_window_rad / step))
         thetas = np.arange(-na, na + 1) * step
-        w = int(np.ceil(linear_window_m / res))
+        w = window_cells(linear_window_m, res)
         cells = np.floor(rotated_cells(points, pose, thetas, g.origin, res)).astype(np.int64)
         return thetas, cells - w + self.pad, w
 

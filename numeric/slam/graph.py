@@ -46,7 +46,12 @@ import numpy as np
 from pydantic import BaseModel, Field
 
 from numeric.geometry import compose, place, relative
-from numeric.slam.correlative import PrecomputedGrid, correlative_search, refine
+from numeric.slam.correlative import (
+    PrecomputedGrid,
+    correlative_search,
+    refine,
+    window_cells,
+)
 from numeric.slam.gated import GateConfig, inside_gate
 from numeric.slam.intensity_icp import IcpConfig, Reference, intensity_icp
 from numeric.slam.keyframes import Keyframes, MapConfig, moved, voxel_downsample
@@ -254,7 +259,7 @@ class GraphSlam:
         start, score = correlative_search(grid, pts, predicted, lin, ang,
                                           cfg.search_translation_cost,
                                           cfg.search_rotation_cost)
-        w = np.ceil(lin / grid.resolution_m) * grid.resolution_m
+        w = window_cells(lin, grid.resolution_m) * grid.resolution_m
         if cfg.local_escalation > 1 and np.max(np.abs(start[:2] - predicted[:2])) > w - 1e-6:
             # the best lies on the window's edge: the odometry may be farther off than
             # the window allows (fr079's odometry reads forward while the robot backs
