@@ -370,3 +370,61 @@ def test_a_match_beyond_the_local_window_is_found_by_a_wider_search(room_grid, f
         assert off < 0.05 and abs(pose[2] - true[2]) < 0.02
     else:
         assert off > 0.15
+
+
+def test_stitched_grids_keep_each_cell_at_its_place_and_the_highest_probability() -> None:
+    a = submap([np.array([2.0, 3.0, 0.0])], ROOM, max_range=4.0)
+    b = submap([np.array([8.0, 3.0, 0.0])], ROOM, max_range=4.0)
+    s = ProbabilityGrid.stitched([a, b])
+    probe = np.array([[0.0, 3.0], [10.0, 3.0], [2.0, 3.0], [8.0, 3.0], [5.0, 2.0]])
+    for g in (a, b):
+        for xy in probe:
+            i, j = np.floor(g.to_cells(xy)).astype(int)
+            if 0 <= i < g.shape[0] and 0 <= j < g.shape[1] and g.prob[i, j] > 0:
+                k, m = np.floor(s.to_cells(xy)).astype(int)
+                assert s.prob[k, m] >= g.prob[i, j]
+    # the left wall only in a, the right one only in b: both in the stitched grid
+    for xy in ([0.0, 3.0], [10.0, 3.0]):
+        k, m = np.floor(s.to_cells(np.array(xy))).astype(int)
+        assert s.prob[k - 1:k + 2, m].max() > 0.5
+    assert ProbabilityGrid.stitched([a]) is a
+
+
+def test_loop_closure_matches_against_a_submap_stitched_with_its_neighbours() -> None:
+    """With ``loop_neighbours`` n the loop matcher's grid for submap k covers the
+    finished submaps k-n..k+n (a returning scan sees more than one submap holds)."""
+    log = simulated_log("loop", seed=1, speed_m_s=0.8)
+    s = GraphSlam(GraphSlamConfig(loop_neighbours=1, scans_per_submap=20))
+    for scan in log.scans:
+        s.process(scan)
+    done = [k for k, m in enumerate(s.submaps) if m.finished]
+    k = done[len(done) // 2]
+    node = len(s.local) - 1
+    pre = s.loop_map(k, node)
+    own = s.submaps[k].grid
+    parts = [s.submaps[j].grid for j in (k - 1, k, k + 1)]
+    lo = np.min([g.origin for g in parts], axis=0)
+    hi = np.max([g.origin + np.array(g.shape) * g.resolution_m for g in parts], axis=0)
+    assert np.allclose(pre.grid.origin, lo, atol=1e-6)
+    assert np.allclose(pre.grid.origin + np.array(pre.grid.shape) * 0.05, hi, atol=1e-6)
+    assert pre.grid.prob.size > own.prob.size
+    assert int((pre.grid.prob > 0.5).sum()) > int((own.prob > 0.5).sum())
+
+
+def test_two_closures_agree_when_they_move_the_node_alike_far_from_the_origin() -> None:
+    """Closures are compared where they act. 50 m from the world's origin, two matches
+    that turn the node by 0.02 and 0.05 rad about it agree (0.03 rad apart, within
+    ``loop_verify_rad``) although, compared at the origin, their corrections would be
+    1.5 m apart; matches 0.5 m apart at the node do not agree."""
+    from numeric.slam.graph import LoopClosure
+
+    s = GraphSlam()
+    s._global = np.array([[50.0, 0.0, 0.0], [52.0, 0.0, 0.0], [52.1, 0.0, 0.0]])
+
+    def closure(node: int, dth: float, dx: float = 0.0) -> LoopClosure:
+        rel = relative(s._global[0], s._global[node])
+        return LoopClosure(node, 0, 0, 0.6, rel + np.array([dx, 0.0, dth]))
+
+    assert s._consistent(closure(1, 0.02), closure(2, 0.05))
+    assert not s._consistent(closure(1, 0.02), closure(2, 0.02, dx=0.5))
+    assert not s._consistent(closure(1, 0.0), closure(2, 0.08))

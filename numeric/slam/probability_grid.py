@@ -203,6 +203,24 @@ class ProbabilityGrid:
                                np.ascontiguousarray(self.prob[i0:i1, j0:j1]),
                                np.ascontiguousarray(self.stamp[i0:i1, j0:j1]), self.scans)
 
+    @staticmethod
+    def stitched(grids: list[ProbabilityGrid]) -> ProbabilityGrid:
+        """One grid covering ``grids`` (same frame and resolution), each cell the
+        largest probability any of them gives it."""
+        if len(grids) == 1:
+            return grids[0]
+        res = grids[0].resolution_m
+        lo = np.min([np.round(g.origin / res) for g in grids], axis=0).astype(int)
+        hi = np.max([np.round(g.origin / res) + g.shape for g in grids], axis=0).astype(int)
+        prob = np.zeros(tuple(hi - lo), dtype=np.float32)
+        for g in grids:
+            o = np.round(g.origin / res).astype(int) - lo
+            sl = prob[o[0]:o[0] + g.shape[0], o[1]:o[1] + g.shape[1]]
+            np.maximum(sl, g.prob, out=sl)
+        return ProbabilityGrid(grids[0].config, lo * res, prob,
+                               np.zeros(prob.shape, dtype=np.int32),
+                               sum(g.scans for g in grids))
+
     def coarsened(self, factor: int) -> ProbabilityGrid:
         """The grid at ``factor`` times the cell size, each cell the maximum of the
         ``factor x factor`` cells it covers (so no wall is lost: what branch and bound
