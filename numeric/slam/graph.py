@@ -27,7 +27,7 @@ two places says nothing about which), refined by Gauss-Newton to above
 ``loop_min_refined_score``, becomes a robust between-edge from the submap's anchor
 node once a nearby node's match moves that node the same way (the confirming match
 needs no uniqueness test). On 12 simulated tours (loop and room_a, seeds 1-8 and 1-4,
-0.8 m/s) 26 of 614 accepted closures are off by more than 0.5 m.
+0.8 m/s) 11 of 363 accepted closures are off by more than 0.5 m.
 
 Optimisation: the nodes and edges (local matches, odometry, closures) form a pose graph
 optimised incrementally by iSAM2 (:mod:`numeric.slam.pose_graph`); after a closure the
@@ -110,7 +110,7 @@ class GraphSlamConfig(BaseModel):
                                        "nodes won by the search from which the odometry "
                                        "counts as noisy (margin odometry_score_margin)")
     odometry_rate_nodes: int = Field(100, ge=10, description="recent nodes of that share")
-    loop_every: int = Field(3, ge=1, description="nodes between loop-closure searches")
+    loop_every: int = Field(4, ge=1, description="nodes between loop-closure searches")
     loop_max_distance_m: float = Field(15.0, gt=0)
     loop_max_submaps: int = Field(1000, ge=1, description="nearest finished submaps "
                                   "searched in the full window per node (tracked ones: all)")
