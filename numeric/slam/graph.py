@@ -462,15 +462,14 @@ class GraphSlam:
                 # a first match against this submap must be unique in its window and be
                 # confirmed by another one from a nearby node that moves the trajectory
                 # the same way (perceptual aliasing rarely repeats consistently); the
-                # confirming match needs no uniqueness test of its own
-                # (a match against an overlapping stitched neighbour confirms it too: the
-                # corrections are compared in the world, whichever submap made them)
+                # confirming match needs no uniqueness test of its own, and may be one
+                # against an overlapping stitched neighbour (the corrections are
+                # compared in the world, whichever submap made them)
                 nb = cfg.loop_neighbours
                 fresh = [j for j in range(k - nb, k + nb + 1) if j in self._pending
                          and node - self._pending[j].node <= cfg.loop_verify_nodes]
                 pk = max(fresh, key=lambda j: self._pending[j].node, default=None)
-                pend = None if pk is None else self._pending[pk]
-                if pk is None or pend is None or not self._consistent(pend, c):
+                if pk is None or not self._consistent(self._pending[pk], c):
                     if cfg.loop_unique_m > 0 and pre.second_score(
                             pts, guess, lin, ang, m, cfg.loop_unique_m,
                             cfg.loop_unique_ratio, cfg.loop_angular_step_rad) > 0:
@@ -479,8 +478,8 @@ class GraphSlam:
                     self._pending[k] = c
                     self._log(node, k, "inconsistent" if fresh else "pending", r.score)
                     continue
-                del self._pending[pk]  # both accepted below: neither may pend again
-                self._accept(pend)
+                # both accepted below: neither may pend again
+                self._accept(self._pending.pop(pk))
                 found += 1
             self._accept(c)
             self._log(node, k, "accepted", r.score)
