@@ -192,7 +192,8 @@ def test_weights_are_multiplied_by_eta(room: World) -> None:
         captured["log_eta"], captured["ok"] = out[2], out[3]
         return tuple(out)
 
-    cfg = RbpfConfig(particles=50, seed=6, ess_threshold=1e-9)  # never resample
+    cfg = RbpfConfig(particles=50, seed=6, ess_threshold=1e-9,  # never resample
+                     threads=1)  # the spy sees one call with every particle
     slam = RbpfSlam(cfg)
     gain = cfg.improved.weight_gain
     slam.process(s0)
@@ -254,3 +255,45 @@ def test_the_paper_proposals_keep_their_reference_unless_a_map_is_given() -> Non
     assert RbpfConfig(proposal="gated-icp").map.nearby_radius_m == 6.0
     given = RbpfConfig(proposal="odometry", map={"recent_keyframes": 3})  # type: ignore[arg-type]
     assert given.map.recent_keyframes == 3
+
+
+@pytest.mark.parametrize("shifts", [None, ()])
+def test_a_shifted_start_finds_a_robot_that_backs_up_while_its_odometry_reads_forward(
+        shifts: tuple[float, ...] | None) -> None:
+    """fr079 at 300 s: the robot backs up while its odometry reads forward. Here it backs
+    up 0.4 m in the loop world's corridor while the odometry reads 0.4 m forward. With
+    the default starts moved along the heading, the multi-start match finds the scan's
+    place and the particles follow it (measured 0.07 m off). From the odometry's
+    prediction alone they stay near where the odometry puts them (0.75 m off)."""
+    world = World(from_template("loop", "loop"))
+    laser = Laser(world, LaserConfig(max_range_m=30.0, scan_period_s=0.2))
+    rng = np.random.default_rng(5)
+    p0 = np.array([10.0, 7.0, 0.0])
+    p1 = compose(p0, np.array([-0.4, 0.0, 0.0]))
+    odo1 = compose(p0, np.array([0.4, 0.0, 0.0]))
+    improved = {} if shifts is None else {"start_shifts_m": shifts}
+    slam = RbpfSlam(RbpfConfig(particles=20, seed=1, improved=improved))  # type: ignore[arg-type]
+    slam.process(laser.scan(0.0, p0, p0, rng))
+    slam.process(laser.scan(0.2, p1, odo1, rng))
+    assert slam.matched == 1
+    off = float(np.hypot(*(slam.x[:, :2].mean(axis=0) - p1[:2])))
+    if shifts is None:
+        assert off < 0.15
+    else:
+        assert off > 0.5
+
+
+def test_the_particles_split_over_threads_give_the_same_filter(room: World) -> None:
+    """Each particle's scan match depends on that particle alone: split over two threads
+    the filter moves every particle and weight exactly as on one."""
+    s0, s1, p1, _ = _two_scans(room, 5)
+    s2 = Laser(room, LASER).scan(0.4, compose(p1, [0.4, 0.0, -0.1]),
+                                 compose(s1.odom, [0.42, 0.01, -0.12]), np.random.default_rng(7))
+    runs = []
+    for threads in (1, 2):
+        slam = RbpfSlam(RbpfConfig(particles=64, seed=6, ess_threshold=1e-9, threads=threads))
+        for scan in (s0, s1, s2):
+            slam.process(scan)
+        assert slam.matched == 2 and len(np.unique(slam.x, axis=0)) == 64
+        runs.append((slam.x.copy(), slam.logw.copy()))
+    assert np.array_equal(runs[0][0], runs[1][0]) and np.array_equal(runs[0][1], runs[1][1])

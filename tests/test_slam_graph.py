@@ -256,6 +256,21 @@ def test_reading_a_graph_run_does_not_change_it() -> None:
     assert np.array_equal(quiet.trajectory()[1], read.trajectory()[1])
 
 
+def test_branch_and_bound_on_threads_gives_the_same_run() -> None:
+    """A node's loop searches run side by side on threads; their matches are judged in
+    the same order, so the run is the same bit for bit."""
+    log = simulated_log("loop", seed=1, speed_m_s=0.8).head(400)
+    one = GraphSlam(GraphSlamConfig(loop_threads=1))
+    two = GraphSlam(GraphSlamConfig(loop_threads=2))
+    for scan in log.scans:
+        one.process(scan)
+        two.process(scan)
+    assert len(one.closures) > 0 and one.searches == two.searches
+    assert [(c.node, c.anchor, c.score) for c in one.closures] == [
+        (c.node, c.anchor, c.score) for c in two.closures]
+    assert np.array_equal(one.trajectory()[1], two.trajectory()[1])
+
+
 def test_the_search_overrides_odometry_by_a_margin_that_follows_its_recent_wins() -> None:
     """A gain of 0.13 over the odometry-held match: taken after the search has beaten
     the odometry at a fifth of the recent nodes (odometry that is often wrong), refused

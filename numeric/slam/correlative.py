@@ -236,7 +236,7 @@ def _precompute(base: np.ndarray, depth: int, pad: int) -> np.ndarray:
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _score(pre: np.ndarray, h: int, pts: np.ndarray, a: int, dx: int, dy: int) -> float:
     nx, ny = pre.shape[1], pre.shape[2]
     n = pts.shape[1]
@@ -249,7 +249,7 @@ def _score(pre: np.ndarray, h: int, pts: np.ndarray, a: int, dx: int, dy: int) -
     return s / (255.0 * n)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def branch_and_bound(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int,
                      min_score: float, ex_x: int = 0, ex_y: int = 0,
                      ex_r: int = -1) -> tuple[int, int, int, float]:
@@ -323,7 +323,7 @@ def branch_and_bound(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int,
     return ba, bx, by, best
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def brute_force(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int, ex_x: int = 0,
                 ex_y: int = 0, ex_r: int = -1) -> tuple[int, int, int, float]:
     """The exhaustive search :func:`branch_and_bound` must agree with."""

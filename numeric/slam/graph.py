@@ -62,6 +62,7 @@ from numeric.slam.keyframes import Keyframes, MapConfig, moved, voxel_downsample
 from numeric.slam.pose_graph import GraphConfig, PoseGraph
 from numeric.slam.probability_grid import GridConfig, ProbabilityGrid
 from numeric.slam.scan import Scan
+from numeric.threads import default_threads, thread_map
 
 
 def _submap_grid() -> GridConfig:
@@ -159,6 +160,9 @@ class GraphSlamConfig(BaseModel):
                                  "submap stitched with this many finished neighbours "
                                  "in time on each side (GraphSlam.loop_map)")
     loop_cache: int = Field(48, ge=1, description="precomputed submaps kept in memory")
+    loop_threads: int = Field(default_factory=default_threads, ge=1, le=64,
+                              description="threads running one node's branch-and-bound "
+                              "searches side by side (the results do not depend on it)")
     alpha: float = Field(0.0, ge=0, description="intensity weight of eq. 1 (0: off)")
     icp: IcpConfig = Field(default_factory=IcpConfig)
     gate: GateConfig = Field(default_factory=lambda: GateConfig(eps_xy_m=0.05, eps_xy_ratio=0,
@@ -197,7 +201,6 @@ class LoopMap:
 
     grid: ProbabilityGrid
     search: PrecomputedGrid
-
 
 def rotate_xy(v: np.ndarray, angle: float) -> np.ndarray:
     c, s = np.cos(angle), np.sin(angle)
@@ -418,6 +421,7 @@ class GraphSlam:
             if d <= cfg.loop_max_distance_m + grow:
                 near.append((d, k))
         wide = 0
+        jobs = []
         for _, k in sorted(near):
             s = self.submaps[k]
             a = s.anchor
@@ -433,15 +437,21 @@ class GraphSlam:
                 wide += 1
             # the node's pose in the submap's (local-SLAM) frame, from the global estimate
             guess = compose(self.local[a], relative(g[a], g[node]))
-            self.searches += 1
             near_m = (cfg.loop_near_window_m + cfg.loop_near_rate
                       * (self._travel[node] - self._travel[s.nodes[-1]]))
             lin, ang = ((cfg.loop_track_linear_window_m, cfg.loop_track_angular_window_rad)
                         if tracking else (min(cfg.loop_linear_window_m + grow, near_m),
                                           cfg.loop_angular_window_rad + grow_rad))
-            lm = self.loop_map(k, node)
+            jobs.append((k, a, tracking, guess, lin, ang, self.loop_map(k, node)))
+        self.searches += len(jobs)
+        # the branch-and-bound searches are independent of each other (and release the
+        # GIL): run them side by side, then judge their matches in order as before
+        matches = thread_map(lambda j: j[6].search.match(pts, j[3], j[4], j[5],
+                                                         cfg.loop_min_score,
+                                                         cfg.loop_angular_step_rad),
+                             jobs, cfg.loop_threads)
+        for (k, a, tracking, guess, lin, ang, lm), m in zip(jobs, matches, strict=True):
             pre = lm.search
-            m = pre.match(pts, guess, lin, ang, cfg.loop_min_score, cfg.loop_angular_step_rad)
             if m is None:
                 self._log(node, k, "none", 0.0)
                 continue

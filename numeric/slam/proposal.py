@@ -92,6 +92,11 @@ class ImprovedConfig(BaseModel):
                               "p(x|x_{t-1},u), not p(z|m,x) alone")
     start_margin: float = Field(50.0, ge=0, description="log-likelihood units another start "
                                 "must beat the odometry start by")
+    start_shifts_m: tuple[float, ...] = Field(
+        (-0.6, -0.4, -0.2, 0.2, 0.4),
+        description="further starts of that match, moved along the predicted heading by "
+                    "these distances and matched on the scan alone (odometry that reads "
+                    "forward while the robot backs up, as fr079's at 300 s)")
     start_headings_rad: tuple[float, ...] = Field(
         (0.0, -0.1, 0.1, -0.2, 0.2, -0.35, 0.35),
         description="heading offsets of the multi-start match that corrects the odometry "
@@ -129,7 +134,7 @@ class FieldPack:
 
 
 # -- numba kernels --------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _bilinear1(grid: np.ndarray, off: int, nx: int, ny: int, ox: float, oy: float,
                inv_res: float, qx: float, qy: float,
                cut2: float) -> tuple[float, float, float]:
@@ -156,7 +161,7 @@ def _bilinear1(grid: np.ndarray, off: int, nx: int, ny: int, ox: float, oy: floa
     return val, gx, gy
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _lookup(grid: np.ndarray, gint: np.ndarray, off: int, nb: int, nx: int, ny: int,
             ox: float, oy: float, inv_res: float, qx: float, qy: float, li: float,
             alpha: float, cut2: float) -> tuple[float, float, float]:
@@ -187,7 +192,7 @@ def _lookup(grid: np.ndarray, gint: np.ndarray, off: int, nb: int, nx: int, ny: 
     return best, gx, gy
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _score(x: float, y: float, th: float, pts: np.ndarray, li: np.ndarray, alpha: float,
            grid: np.ndarray, gint: np.ndarray, meta: np.ndarray, origins: np.ndarray,
            inv_res: float, kpose: np.ndarray, cut2: float, grad: bool, h: np.ndarray,
@@ -321,12 +326,12 @@ def _score(x: float, y: float, th: float, pts: np.ndarray, li: np.ndarray, alpha
     return total, inl
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _wrap(a: float) -> float:
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _motion_logp(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, x: float, y: float,
                  th: float) -> float:
     """log N(relative(x0, x) - u; 0, diag(sig^2)): the odometry motion model (eq. 7 of
@@ -342,7 +347,7 @@ def _motion_logp(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, x: float, y: fl
             - 1.5 * _LOG_2PI)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _solve3(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> bool:
     """``out = a^-1 b`` for a 3x3 (cofactors); False when (nearly) singular."""
     c00 = a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]
@@ -364,7 +369,7 @@ def _solve3(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> bool:
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def gaussian_fit(offsets: np.ndarray, log_tau: np.ndarray,
                  ) -> tuple[np.ndarray, np.ndarray, float]:
     """Eqs. 14-16 of Grisetti et al. 2007 for K sampled points: ``offsets (K, 3)`` the
@@ -400,7 +405,7 @@ def gaussian_fit(offsets: np.ndarray, log_tau: np.ndarray,
     return mu, cov, m + math.log(eta)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _cholesky3(a: np.ndarray, floor: np.ndarray) -> np.ndarray:
     """Lower Cholesky factor of a 3x3 covariance whose diagonal is floored first."""
     s = a.copy()
@@ -420,7 +425,7 @@ def _cholesky3(a: np.ndarray, floor: np.ndarray) -> np.ndarray:
     return low
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _energy(cost: float, x: float, y: float, t: float, inv_2s2: float, prior: np.ndarray,
             ) -> float:
     """``-log τ`` up to a constant: ``Σ_b ρ_b / (2σ²)`` plus the motion model's
@@ -431,7 +436,7 @@ def _energy(cost: float, x: float, y: float, t: float, inv_2s2: float, prior: np
                                    + prior[1, 2] * dt * dt)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _lm(pose: np.ndarray, pts: np.ndarray, li: np.ndarray, alpha: float, grid: np.ndarray,
         gint: np.ndarray, meta: np.ndarray, origins: np.ndarray, inv_res: float,
         kpose: np.ndarray, cut2: float, max_iter: int, cand: np.ndarray, work: np.ndarray,
@@ -487,7 +492,7 @@ def _lm(pose: np.ndarray, pts: np.ndarray, li: np.ndarray, alpha: float, grid: n
     pose[2] = t
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def scan_match(start: np.ndarray, pts: np.ndarray, li: np.ndarray, alpha: float,
                grid: np.ndarray, gint: np.ndarray, meta: np.ndarray, origins: np.ndarray,
                inv_res: float, kpose: np.ndarray, cut2: float, max_iter: int,
@@ -517,7 +522,7 @@ def scan_match(start: np.ndarray, pts: np.ndarray, li: np.ndarray, alpha: float,
     return pose, cost, inl
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _compose(x0: np.ndarray, u: np.ndarray, out: np.ndarray) -> None:
     """``out = x0 (+) u``: the increment ``u`` (in the frame of ``x0``) applied to ``x0``,
     the heading left unwrapped."""
@@ -528,7 +533,7 @@ def _compose(x0: np.ndarray, u: np.ndarray, out: np.ndarray) -> None:
     out[2] = x0[2] + u[2]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _prior(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, use: bool) -> np.ndarray:
     """``(2, 3)``: the odometry prediction x' = x0 (+) u and 1/σ² of the motion model
     (world axes: σ_x = σ_y), or zeros in the second row when ``use`` is False."""
@@ -540,7 +545,7 @@ def _prior(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, use: bool) -> np.ndar
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def sample_steps(h: np.ndarray, inv_s2: float, sig: np.ndarray, floor: np.ndarray,
                  out: np.ndarray) -> None:
     """Δ per axis of the sample grid: the standard deviations of the Laplace
@@ -563,7 +568,7 @@ def sample_steps(h: np.ndarray, inv_s2: float, sig: np.ndarray, floor: np.ndarra
             out[i] = max(sig[i], floor[i])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _kposes(kf_pose: np.ndarray, p: int, out: np.ndarray) -> None:
     for k in range(kf_pose.shape[0]):
         out[k, 0] = math.cos(kf_pose[k, p, 2])
@@ -572,19 +577,24 @@ def _kposes(kf_pose: np.ndarray, p: int, out: np.ndarray) -> None:
         out[k, 3] = kf_pose[k, p, 1]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def robust_increment(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, pts: np.ndarray,
                      li: np.ndarray, alpha: float, grid: np.ndarray, gint: np.ndarray,
                      meta: np.ndarray, origins: np.ndarray, inv_res: float,
                      kf_pose: np.ndarray, cut2: float, inv_2s2: float, max_iter: int,
-                     headings: np.ndarray, margin: float, use_prior: bool) -> np.ndarray:
+                     headings: np.ndarray, margin: float, use_prior: bool,
+                     shifts: np.ndarray) -> np.ndarray:
     """The increment from ``x0`` (one particle, ``kf_pose (K, 1, 3)`` its map) to the best
-    of several scan matches started at ``x0 (+) u`` turned by each of ``headings`` (rad),
-    best by ``log p(z|m,x) + log p(x|x0,u)``; a start other than the first wins only by
-    more than ``margin`` (the likelihood field is sharp and, without free-space
-    evidence, ambiguous: small differences favour wrong alignments as often as right
-    ones). Odometry headings can be off by more than the matcher's basin during fast
-    turns; the particles being close, one robust start serves them all."""
+    of several scan matches started at ``x0 (+) u`` turned by each of ``headings`` (rad)
+    or moved along its heading by each of ``shifts`` (m), best by ``log p(z|m,x) +
+    log p(x|x0,u)``; a start other than the first wins only by more than ``margin`` (the
+    likelihood field is sharp and, without free-space evidence, ambiguous: small
+    differences favour wrong alignments as often as right ones). Odometry headings can
+    be off by more than the matcher's basin during fast turns, and odometry can read
+    forward while the robot backs up (fr079 at 300 s: 0.5 m off, beyond the field's
+    cutoff), so the shifted starts are matched on the scan alone, the motion model
+    (sure of the wrong odometry) only scoring the result. The particles being close,
+    one robust start serves them all."""
     kpose = np.empty((kf_pose.shape[0], 4))
     _kposes(kf_pose, 0, kpose)
     cand = np.full((pts.shape[0], 2), -1, dtype=np.int64)
@@ -597,12 +607,20 @@ def robust_increment(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, pts: np.nda
     best = -np.inf
     out = u.copy()
     prior = _prior(x0, u, sig, use_prior)
-    for o in headings:
-        start[:] = prior[0]  # x0 (+) u, turned by o
-        start[2] += o
+    free = _prior(x0, u, sig, False)
+    ns = headings.shape[0]
+    for q in range(ns + shifts.shape[0]):
+        start[:] = prior[0]  # x0 (+) u, turned by a heading or moved along it by a shift
+        if q < ns:
+            start[2] += headings[q]
+        else:
+            start[0] += shifts[q - ns] * math.cos(prior[0, 2])
+            start[1] += shifts[q - ns] * math.sin(prior[0, 2])
+        # a shifted start is matched on the scan alone: the motion model, sure of the
+        # odometry, would pull it back to the odometry's (wrong) place
         hat, cost, _ = scan_match(start, pts, li, alpha, grid, gint, meta, origins, inv_res,
                                   kpose, cut2, max_iter, cand, h, work, iwork, inv_2s2,
-                                  prior)
+                                  prior if q < ns else free)
         score = -cost * inv_2s2 + _motion_logp(x0, u, sig, hat[0], hat[1], hat[2])
         if best == -np.inf:
             score += margin
@@ -616,7 +634,7 @@ def robust_increment(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, pts: np.nda
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def propose_all(x_prev: np.ndarray, u: np.ndarray, u_start: np.ndarray, sig: np.ndarray,
                 pts: np.ndarray,
                 li: np.ndarray, alpha: float, grid: np.ndarray, gint: np.ndarray,
@@ -692,7 +710,7 @@ def propose_all(x_prev: np.ndarray, u: np.ndarray, u_start: np.ndarray, sig: np.
     return mu_out, chol_out, logeta, ok, xhat
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def loglik_all(poses: np.ndarray, pts: np.ndarray, li: np.ndarray, alpha: float,
                grid: np.ndarray, gint: np.ndarray, meta: np.ndarray, origins: np.ndarray,
                inv_res: float, kf_pose: np.ndarray, cut2: float,

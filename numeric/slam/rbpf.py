@@ -51,6 +51,7 @@ from numeric.slam.proposal import (
     robust_increment,
 )
 from numeric.slam.scan import Scan
+from numeric.threads import default_threads, thread_map
 
 
 class MotionNoise(BaseModel):
@@ -104,6 +105,9 @@ class RbpfConfig(BaseModel):
     gate: GateConfig = Field(default_factory=GateConfig)
     resample: Literal["always", "ess"] = "ess"
     ess_threshold: float = Field(0.5, gt=0, le=1)
+    threads: int = Field(default_factory=default_threads, ge=1, le=64,
+                         description="threads the particles' scan matches are split over "
+                                     "(the results do not depend on it)")
     intensity_max: float = Field(40000.0, gt=0, description="top of the intensity bands")
     motion: MotionNoise = Field(default_factory=MotionNoise)
     #: Each particle's map is the keyframes it matches against: the last
@@ -253,10 +257,20 @@ class RbpfSlam:
                                        np.ascontiguousarray(kf_pose[:, best:best + 1]),
                                        cut * cut, inv_2s2, imp.max_iterations,
                                        np.asarray(imp.start_headings_rad, dtype=float),
-                                       imp.start_margin, imp.match_prior)
-        mu, chol, logeta, ok, _ = propose_all(
-            self.x[first], u, u_start, sig, *maps, np.ascontiguousarray(kf_pose[:, first]),
-            cut * cut, inv_2s2, delta, imp.max_iterations, min_in, imp.match_prior)
+                                       imp.start_margin, imp.match_prior,
+                                       np.asarray(imp.start_shifts_m, dtype=float))
+        xs, kfs = self.x[first], kf_pose[:, first]
+
+        def propose(ix: np.ndarray) -> tuple[np.ndarray, ...]:
+            return propose_all(xs[ix], u, u_start, sig, *maps,
+                               np.ascontiguousarray(kfs[:, ix]), cut * cut, inv_2s2, delta,
+                               imp.max_iterations, min_in, imp.match_prior)
+
+        # the particles are independent: split over threads (propose_all releases the GIL)
+        parts = np.array_split(np.arange(len(first)), max(1, min(cfg.threads,
+                                                                   len(first) // 16)))
+        done = thread_map(propose, parts, cfg.threads)
+        mu, chol, logeta, ok = (np.concatenate([d[i] for d in done]) for i in range(4))
         noise = self.rng.normal(size=(p, 3))
         okp = ok[inv]
         new = np.empty_like(self.x)
