@@ -109,6 +109,13 @@ def test_branch_and_bound_equals_brute_force_on_random_cases() -> None:
         assert (bb2[1] - dx) ** 2 + (bb2[2] - dy) ** 2 > r * r, case
         assert bb2[3] == pytest.approx(bf2[3], abs=1e-12), case
         assert bb2[3] <= bb[3] + 1e-12
+        # stopping at the first offset above a threshold: one exists iff the best is above
+        thr = float(rng.uniform(0.5, 1.0)) * bf2[3]
+        hit = branch_and_bound(pre.stack, cells, 2 * w + 1, 2 * w + 1, thr, dx, dy, r, True)
+        assert hit[0] >= 0 and hit[3] > thr and (hit[1] - dx) ** 2 + (hit[2] - dy) ** 2 > r * r
+        assert _score(pre.stack, 0, cells, hit[0], hit[1], hit[2]) == pytest.approx(hit[3])
+        assert branch_and_bound(pre.stack, cells, 2 * w + 1, 2 * w + 1, bf2[3] + 1e-9,
+                                dx, dy, r, True)[0] == -1
 
 
 def test_the_uniqueness_test_flags_a_scan_that_fits_two_places(room_grid) -> None:  # type: ignore[no-untyped-def]

@@ -250,15 +250,33 @@ def _score(pre: np.ndarray, h: int, pts: np.ndarray, a: int, dx: int, dy: int) -
 
 
 @njit(cache=True, nogil=True)
+def _excluded(x0: int, y0: int, size: int, ex_x: int, ex_y: int, ex_r: int) -> bool:
+    """Whether every offset of the node ``[x0, x0 + size)^2`` lies within the excluded
+    disc (its four corners do: the disc is convex)."""
+    if ex_r < 0:
+        return False
+    r2 = ex_r * ex_r
+    for cx in (x0, x0 + size - 1):
+        for cy in (y0, y0 + size - 1):
+            if (cx - ex_x) ** 2 + (cy - ex_y) ** 2 > r2:
+                return False
+    return True
+
+
+@njit(cache=True, nogil=True)
 def branch_and_bound(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int,
                      min_score: float, ex_x: int = 0, ex_y: int = 0,
-                     ex_r: int = -1) -> tuple[int, int, int, float]:
+                     ex_r: int = -1, first: bool = False) -> tuple[int, int, int, float]:
     """Best ``(angle index, dx, dy, score)`` over offsets ``[0, wx) x [0, wy)`` with a
     score above ``min_score`` (angle -1 when none), Hess et al. Algorithm 3. ``pts (A,
     n, 2)`` are the points' cells at offset (0, 0) in ``pre``'s padded frame. Offsets
     within ``ex_r`` cells of ``(ex_x, ex_y)`` are excluded (``ex_r < 0``: none): the
     search for a second peak away from the first. A node's bound still covers the
-    excluded offsets it contains, so it stays an upper bound."""
+    excluded offsets it contains, so it stays an upper bound; a node wholly inside the
+    excluded disc is pruned (near the first peak such nodes keep high bounds, and the
+    search would otherwise split them down to single cells). With ``first`` the search
+    stops at the first offset above ``min_score`` (whether there is one, not which is
+    best: all the uniqueness test asks)."""
     depth = pre.shape[0] - 1
     na = pts.shape[0]
     step = 1 << depth
@@ -285,7 +303,7 @@ def branch_and_bound(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int,
     order = np.argsort(top)  # ascending: the best is pushed last, popped first
     sp = 0
     for q in order:
-        if top[q] > min_score:
+        if top[q] > min_score and not _excluded(tx[q], ty[q], step, ex_x, ex_y, ex_r):
             s_score[sp], s_a[sp], s_x[sp], s_y[sp], s_h[sp] = top[q], ta[q], tx[q], ty[q], depth
             sp += 1
     best, ba, bx, by = min_score, -1, 0, 0
@@ -293,7 +311,7 @@ def branch_and_bound(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int,
     # most of the tree at once
     ca, cx0, cy0 = na // 2, wx // 2, wy // 2
     sc0 = _score(pre, 0, pts, ca, cx0, cy0)
-    if sc0 > best and (cx0 - ex_x) ** 2 + (cy0 - ex_y) ** 2 > ex_r * ex_r:
+    if sc0 > best and not _excluded(cx0, cy0, 1, ex_x, ex_y, ex_r):
         best, ba, bx, by = sc0, ca, cx0, cy0
     cs = np.empty(4)
     cx = np.empty(4, dtype=np.int64)
@@ -304,8 +322,10 @@ def branch_and_bound(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int,
         if sc <= best:
             continue
         if h == 0:
-            if (x0 - ex_x) ** 2 + (y0 - ex_y) ** 2 > ex_r * ex_r:
+            if not _excluded(x0, y0, 1, ex_x, ex_y, ex_r):
                 best, ba, bx, by = sc, a, x0, y0
+                if first:
+                    break
             continue
         half = 1 << (h - 1)
         m = 0
@@ -317,7 +337,7 @@ def branch_and_bound(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int,
                     m += 1
         idx = np.argsort(cs[:m])
         for q in idx:
-            if cs[q] > best:
+            if cs[q] > best and not _excluded(cx[q], cy[q], half, ex_x, ex_y, ex_r):
                 s_score[sp], s_a[sp], s_x[sp], s_y[sp], s_h[sp] = cs[q], a, cx[q], cy[q], h - 1
                 sp += 1
     return ba, bx, by, best
@@ -331,7 +351,7 @@ def brute_force(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int, ex_x: int = 
     for a in range(pts.shape[0]):
         for dx in range(wx):
             for dy in range(wy):
-                if (dx - ex_x) ** 2 + (dy - ex_y) ** 2 <= ex_r * ex_r:
+                if _excluded(dx, dy, 1, ex_x, ex_y, ex_r):
                     continue
                 s = _score(pre, 0, pts, a, dx, dy)
                 if s > best:
@@ -393,8 +413,8 @@ class PrecomputedGrid:
     def second_score(self, points: np.ndarray, pose: np.ndarray, linear_window_m: float,
                      angular_window_rad: float, best: Match, exclusion_m: float,
                      ratio: float, min_step_rad: float = 0.0) -> float:
-        """The best score in :meth:`match`'s window (centred at ``pose``) at least
-        ``exclusion_m`` from ``best``, if above ``ratio`` times its score, else 0: a
+        """A score in :meth:`match`'s window (centred at ``pose``) at least
+        ``exclusion_m`` from ``best`` and above ``ratio`` times its score, else 0: a
         peak as good elsewhere in the window means the scan fits the submap in two
         places (a corridor's repeated doors) -- a test of the match's uniqueness after
         Olson, "Real-Time Correlative Scan Matching" (ICRA 2009, §IV: a match is only
@@ -404,5 +424,5 @@ class PrecomputedGrid:
         res = self.grid.resolution_m
         ex = np.round((best.pose[:2] - pose[:2]) / res).astype(int) + w
         b = branch_and_bound(self.stack, cells, 2 * w + 1, 2 * w + 1, ratio * best.score,
-                             int(ex[0]), int(ex[1]), int(np.ceil(exclusion_m / res)))
+                             int(ex[0]), int(ex[1]), int(np.ceil(exclusion_m / res)), True)
         return float(b[3]) if b[0] >= 0 else 0.0

@@ -51,6 +51,7 @@ from pydantic import BaseModel, Field
 
 from numeric.geometry import compose, place, relative
 from numeric.slam.correlative import (
+    Match,
     PrecomputedGrid,
     correlative_search,
     refine,
@@ -442,59 +443,75 @@ class GraphSlam:
             lin, ang = ((cfg.loop_track_linear_window_m, cfg.loop_track_angular_window_rad)
                         if tracking else (min(cfg.loop_linear_window_m + grow, near_m),
                                           cfg.loop_angular_window_rad + grow_rad))
-            jobs.append((k, a, tracking, guess, lin, ang, self.loop_map(k, node)))
+            jobs.append((k, a, tracking, guess, lin, ang))
         self.searches += len(jobs)
         # the branch-and-bound searches are independent of each other (and release the
-        # GIL): run them side by side, then judge their matches in order as before
-        matches = thread_map(lambda j: j[6].search.match(pts, j[3], j[4], j[5],
-                                                         cfg.loop_min_score,
-                                                         cfg.loop_angular_step_rad),
-                             jobs, cfg.loop_threads)
-        for (k, a, tracking, guess, lin, ang, lm), m in zip(jobs, matches, strict=True):
-            pre = lm.search
-            if m is None:
-                self._log(node, k, "none", 0.0)
-                continue
-            r = refine(lm.grid, self.node_xy[node], m.pose, prior=m.pose,
-                       translation_weight=cfg.translation_weight,
-                       rotation_weight=cfg.rotation_weight)
-            self.degeneracies.append(r.degeneracy())
-            if r.score < cfg.loop_min_refined_score:
-                self._log(node, k, "refined", r.score)
-                continue  # refined off the peak
-            if r.degeneracy() < cfg.loop_min_degeneracy:
-                self._log(node, k, "degenerate", r.score)
-                continue  # e.g. a plain corridor: the match cannot say where along it
-                # the scan belongs
-            delta = relative(self.local[a], r.pose)
-            c = LoopClosure(node, k, a, r.score, delta)
-            if not tracking:
-                # a first match against this submap must be unique in its window and be
-                # confirmed by another one from a nearby node that moves the trajectory
-                # the same way (perceptual aliasing rarely repeats consistently); the
-                # confirming match needs no uniqueness test of its own, and may be one
-                # against an overlapping stitched neighbour (the corrections are
-                # compared in the world, whichever submap made them)
-                nb = cfg.loop_neighbours
-                fresh = [j for j in range(k - nb, k + nb + 1) if j in self._pending
-                         and node - self._pending[j].node <= cfg.loop_verify_nodes]
-                pk = max(fresh, key=lambda j: self._pending[j].node, default=None)
-                if pk is None or not self._consistent(self._pending[pk], c):
-                    if cfg.loop_unique_m > 0 and pre.second_score(
-                            pts, guess, lin, ang, m, cfg.loop_unique_m,
-                            cfg.loop_unique_ratio, cfg.loop_angular_step_rad) > 0:
-                        self._log(node, k, "aliased", r.score)
-                        continue  # the scan fits two places in the window (aliasing)
-                    self._pending[k] = c
-                    self._log(node, k, "inconsistent" if fresh else "pending", r.score)
-                    continue
-                # both accepted below: neither may pend again
-                self._accept(self._pending.pop(pk))
-                found += 1
+        # GIL): a few at a time run side by side (a few, so that no more stitched grids
+        # are alive than the cache holds), then their matches are judged in order
+        step = 4 * cfg.loop_threads
+        for lo in range(0, len(jobs), step):
+            chunk = [(*j, self.loop_map(j[0], node)) for j in jobs[lo:lo + step]]
+            matches = thread_map(lambda j: j[6].search.match(pts, j[3], j[4], j[5],
+                                                             cfg.loop_min_score,
+                                                             cfg.loop_angular_step_rad),
+                                 chunk, cfg.loop_threads)
+            for (k, a, tracking, guess, lin, ang, lm), m in zip(chunk, matches, strict=True):
+                found += self._judge(node, pts, k, a, tracking, guess, lin, ang, lm, m)
+        return found
+
+    def _judge(self, node: int, pts: np.ndarray, k: int, a: int, tracking: bool,
+               guess: np.ndarray, lin: float, ang: float, lm: LoopMap,
+               m: Match | None) -> int:
+        """Whether branch and bound's match ``m`` of ``node`` against submap ``k``
+        (anchor ``a``) becomes a closure: refined, not degenerate, and -- for a first
+        match against the submap -- unique in its window and confirmed by a nearby
+        node's. Returns how many closures it accepted (0-2)."""
+        cfg = self.config
+        pre = lm.search
+        if m is None:
+            self._log(node, k, "none", 0.0)
+            return 0
+        r = refine(lm.grid, self.node_xy[node], m.pose, prior=m.pose,
+                   translation_weight=cfg.translation_weight,
+                   rotation_weight=cfg.rotation_weight)
+        self.degeneracies.append(r.degeneracy())
+        if r.score < cfg.loop_min_refined_score:
+            self._log(node, k, "refined", r.score)
+            return 0  # refined off the peak
+        if r.degeneracy() < cfg.loop_min_degeneracy:
+            self._log(node, k, "degenerate", r.score)
+            return 0  # e.g. a plain corridor: the match cannot say where along it
+            # the scan belongs
+        delta = relative(self.local[a], r.pose)
+        c = LoopClosure(node, k, a, r.score, delta)
+        if not tracking:
+            # a first match against this submap must be unique in its window and be
+            # confirmed by another one from a nearby node that moves the trajectory
+            # the same way (perceptual aliasing rarely repeats consistently); the
+            # confirming match needs no uniqueness test of its own, and may be one
+            # against an overlapping stitched neighbour (the corrections are
+            # compared in the world, whichever submap made them)
+            nb = cfg.loop_neighbours
+            fresh = [j for j in range(k - nb, k + nb + 1) if j in self._pending
+                     and node - self._pending[j].node <= cfg.loop_verify_nodes]
+            pk = max(fresh, key=lambda j: self._pending[j].node, default=None)
+            if pk is None or not self._consistent(self._pending[pk], c):
+                if cfg.loop_unique_m > 0 and pre.second_score(
+                        pts, guess, lin, ang, m, cfg.loop_unique_m,
+                        cfg.loop_unique_ratio, cfg.loop_angular_step_rad) > 0:
+                    self._log(node, k, "aliased", r.score)
+                    return 0  # the scan fits two places in the window (aliasing)
+                self._pending[k] = c
+                self._log(node, k, "inconsistent" if fresh else "pending", r.score)
+                return 0
+            # both accepted below: neither may pend again
+            self._accept(self._pending.pop(pk))
             self._accept(c)
             self._log(node, k, "accepted", r.score)
-            found += 1
-        return found
+            return 2
+        self._accept(c)
+        self._log(node, k, "accepted", r.score)
+        return 1
 
     def _log(self, node: int, submap: int, outcome: str, score: float) -> None:
         if self.loop_log is not None:
