@@ -202,7 +202,7 @@ class EigenspaceService:
                           "members": len(cluster)})
         pose = None
         if state.get("state") == "z" and vote.winner is not None:
-            p = s.current_pose(vote.winner)
+            p = s.estimate(vote)
             pose = {"x": float(p[0]), "y": float(p[1]), "theta": float(p[2])}
         return {"state": state, "outcome": outcome, "pose": pose, "stops": s.stops,
                 "unique": vote.unique, "candidates": cands}

@@ -10,7 +10,12 @@ from numeric.eigenspace.analysis import EigenspaceAnalysis, EigenspaceConfig, an
 from numeric.eigenspace.interpolation import affine_weights, interpolate_pose
 from numeric.eigenspace.learning import f_d
 from numeric.eigenspace.learning_strategy import hypothetical_gain
-from numeric.eigenspace.localization import LocalizationConfig, Session, turn_candidates
+from numeric.eigenspace.localization import (
+    LocalizationConfig,
+    Session,
+    TurnCandidates,
+    turn_candidates,
+)
 from numeric.eigenspace.movement_strategy import (
     RegionLayout,
     StateBelief,
@@ -19,7 +24,7 @@ from numeric.eigenspace.movement_strategy import (
     choose_action,
     transition,
 )
-from numeric.eigenspace.regions import EntryModel, fit_c_a, fit_entry_model
+from numeric.eigenspace.regions import EntryModel, false_admissions, fit_c_a, fit_entry_model
 from numeric.eigenspace.triplets import TripletConfig
 from numeric.geometry import compose, relative, wrap_angle
 from numeric.world import Wall, World, WorldDescription
@@ -159,6 +164,19 @@ def test_fits_recover_known_constants() -> None:
     assert e.c0 == pytest.approx(0.8, abs=0.12) and e.c1 == pytest.approx(-0.3, abs=0.08)
 
 
+def test_triplets_that_place_other_learning_images_wrong_are_rejected(
+        analysis: EigenspaceAnalysis) -> None:
+    """Room A has false triplets (a bland image matches turns from metres away); the
+    analysis drops them, and no kept triplet's region places a learning image of
+    another point more than 1 m or 15 deg off."""
+    loc = analysis.config.localization
+    bad = false_admissions(analysis.model, analysis.triplets, analysis.c_a,
+                           analysis.config.regions.d_thd_m, loc.same_position_m,
+                           loc.same_heading_rad)
+    assert analysis.rejected_triplets > 0
+    assert len(bad) == len(analysis.triplets) > 0 and not bad.any()
+
+
 # -- §2.5 localization ------------------------------------------------------------------------
 def test_multi_stop_localization_in_room_a(analysis: EigenspaceAnalysis, room: World) -> None:
     """Seeded trials: the voted pose is close to the truth when the vote is unique."""
@@ -175,13 +193,32 @@ def test_multi_stop_localization_in_room_a(analysis: EigenspaceAnalysis, room: W
             s.add_stop(c, analysis.config.regions.d_thd_m, motion=relative(prev, pose))
             v = s.vote()
             if v.unique and v.winner is not None:
-                errors.append(np.linalg.norm(s.current_pose(v.winner)[:2] - pose[:2]))
+                errors.append(np.linalg.norm(s.estimate(v)[:2] - pose[:2]))
                 break
             prev = pose.copy()
             pose = apply_action(pose[None], np.array([0.0, 1.0, 0.0]),
                                 (room.surfaces.a, room.surfaces.b), 0.3)[0]
     assert len(errors) >= 6
     assert np.median(errors) < 1.0
+
+
+def test_the_estimate_is_the_weighted_mean_of_the_winning_group() -> None:
+    """Three candidates agree near (2, 3), one lies far away: the answer is their
+    weighted mean (weights 1 - D_err/D_thd), heading on the circle, carried by the
+    odometry to the latest stop."""
+    s = Session(LocalizationConfig())
+    poses = np.array([[2.0, 3.0, 3.1], [2.4, 3.0, -3.1], [2.0, 3.4, 3.1], [8.0, 1.0, 0.0]])
+    d_err = np.array([0.0, 0.1, 0.15, 0.18])  # weights 1, 0.5, 0.25, 0.1 at D_thd 0.2
+    s.add_stop(TurnCandidates(np.arange(4), d_err, poses, np.zeros(4, dtype=int)), 0.2)
+    s.add_stop(TurnCandidates(np.zeros(0, int), np.zeros(0), np.zeros((0, 3)),
+                              np.zeros(0, int)), 0.2, motion=np.array([1.0, 0.0, 0.0]))
+    v = s.vote()
+    assert v.unique and v.winner == 0
+    w = np.array([1.0, 0.5, 0.25])
+    now = compose(poses[:3], np.array([1.0, 0.0, 0.0]))  # each carried to stop 2
+    th = np.arctan2(w @ np.sin(now[:, 2]), w @ np.cos(now[:, 2]))
+    assert np.allclose(s.estimate(v), [*((w @ now[:, :2]) / w.sum()), th])
+    assert abs(th) > 3.0  # the mean of 3.1 and -3.1 rad is pi, not 0
 
 
 # -- §3.5 movement strategy -------------------------------------------------------------------

@@ -31,6 +31,7 @@ from numeric.eigenspace.regions import (
     EntryModel,
     RegionConfig,
     calibration_observations,
+    false_admissions,
     fit_c_a,
     fit_entry_model,
     real_world_distance,
@@ -72,6 +73,7 @@ class EigenspaceAnalysis:
     entry: EntryModel
     candidate_sets: list[list[int]]
     timings_s: dict[str, float] = field(default_factory=dict)
+    rejected_triplets: int = 0
 
     @property
     def regions(self) -> RegionModel:
@@ -102,6 +104,7 @@ class EigenspaceAnalysis:
                 "directions": len(self.model.directions), "k": self.model.k,
                 "image_shape": list(self.model.image_shape),
                 "triplets": len(self.triplets), "candidate_sets": len(self.candidate_sets),
+                "rejected_triplets": self.rejected_triplets,
                 "c_a": self.c_a, "d_thd_m": self.config.regions.d_thd_m,
                 "entry_model": {"c0": self.entry.c0, "c1_per_m": self.entry.c1},
                 "region_coverage": self.coverage(world), "timings_s": self.timings_s}
@@ -113,7 +116,8 @@ class EigenspaceAnalysis:
         meta = {"config": self.config.model_dump(mode="json"), "c_a": self.c_a,
                 "entry": [self.entry.c0, self.entry.c1], "sets": self.candidate_sets,
                 "image_shape": list(m.image_shape),
-                "normalize_brightness": m.normalize_brightness, "timings_s": self.timings_s}
+                "normalize_brightness": m.normalize_brightness, "timings_s": self.timings_s,
+                "rejected_triplets": self.rejected_triplets}
         np.savez_compressed(buf, points=m.points, directions=m.directions, mean=m.mean,
                             basis=m.basis, projections=m.projections, t_points=t.point_idx,
                             t_dirs=t.dir_idx, t_target=t.target, t_area=t.area,
@@ -131,7 +135,8 @@ class EigenspaceAnalysis:
         tr = Triplets(z["t_points"], z["t_dirs"], z["t_target"], z["t_area"])
         return EigenspaceAnalysis(EigenspaceConfig.model_validate(meta["config"]), model, tr,
                                   float(meta["c_a"]), EntryModel(*meta["entry"]),
-                                  [list(s) for s in meta["sets"]], dict(meta["timings_s"]))
+                                  [list(s) for s in meta["sets"]], dict(meta["timings_s"]),
+                                  int(meta.get("rejected_triplets", 0)))
 
 
 def free_grid(world: World, cell_m: float) -> np.ndarray:
@@ -194,6 +199,11 @@ def analyse(world: World, config: EigenspaceConfig, points: np.ndarray | None = 
         ts, d, err = calibration_observations(world, camera, model, triplets,
                                               config.regions.calibration_per_triplet, rng)
         c_a = fit_c_a(d, triplets.area[ts], err)
+    found = len(triplets)
+    triplets = validated(triplets, model, c_a, config)
+    if len(triplets) == 0:
+        raise InvalidInput(f"all {found} localizable triplets place other learning images "
+                           "wrong: learn more points or directions", field="learning")
     timings["region_model"] = time.perf_counter() - t0
     report("entry model", 0.6)
     t0 = time.perf_counter()
@@ -205,7 +215,20 @@ def analyse(world: World, config: EigenspaceConfig, points: np.ndarray | None = 
     sets = candidate_multiple_sets(regions)
     timings["candidate_sets"] = time.perf_counter() - t0
     report("done", 1.0)
-    return EigenspaceAnalysis(config, model, triplets, c_a, entry, sets, timings)
+    return EigenspaceAnalysis(config, model, triplets, c_a, entry, sets, timings,
+                              rejected_triplets=found - len(triplets))
+
+
+def validated(triplets: Triplets, model: EigenspaceModel, c_a: float,
+              config: EigenspaceConfig) -> Triplets:
+    """The triplets without false admissions (:func:`false_admissions`; all of them
+    when ``regions.reject_false_admissions`` is off)."""
+    if not config.regions.reject_false_admissions or len(triplets) == 0:
+        return triplets
+    loc = config.localization
+    bad = false_admissions(model, triplets, c_a, config.regions.d_thd_m,
+                           loc.same_position_m, loc.same_heading_rad)
+    return triplets.subset(np.flatnonzero(bad == 0))
 
 
 def with_learning_point(analysis: EigenspaceAnalysis, world: World,
@@ -216,8 +239,11 @@ def with_learning_point(analysis: EigenspaceAnalysis, world: World,
     camera = Camera(world, cfg.camera, rng=np.random.default_rng(cfg.seed + 1))
     model = add_learning_point(analysis.model, camera, point)
     new = find_localizable_triplets(model, cfg.triplets, only_with={len(model.points) - 1})
-    triplets = merge(analysis.triplets, new)
+    merged = merge(analysis.triplets, new)
+    # the new point's images may show that an old triplet's region admits them wrongly
+    triplets = validated(merged, model, analysis.c_a, cfg)
     regions = RegionModel(model, triplets, analysis.c_a, cfg.regions.d_thd_m)
     sets = candidate_multiple_sets(regions)
     return EigenspaceAnalysis(cfg, model, triplets, analysis.c_a, analysis.entry, sets,
-                              dict(analysis.timings_s))
+                              dict(analysis.timings_s),
+                              analysis.rejected_triplets + len(merged) - len(triplets))

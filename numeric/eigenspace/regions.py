@@ -20,7 +20,7 @@ from numeric.eigenspace.interpolation import affine_weights, interpolate_pose
 from numeric.eigenspace.learning import EigenspaceModel, f_d
 from numeric.eigenspace.triplets import Triplets
 from numeric.errors import InvalidInput
-from numeric.geometry import bearing
+from numeric.geometry import bearing, wrap_angle
 from numeric.world import World
 
 
@@ -29,6 +29,9 @@ class RegionConfig(BaseModel):
     d_thd_m: float = Field(0.2, gt=0.0, le=100.0, description="D_thd of §2.4 (paper 200 mm)")
     c_a: float | None = Field(None, gt=0.0, description="eq. 6 constant; fitted when None")
     calibration_per_triplet: int = Field(4, ge=1, le=100)
+    reject_false_admissions: bool = Field(
+        True, description="drop triplets whose region admits a learning image of another "
+                          "point and places it wrong (false_admissions)")
 
 
 @dataclass
@@ -78,6 +81,34 @@ def region_candidates(model: EigenspaceModel, triplets: Triplets, query: np.ndar
     m, t = np.nonzero(err < d_thd)
     pose = interpolate(model, triplets, query[m], t) if len(m) else np.zeros((0, 3))
     return Candidates(m, t, d[m, t], err[m, t], pose)
+
+
+def false_admissions(model: EigenspaceModel, triplets: Triplets, c_a: float, d_thd: float,
+                     position_m: float, heading_rad: float) -> np.ndarray:
+    """How many learning images ``(T,)`` of points outside each triplet fall in its
+    region (eq. 6) and are placed by eq. 5 farther than ``position_m`` / ``heading_rad``
+    from where they were taken.
+
+    The region is meant as a bound: inside it the error of eq. 5 stays below D_thd
+    (§2.4), which is why the paper fixes D_thd where every entered region is a right one
+    (Table 1). A learning image of a neighbouring point is an observation whose pose is
+    known, so a triplet that places one metres off is a false triplet: typically one of
+    its images is bland (close to the mean image), and as d is the minimum over the three
+    images, that image matches almost anything (room A: one such triplet entered 25 of 60
+    random turns, 15 of them from more than 2 m away). Chizu's reading of §2.3-§2.4:
+    such triplets are rejected at learning time, using only the learning images (a user's
+    own camera gives no other images of known pose)."""
+    n_w, n_t, k = model.projections.shape
+    if len(triplets) == 0:
+        return np.zeros(0, dtype=int)
+    q = model.projections.reshape(-1, k)
+    c = region_candidates(model, triplets, q, c_a, d_thd)
+    w, j = np.divmod(c.m, n_t)
+    member = (triplets.point_idx[c.t] == w[:, None]).any(axis=1)
+    off = np.hypot(*(c.pose[:, :2] - model.points[w]).T)
+    turn = np.abs(wrap_angle(c.pose[:, 2] - model.directions[j]))
+    wrong = ~member & ((off > position_m) | (turn > heading_rad))
+    return np.bincount(c.t[wrong], minlength=len(triplets))
 
 
 def calibration_observations(world: World, camera: Camera, model: EigenspaceModel,
