@@ -202,6 +202,20 @@ def test_multi_stop_localization_in_room_a(analysis: EigenspaceAnalysis, room: W
     assert np.median(errors) < 1.0
 
 
+@pytest.mark.parametrize(("d_err", "unique"), [((0.19,), False), ((0.0,), True),
+                                               ((0.1, 0.1), True), ((0.19, 0.19), False)])
+def test_a_weak_answer_without_rivals_is_not_unique(d_err: tuple[float, ...],
+                                                    unique: bool) -> None:
+    """A group needs min_votes (1.0) to be unique even with no rival: one hit just
+    inside D_thd (weight 0.05) is not a localization, one exact hit or two halfway
+    hits that agree are."""
+    s = Session(LocalizationConfig())
+    n = len(d_err)
+    poses = np.tile([2.0, 3.0, 0.5], (n, 1)) + np.arange(n)[:, None] * [0.1, 0.0, 0.0]
+    s.add_stop(TurnCandidates(np.arange(n), np.array(d_err), poses, np.zeros(n, int)), 0.2)
+    assert s.vote().unique is unique
+
+
 def test_the_estimate_is_the_weighted_mean_of_the_winning_group() -> None:
     """Three candidates agree near (2, 3), one lies far away: the answer is their
     weighted mean (weights 1 - D_err/D_thd), heading on the circle, carried by the

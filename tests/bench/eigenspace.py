@@ -264,6 +264,7 @@ def speed(cfg: EigenspaceConfig, a: EigenspaceAnalysis, w: World) -> list[str]:
     cam = Camera(w, cfg.camera)
     pts = learning_grid(w, 2.0, 1.0)
     rows = ["| step | time | ratio to peer | peer |", "|---|---|---|---|"]
+    learn(cam, pts[:3], LearningConfig(n_directions=36))  # warm up (compiled kernels, caches)
     for nt in (36, 72):
         t0 = time.perf_counter()
         learn(cam, pts, LearningConfig(n_directions=nt))
