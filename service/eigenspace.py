@@ -174,7 +174,22 @@ class EigenspaceService:
                                                "field": None}
 
     def summary(self, world: str) -> dict[str, Any]:
-        return self.analysis(world).summary(self.worlds.model(world))
+        """The analysis summary plus what it learned: the learning points (id, x, y) and
+        the localizable triplets (their points' ids, the three directions, the triangle's
+        area, the common target and the candidate-multiple set, if any)."""
+        a = self.analysis(world)
+        out = a.summary(self.worlds.model(world))
+        t, m, set_of = a.triplets, a.model, a.set_of()
+        out["points"] = [{"id": i, "x": float(p[0]), "y": float(p[1])}
+                         for i, p in enumerate(m.points)]
+        out["triplet_list"] = [
+            {"id": i, "points": t.point_idx[i].tolist(),
+             "directions_rad": m.directions[t.dir_idx[i]].tolist(),
+             "area_m2": float(t.area[i]),
+             "target": {"x": float(t.target[i, 0]), "y": float(t.target[i, 1])},
+             "candidate_set": None if set_of[i] < 0 else int(set_of[i])}
+            for i in range(len(t))]
+        return out
 
     # -- localization ---------------------------------------------------------------------
     def _check_turn(self, a: EigenspaceAnalysis, images: np.ndarray) -> np.ndarray:

@@ -139,7 +139,9 @@ class CameraIn(BaseModel):
     pose: PoseIn
     turn: Annotated[int, Field(ge=1, le=MAX_TURN_IMAGES)] | None = Field(
         None, description="render a full turn of this many images instead of one")
-    format: Literal["list", "png"] = "list"
+    format: Literal["list", "png"] = Field(
+        "png", description="png: base64 PNG images (`images_png`, ~10x smaller and faster "
+                           "to localize from); list: nested lists in [0, 1] (`images`)")
     camera: CameraConfig | None = None
 
 

@@ -60,8 +60,21 @@ def test_learning_summary_and_facts(client: TestClient, learned: str) -> None:
     s = client.get(f"/worlds/{learned}/eigenspace").json()
     assert s["learning_points"] == 25 and s["directions"] == 72 and s["k"] == 12
     assert s["triplets"] > 10 and 0 <= s["region_coverage"] <= 1
+    assert [p["id"] for p in s["points"]] == list(range(25))
+    assert len(s["triplet_list"]) == s["triplets"]
+    for t in s["triplet_list"]:
+        assert len(set(t["points"])) == 3 and all(0 <= i < 25 for i in t["points"])
+        assert len(t["directions_rad"]) == 3 and t["area_m2"] > 0
+        assert t["candidate_set"] is None or t["candidate_set"] >= 0
     facts = client.get(f"/worlds/{learned}/facts").json()
     assert any("eig_triplet" in f for f in facts)
+
+
+def test_camera_answers_png_by_default(client: TestClient, learned: str) -> None:
+    r = client.post(f"/worlds/{learned}/camera",
+                    json={"pose": {"x": 3.0, "y": 4.0, "theta": 0.5}, "turn": 2})
+    assert r.status_code == 200 and set(r.json()) == {"images_png"}
+    assert len(r.json()["images_png"]) == 2
 
 
 def test_camera_list_and_png_agree(client: TestClient, learned: str) -> None:

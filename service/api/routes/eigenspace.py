@@ -72,7 +72,8 @@ async def get_job(world: WorldName, job_id: str, eig: EigenspaceDep) -> dict[str
 
 @router.get("/eigenspace")
 async def get_eigenspace(world: WorldName, eig: EigenspaceDep) -> dict[str, Any]:
-    """Summary of the learned eigenspace: images, K, triplets, region coverage."""
+    """Summary of the learned eigenspace (images, K, triplet count, region coverage) with
+    the learning points (``points``) and the localizable triplets (``triplet_list``)."""
     return eig.summary(world)
 
 
@@ -121,7 +122,8 @@ async def get_next_move(world: WorldName, sid: str, eig: EigenspaceDep) -> dict[
 
 @router.post("/camera")
 async def post_camera(world: WorldName, body: CameraIn, eig: EigenspaceDep) -> dict[str, Any]:
-    """Render the simulated camera at a pose (one image, or a full turn)."""
+    """Render the simulated camera at a pose (one image, or a full turn): base64 PNG by
+    default, nested lists with ``"format": "list"``."""
     pose = np.array([body.pose.x, body.pose.y, body.pose.theta])
     imgs = eig.render(world, pose, body.camera, body.turn)
     if body.format == "png":
