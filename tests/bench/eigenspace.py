@@ -37,8 +37,9 @@ from numeric.eigenspace.movement_strategy import (  # noqa: E402
     session_belief,
 )
 from numeric.eigenspace.regions import real_world_distance, region_candidates  # noqa: E402
+from numeric.errors import InvalidInput  # noqa: E402
 from numeric.geometry import relative, wrap_angle  # noqa: E402
-from numeric.world import World  # noqa: E402
+from numeric.world import World, WorldDescription  # noqa: E402
 from numeric.worlds import room_a, room_b, room_c, room_d  # noqa: E402
 
 OUT = Path("bench-out")
@@ -304,6 +305,66 @@ def speed(cfg: EigenspaceConfig, a: EigenspaceAnalysis, w: World) -> list[str]:
     return rows
 
 
+def unseen_rooms() -> list[tuple[str, WorldDescription]]:
+    """Rooms nobody tuned the method on (not built-in templates): other outlines,
+    pillars, boxes and wall photographs than rooms A-D."""
+    from numeric.worlds import _boxes, _polygon_walls
+
+    rooms = []
+    walls = _polygon_walls([(0, 0), (12, 0), (12, 6), (6, 6), (6, 11), (0, 11)],
+                           ("grass", "moon", "gravel", "text", "cell", "page", "clock",
+                            "coffee"), 3.0)
+    walls += _polygon_walls([(3.0, 3.0), (3.6, 3.0), (3.6, 3.6), (3.0, 3.6)], ("brick",), 1.0)
+    rooms.append(("L-shaped, a pillar, two boxes", WorldDescription(
+        name="l_room", walls=walls, objects=_boxes([(9.0, 2.0, 0.3), (2.0, 8.5, 0.0)]))))
+    walls = _polygon_walls([(0, 0), (14, 0), (14, 6), (0, 6)],
+                           ("rocket", "astronaut", "grass", "coins", "moon", "camera"), 3.5)
+    rooms.append(("14 m x 6 m hall, one box", WorldDescription(
+        name="hall", walls=walls, objects=_boxes([(10.0, 4.5, 0.5)]))))
+    walls = _polygon_walls([(2, 0), (8, 0), (10, 4), (8, 8), (2, 8), (0, 4)],
+                           ("chelsea", "gravel", "brick", "cell", "coffee", "text"), 2.5)
+    for cx, cy in ((3.5, 4.0), (6.5, 4.0)):
+        walls += _polygon_walls([(cx - 0.3, cy - 0.3), (cx + 0.3, cy - 0.3),
+                                 (cx + 0.3, cy + 0.3), (cx - 0.3, cy + 0.3)], ("page",), 1.0)
+    rooms.append(("hexagon, two pillars", WorldDescription(name="hex", walls=walls)))
+    return rooms
+
+
+def unseen(cfg: EigenspaceConfig, rng: np.random.Generator) -> list[str]:
+    """Default parameters in rooms nobody tuned on: localized sessions (movement
+    strategy, up to 5 stops), wrong answers, and the Table 2 ratio in each."""
+    trials = 12 if QUICK else 30
+    rows = ["| room | learning points | triplets (rejected) | localized | wrong (> 1 m or 15°) | "
+            "position error proposed / nearest / 3-nearest (m) | ratio to nearest |",
+            "|---|---|---|---|---|---|---|"]
+    for label, desc in unseen_rooms():
+        w = World(desc)
+        try:
+            a = analyse(w, cfg)
+        except InvalidInput as err:  # e.g. every triplet places other learning images wrong
+            rows.append(f"| {label} | | | 0 of {trials}: {err} | | | |")
+            print(rows[-1], flush=True)
+            continue
+        cam = Camera(w, cfg.camera.model_copy(update={"noise_sigma": NOISE}), rng=rng)
+        e, wrong = [], 0
+        for p in w.sample_free(trials, rng):
+            _, est, info = run_trial(a, w, cam, np.array([*p, rng.uniform(-np.pi, np.pi)]),
+                                     "strategy", rng, 5)
+            if est is None:
+                continue
+            truth = np.asarray(info["truth"])
+            wrong += info["cause"] is not None
+            e.append([float(np.linalg.norm(est[:2] - truth[:2])),
+                      float(np.linalg.norm(np.asarray(info["nearest"])[:2] - truth[:2])),
+                      float(np.linalg.norm(np.asarray(info["idw3"])[:2] - truth[:2]))])
+        m = np.array(e).reshape(-1, 3).mean(axis=0) if e else np.full(3, np.nan)
+        rows.append(f"| {label} | {len(a.model.points)} | {len(a.triplets)} "
+                    f"({a.rejected_triplets}) | {len(e)} of {trials} | {wrong} | "
+                    f"{m[0]:.3f} / {m[1]:.3f} / {m[2]:.3f} | {m[0] / m[1]:.2f} |")
+        print(rows[-1], flush=True)
+    return rows
+
+
 def main() -> None:
     OUT.mkdir(exist_ok=True)
     rng = np.random.default_rng(0)
@@ -321,7 +382,9 @@ def main() -> None:
     for title, fn in (("Speed", lambda: speed(cfg, a, w)),
                       ("Table 1", lambda: table1(cfg, a, rng)),
                       ("Table 2 and Fig. 6", lambda: sum(table2_fig6(a, w, rng), [])),
-                      ("§5.4 learning strategy", lambda: section54(cfg, w))):
+                      ("§5.4 learning strategy", lambda: section54(cfg, w)),
+                      ("Rooms nobody tuned on (default parameters)",
+                       lambda: unseen(cfg, rng))):
         t0 = time.perf_counter()
         rows = fn()
         parts += [f"## {title}", "", *rows, "", f"({time.perf_counter() - t0:.0f} s)", ""]
