@@ -246,6 +246,19 @@ def layout_one_region(xy: tuple[float, float], walls: World,
                         (walls.surfaces.a, walls.surfaces.b))
 
 
+def test_entry_probabilities_use_the_nearest_of_each_triplets_points(room: World) -> None:
+    """Eq. 7 with D(s) of §3.2: the distance to the nearest of a triplet's three
+    learning points, the points shared between triplets as in a learning grid."""
+    rng = np.random.default_rng(4)
+    grid = rng.uniform(0, 10, (8, 2))
+    pts = grid[rng.integers(0, 8, (20, 3))]
+    lay = RegionLayout(EntryModel(0.9, -0.3), pts, np.full(20, -1),
+                       (room.surfaces.a, room.surfaces.b))
+    xy = rng.uniform(0, 10, (50, 2))
+    d = np.linalg.norm(xy[:, None, None, :] - pts[None], axis=-1).min(axis=2)
+    np.testing.assert_allclose(lay.entry_probabilities(xy), np.clip(0.9 - 0.3 * d, 0, 1))
+
+
 def test_state_probabilities_sum_to_one_and_z_absorbs(room: World) -> None:
     rng = np.random.default_rng(0)
     pts = rng.uniform(1, 9, (6, 3, 2))

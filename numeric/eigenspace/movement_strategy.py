@@ -60,6 +60,13 @@ class RegionLayout:
     set_of: np.ndarray
     walls: tuple[np.ndarray, np.ndarray]
 
+    def __post_init__(self) -> None:
+        # the regions share learning points: distances to the distinct points, then the
+        # smallest over each triplet's three (a tenth of the square roots in room A)
+        flat = np.asarray(self.points, dtype=float).reshape(-1, 2)
+        self._sites, inv = np.unique(flat, axis=0, return_inverse=True)
+        self._member = inv.reshape(-1, 3)
+
     @property
     def n_sets(self) -> int:
         return int(self.set_of.max()) + 1 if len(self.set_of) else 0
@@ -68,7 +75,9 @@ class RegionLayout:
         """P(R^(l)|s) ``(I, T)`` for positions ``(I, 2)`` (eq. 7 with D(s) of §3.2)."""
         if len(self.points) == 0:
             return np.zeros((len(xy), 0))
-        d = np.linalg.norm(xy[:, None, None, :] - self.points[None], axis=-1).min(axis=2)
+        to_site = np.hypot(xy[:, None, 0] - self._sites[None, :, 0],
+                           xy[:, None, 1] - self._sites[None, :, 1])  # (I, sites)
+        d = to_site[:, self._member].min(axis=2)
         return self.entry.probability(d)
 
     def p_any(self, xy: np.ndarray) -> np.ndarray:
