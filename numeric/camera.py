@@ -32,7 +32,7 @@ class CameraConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
     width_px: int = Field(64, ge=4, le=256)
     height_px: int = Field(32, ge=4, le=256)
-    hfov_rad: float = Field(np.deg2rad(60.0), gt=0.05, lt=np.pi - 0.05)
+    hfov_rad: float = Field(float(np.deg2rad(60.0)), gt=0.05, lt=np.pi - 0.05)
     camera_height_m: float = Field(1.0, gt=0.0, le=10.0)
     wall_height_m: float = Field(2.5, gt=0.0, le=20.0)
     texture_tile_m: float = Field(5.0, gt=0.0, le=100.0,

@@ -22,7 +22,7 @@ class LaserConfig(BaseModel):
 
     min_range_m: float = Field(0.02, ge=0)
     max_range_m: float = Field(5.6, gt=0)
-    fov_rad: float = Field(np.radians(240.0), gt=0, le=2 * np.pi)
+    fov_rad: float = Field(float(np.radians(240.0)), gt=0, le=2 * np.pi)
     step_rad: float = Field(2 * np.pi / 512, gt=0)
     range_noise_m: float = Field(0.01, ge=0, description="1-sigma range noise")
     intensity_max: float = Field(40000.0, gt=0)

@@ -178,3 +178,83 @@ class ScanIn(BaseModel):
 class ScansIn(BaseModel):
     model_config = ConfigDict(extra="forbid")
     scans: Annotated[list[ScanIn], Field(min_length=1, max_length=500)]
+
+
+# -- eigenspace localization answers (Maeda & Shirai §2.5, §3.4, Fig. 4) ----------------
+class StateX(BaseModel):
+    """No localizable region entered yet: position unknown."""
+
+    state: Literal["x"]
+
+
+class StateY(BaseModel):
+    """Regions entered but not told apart: ambiguous within candidate-multiple set
+    ``set`` (§3.3), or "unlisted": among regions in no known set, or in several."""
+
+    state: Literal["y"]
+    set: int | Literal["unlisted"]
+
+
+class StateZ(BaseModel):
+    """Localized (absorbing)."""
+
+    state: Literal["z"]
+
+
+LocalizationState = Annotated[StateX | StateY | StateZ, Field(discriminator="state")]
+
+
+class PoseOut(BaseModel):
+    x: float
+    y: float
+    theta: float
+
+
+class LocalizationCandidate(BaseModel):
+    """A group of agreeing candidates: its strongest member's pose at this stop."""
+
+    pose: PoseOut
+    votes: float
+    triplet: int
+    members: int
+
+
+class LocalizationOut(BaseModel):
+    """The state after this stop, what the stop showed (``outcome``: none, unique,
+    in_set, across, unlisted), the pose when z (the weighted mean of the winning group),
+    the numeric vote and up to 10 candidate groups, strongest first."""
+
+    state: LocalizationState
+    outcome: Literal["none", "unique", "in_set", "across", "unlisted"]
+    pose: PoseOut | None
+    stops: int
+    unique: bool
+    candidates: list[LocalizationCandidate]
+
+
+class SessionLocalizationOut(LocalizationOut):
+    """:class:`LocalizationOut` of a multi-stop session."""
+
+    id: str
+
+
+class SessionCreated(BaseModel):
+    id: str
+    world: str
+    state: LocalizationState
+    stops: int
+
+
+class MoveOut(BaseModel):
+    alpha_rad: float
+    l_m: float
+    beta_rad: float
+
+
+class NextMoveOut(BaseModel):
+    """The movement strategy's action a = (alpha, l, beta) maximising Q(Z) (eq. 8), or
+    none once localized."""
+
+    state: LocalizationState
+    action: MoveOut | None
+    q_z: float

@@ -187,3 +187,12 @@ def test_analysis_and_session_survive_restart(tmp_path: Any) -> None:
         assert after["state"] == before["state"] and after["stops"] == 1
         facts = c.get("/worlds/eig_r/facts").json()
         assert sum("eig_triplet" in f for f in facts) == summary["triplets"]
+
+
+def test_the_schema_names_every_localization_state_and_outcome(client: TestClient) -> None:
+    schemas = client.get("/openapi.json").json()["components"]["schemas"]
+    assert set(schemas["LocalizationOut"]["properties"]["outcome"]["enum"]) == {
+        "none", "unique", "in_set", "across", "unlisted"}
+    states = {schemas[k]["properties"]["state"]["const"] for k in ("StateX", "StateY", "StateZ")}
+    assert states == {"x", "y", "z"} and "set" in schemas["StateY"]["required"]
+    assert "SessionLocalizationOut" in schemas and "NextMoveOut" in schemas

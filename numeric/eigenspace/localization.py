@@ -28,7 +28,7 @@ class LocalizationConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
     same_position_m: float = Field(1.0, gt=0.0, le=100.0,
                                    description="candidates closer than this are identified")
-    same_heading_rad: float = Field(np.deg2rad(15.0), gt=0.0, le=np.pi)
+    same_heading_rad: float = Field(float(np.deg2rad(15.0)), gt=0.0, le=np.pi)
     odometry_slack_ratio: float = Field(0.05, ge=0.0, le=1.0,
                                         description="extra position tolerance per metre driven")
     vote_margin: float = Field(2.0, ge=1.0, le=1000.0,

@@ -28,7 +28,7 @@ class TripletConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     k_alpha: float = Field(0.8, gt=0.0, lt=1.0)
-    theta_alpha_rad: float = Field(np.deg2rad(30.0), gt=0.0, le=np.pi)
+    theta_alpha_rad: float = Field(float(np.deg2rad(30.0)), gt=0.0, le=np.pi)
     d_alpha_m: float = Field(0.05, gt=0.0, le=10.0)
     neighbour_max_m: float = Field(2.9, gt=0.0, le=100.0,
                                    description="condition C: max mutual distance in a triple")

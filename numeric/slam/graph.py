@@ -120,7 +120,7 @@ class GraphSlamConfig(BaseModel):
                               "many times coarser (max-pooled); the refinement is on the "
                               "submap's own")
     loop_linear_window_m: float = Field(8.0, gt=0)
-    loop_angular_window_rad: float = Field(np.radians(30.0), gt=0)
+    loop_angular_window_rad: float = Field(float(np.radians(30.0)), gt=0)
     loop_min_score: float = Field(0.5, gt=0, le=1, description="branch and bound's score "
                                   "(on the max-pooled grid) a closure needs ...")
     loop_min_refined_score: float = Field(0.4, gt=0, le=1, description="... and its "

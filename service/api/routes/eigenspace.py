@@ -15,7 +15,15 @@ from numeric.eigenspace.analysis import EigenspaceConfig
 from numeric.errors import InvalidInput
 from service.api.routes.worlds import WorldName
 from service.deps import EigenspaceDep
-from service.schemas import CameraIn, StopIn, TurnIn
+from service.schemas import (
+    CameraIn,
+    LocalizationOut,
+    NextMoveOut,
+    SessionCreated,
+    SessionLocalizationOut,
+    StopIn,
+    TurnIn,
+)
 
 router = APIRouter(prefix="/worlds/{world}", tags=["eigenspace localization"])
 
@@ -85,13 +93,14 @@ async def get_covering(world: WorldName, eig: EigenspaceDep,
     return await eig.covering(world, x, y)
 
 
-@router.post("/localize")
+@router.post("/localize", response_model=LocalizationOut)
 async def post_localize(world: WorldName, body: TurnIn, eig: EigenspaceDep) -> dict[str, Any]:
     """One full turn of images -> state (X / Y / Z), pose when Z, candidates."""
     return await eig.localize(world, decode_turn(body))
 
 
-@router.post("/localization-sessions", status_code=status.HTTP_201_CREATED)
+@router.post("/localization-sessions", status_code=status.HTTP_201_CREATED,
+             response_model=SessionCreated)
 async def post_session(world: WorldName, eig: EigenspaceDep,
                        response: Response) -> dict[str, Any]:
     """Start a multi-stop localization (state X)."""
@@ -100,12 +109,12 @@ async def post_session(world: WorldName, eig: EigenspaceDep,
     return s
 
 
-@router.get("/localization-sessions/{sid}")
+@router.get("/localization-sessions/{sid}", response_model=SessionLocalizationOut)
 async def get_session(world: WorldName, sid: str, eig: EigenspaceDep) -> dict[str, Any]:
     return await eig.session(world, sid)
 
 
-@router.post("/localization-sessions/{sid}/stops")
+@router.post("/localization-sessions/{sid}/stops", response_model=SessionLocalizationOut)
 async def post_stop(world: WorldName, sid: str, body: StopIn,
                     eig: EigenspaceDep) -> dict[str, Any]:
     """One stop: a full turn of images plus the odometry since the previous stop."""
@@ -114,7 +123,7 @@ async def post_stop(world: WorldName, sid: str, body: StopIn,
     return await eig.add_stop(world, sid, decode_turn(body), motion)
 
 
-@router.get("/localization-sessions/{sid}/next-move")
+@router.get("/localization-sessions/{sid}/next-move", response_model=NextMoveOut)
 async def get_next_move(world: WorldName, sid: str, eig: EigenspaceDep) -> dict[str, Any]:
     """The movement strategy's action (alpha, l, beta) maximising Q(Z), and that Q(Z)."""
     return await eig.next_move(world, sid)
