@@ -179,16 +179,13 @@ class EigenspaceService:
         area, the common target and the candidate-multiple set, if any)."""
         a = self.analysis(world)
         out = a.summary(self.worlds.model(world))
-        t, m, set_of = a.triplets, a.model, a.set_of()
-        out["points"] = [{"id": i, "x": float(p[0]), "y": float(p[1])}
-                         for i, p in enumerate(m.points)]
+        facts = facts_call(world, a)  # the rows the knowledge base is given, plus more
+        set_of, target = a.set_of(), a.triplets.target
+        out["points"] = [{"id": i, "x": x, "y": y} for i, (x, y) in enumerate(facts["points"])]
         out["triplet_list"] = [
-            {"id": i, "points": t.point_idx[i].tolist(),
-             "directions_rad": m.directions[t.dir_idx[i]].tolist(),
-             "area_m2": float(t.area[i]),
-             "target": {"x": float(t.target[i, 0]), "y": float(t.target[i, 1])},
+            {"id": i, **row, "target": {"x": float(target[i, 0]), "y": float(target[i, 1])},
              "candidate_set": None if set_of[i] < 0 else int(set_of[i])}
-            for i in range(len(t))]
+            for i, row in enumerate(facts["triplets"])]
         return out
 
     # -- localization ---------------------------------------------------------------------

@@ -19,7 +19,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from numeric.eigenspace.learning import EigenspaceModel
-from numeric.eigenspace.regions import region_candidates
+from numeric.eigenspace.regions import agrees, region_candidates
 from numeric.eigenspace.triplets import Triplets
 from numeric.geometry import compose, relative, wrap_angle
 
@@ -36,15 +36,6 @@ class LocalizationConfig(BaseModel):
     min_votes: float = Field(1.0, ge=0.0, le=1000.0,
                              description="votes the winning group needs to be unique (a "
                                          "lone weak hit is not a localization)")
-
-
-def agrees(poses: np.ndarray, reference: np.ndarray, position_m: float,
-           heading_rad: float) -> np.ndarray:
-    """Which poses ``(n, 3)`` lie within ``position_m`` and ``heading_rad`` of
-    ``reference`` (``(3,)`` or ``(n, 3)``): the identification test of §2.5."""
-    p, q = np.asarray(poses, dtype=float), np.asarray(reference, dtype=float)
-    return np.asarray((np.linalg.norm(p[:, :2] - q[..., :2], axis=-1) <= position_m)
-                      & (np.abs(wrap_angle(p[:, 2] - q[..., 2])) <= heading_rad))
 
 
 @dataclass

@@ -83,6 +83,15 @@ def region_candidates(model: EigenspaceModel, triplets: Triplets, query: np.ndar
     return Candidates(m, t, d[m, t], err[m, t], pose)
 
 
+def agrees(poses: np.ndarray, reference: np.ndarray, position_m: float,
+           heading_rad: float) -> np.ndarray:
+    """Which poses ``(n, 3)`` lie within ``position_m`` and ``heading_rad`` of
+    ``reference`` (``(3,)`` or ``(n, 3)``): the identification test of §2.5."""
+    p, q = np.asarray(poses, dtype=float), np.asarray(reference, dtype=float)
+    return np.asarray((np.linalg.norm(p[:, :2] - q[..., :2], axis=-1) <= position_m)
+                      & (np.abs(wrap_angle(p[:, 2] - q[..., 2])) <= heading_rad))
+
+
 def false_admissions(model: EigenspaceModel, triplets: Triplets, c_a: float, d_thd: float,
                      position_m: float, heading_rad: float) -> np.ndarray:
     """How many learning images ``(T,)`` of points outside each triplet fall in its
@@ -98,16 +107,14 @@ def false_admissions(model: EigenspaceModel, triplets: Triplets, c_a: float, d_t
     random turns, 15 of them from more than 2 m away). Chizu's reading of §2.3-§2.4:
     such triplets are rejected at learning time, using only the learning images (a user's
     own camera gives no other images of known pose)."""
-    n_w, n_t, k = model.projections.shape
+    _, n_t, k = model.projections.shape
     if len(triplets) == 0:
         return np.zeros(0, dtype=int)
-    q = model.projections.reshape(-1, k)
-    c = region_candidates(model, triplets, q, c_a, d_thd)
+    c = region_candidates(model, triplets, model.projections.reshape(-1, k), c_a, d_thd)
     w, j = np.divmod(c.m, n_t)
     member = (triplets.point_idx[c.t] == w[:, None]).any(axis=1)
-    off = np.hypot(*(c.pose[:, :2] - model.points[w]).T)
-    turn = np.abs(wrap_angle(c.pose[:, 2] - model.directions[j]))
-    wrong = ~member & ((off > position_m) | (turn > heading_rad))
+    taken = np.column_stack([model.points[w], model.directions[j]])
+    wrong = ~member & ~agrees(c.pose, taken, position_m, heading_rad)
     return np.bincount(c.t[wrong], minlength=len(triplets))
 
 

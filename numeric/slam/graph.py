@@ -203,6 +203,7 @@ class LoopMap:
     grid: ProbabilityGrid
     search: PrecomputedGrid
 
+
 def rotate_xy(v: np.ndarray, angle: float) -> np.ndarray:
     c, s = np.cos(angle), np.sin(angle)
     return np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])
@@ -504,14 +505,11 @@ class GraphSlam:
                 self._pending[k] = c
                 self._log(node, k, "inconsistent" if fresh else "pending", r.score)
                 return 0
-            # both accepted below: neither may pend again
+            # both accepted: neither may pend again
             self._accept(self._pending.pop(pk))
-            self._accept(c)
-            self._log(node, k, "accepted", r.score)
-            return 2
         self._accept(c)
         self._log(node, k, "accepted", r.score)
-        return 1
+        return 1 if tracking else 2
 
     def _log(self, node: int, submap: int, outcome: str, score: float) -> None:
         if self.loop_log is not None:
