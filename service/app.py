@@ -74,5 +74,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(slam.router)
     app.include_router(viewpoint.router)
     errors.install(app)
-    app.add_middleware(errors.BodySizeLimit, max_bytes=settings.max_body_bytes)
+    app.add_middleware(errors.BodySizeLimit, max_bytes=settings.max_body_bytes,
+                       upload_bytes=settings.max_upload_bytes,
+                       upload_suffixes=("/eigenspace/images",))
     return app

@@ -1,4 +1,5 @@
-"""The ``chizu`` command line: serve, repl, path, slam, slam-eval, slam-sim, plan, summarise."""
+"""The ``chizu`` command line: serve, repl, path, slam, slam-eval, slam-sim, plan, summarise,
+eigenspace (export, learn, localize)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import shutil
 import sys
 import tempfile
 from pathlib import Path
+from typing import Annotated
 
 import typer
 from rich.console import Console
@@ -355,6 +357,133 @@ def summarise(world: str = typer.Argument(..., help="stored world or template, e
                f"{world}: {loss}, t_limit {time_limit:g} s, took {run.elapsed_s:.1f} s")
     console.print(summary)
     console.print(f"wrote {outdir / 'run.json'} and {outdir / 'run.png'}")
+
+
+eigen = typer.Typer(help="Eigenspace localization: learn from the simulator or a camera's "
+                    "images, export the simulator's images, localize a turn of images.",
+                    no_args_is_help=True)
+app.add_typer(eigen, name="eigenspace")
+ConfigOpt = Annotated[Path | None, typer.Option(help="EigenspaceConfig JSON file")]
+SizeOpt = Annotated[str | None, typer.Option(help="resize images to WIDTHxHEIGHT px")]
+
+
+def _eigen_config(path: Path | None):  # type: ignore[no-untyped-def]
+    from pydantic import ValidationError
+
+    from numeric.eigenspace.analysis import EigenspaceConfig
+
+    if path is None:
+        return EigenspaceConfig()
+    try:
+        return EigenspaceConfig.model_validate_json(path.read_text())
+    except (OSError, ValidationError) as e:
+        console.print(f"[red]--config {path}: {e}[/red]")
+        raise typer.Exit(2) from None
+
+
+def _size(text: str | None) -> tuple[int, int] | None:
+    if not text:
+        return None
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        console.print(f"[red]--size must read WIDTHxHEIGHT, e.g. 64x32, not {text!r}[/red]")
+        raise typer.Exit(2) from None
+    return w, h
+
+
+def _open_eigenspace():  # type: ignore[no-untyped-def]
+    from service.eigenspace import EigenspaceService
+
+    worlds = _open_worlds()
+    eig = EigenspaceService(worlds.store, worlds.kb, worlds)
+    eig.restore()  # the stored analyses' facts, which localization's rules query
+    return eig
+
+
+@eigen.command("export")
+def eigen_export(world: Annotated[str, typer.Argument(help="stored world or template")],
+                 out: Annotated[Path, typer.Argument(help="folder to write")],
+                 config: ConfigOpt = None) -> None:
+    """Write the simulator's learning turns and calibration images of WORLD as an image
+    folder (poses.csv + 16-bit PNGs): the format `learn --images` reads."""
+    from numeric.eigenspace.analysis import render_image_set
+    from numeric.eigenspace.image_sets import write_image_folder
+    from numeric.world import World
+
+    with console.status("rendering and analysing"):
+        images, a = render_image_set(World(_world_description(world)), _eigen_config(config))
+    n = write_image_folder(out, images)
+    console.print(f"wrote {n} images and {out / 'poses.csv'}: {len(images.points)} learning "
+                  f"points x {images.n_directions} directions, {len(images.calib_poses)} "
+                  f"calibration images (c_a {a.c_a:.3f}, {len(a.triplets)} triplets)")
+
+
+@eigen.command("learn")
+def eigen_learn(world: Annotated[str, typer.Argument(help="stored world")],
+                images: Annotated[Path | None, typer.Option(
+                    help="image folder (poses.csv + images); default: the simulator")] = None,
+                size: SizeOpt = None, config: ConfigOpt = None) -> None:
+    """Learn WORLD's eigenspace and store it (the service and the REPL see it). A WORLD
+    not stored yet but named like a template (e.g. room_a) is created from it."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from numeric.eigenspace.image_sets import read_image_folder
+    from numeric.errors import InvalidInput
+    from numeric.world import WorldDescription
+    from numeric.worlds import TEMPLATES
+    from service.worlds import NotFound
+
+    cfg = _eigen_config(config)
+    eig = _open_eigenspace()
+    try:
+        if eig.store.world(world) is None and world in TEMPLATES:
+            asyncio.run(eig.worlds.create(WorldDescription(name=world, template=world)))
+            console.print(f"created world {world!r} from its template")
+        image_set = None if images is None else read_image_folder(images, _size(size))
+        with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(),
+                      console=console) as bar:
+            task = bar.add_task("learning", total=1.0)
+
+            def progress(stage: str, frac: float) -> None:
+                bar.update(task, description=stage, completed=frac)
+
+            a = asyncio.run(eig.learn(world, cfg, image_set, progress))
+        console.print(a.summary(eig.worlds.model(world)))
+    except (InvalidInput, NotFound) as e:
+        console.print(f"[red]{e.field}: {e}[/red]")
+        raise typer.Exit(2) from None
+    finally:
+        eig.kb.close()
+
+
+@eigen.command("localize")
+def eigen_localize(world: Annotated[str, typer.Argument(help="stored world with an "
+                                                          "eigenspace")],
+                   files: Annotated[list[Path], typer.Argument(
+                       help="one full turn of images, in order of relative heading "
+                            "2*pi*j/n")],
+                   size: SizeOpt = None) -> None:
+    """Localize one full turn of image files: state, pose when localized, candidates."""
+    import json
+
+    import numpy as np
+
+    from numeric.eigenspace.image_sets import decode_image
+    from numeric.errors import InvalidInput
+    from service.worlds import NotFound
+
+    eig = _open_eigenspace()
+    try:
+        wh = _size(size)
+        turn = np.stack([decode_image(f.name, f.read_bytes(), wh) for f in files])
+        r = asyncio.run(eig.localize(world, turn))
+        console.print_json(json.dumps(r))
+    except (InvalidInput, NotFound, ValueError, OSError) as e:
+        console.print(f"[red]{getattr(e, 'field', '')}: {e}[/red]")
+        raise typer.Exit(2) from None
+    finally:
+        eig.kb.close()
 
 
 if __name__ == "__main__":

@@ -21,7 +21,14 @@ from typing import Any
 import numpy as np
 
 from numeric.camera import Camera, CameraConfig
-from numeric.eigenspace.analysis import EigenspaceAnalysis, EigenspaceConfig, analyse
+from numeric.eigenspace.analysis import (
+    EigenspaceAnalysis,
+    EigenspaceConfig,
+    Progress,
+    analyse,
+    analyse_images,
+)
+from numeric.eigenspace.image_sets import ImageSet
 from numeric.eigenspace.localization import (
     Session,
     session_from_dict,
@@ -122,7 +129,9 @@ class EigenspaceService:
         return a
 
     # -- learning -----------------------------------------------------------------------
-    def start_learning(self, world: str, config: EigenspaceConfig) -> Job:
+    def start_learning(self, world: str, config: EigenspaceConfig,
+                       images: ImageSet | None = None) -> Job:
+        """A learning job: in the simulator, or from a camera's ``images``."""
         self.worlds.model(world)
         if any(j.world == world and j.status in ("queued", "running")
                for j in self._jobs.values()):
@@ -130,7 +139,7 @@ class EigenspaceService:
                            field="world")
         job = Job(uuid.uuid4().hex, world)
         self._jobs[job.id] = job
-        task = asyncio.get_running_loop().create_task(self._learn(job, config))
+        task = asyncio.get_running_loop().create_task(self._learn(job, config, images))
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
         return job
@@ -141,30 +150,41 @@ class EigenspaceService:
             raise NotFound(f"no learning job {job_id!r} for world {world!r}", field="job")
         return j
 
-    async def _learn(self, job: Job, config: EigenspaceConfig) -> None:
+    async def learn(self, world: str, config: EigenspaceConfig,
+                    images: ImageSet | None = None,
+                    progress: Progress | None = None) -> EigenspaceAnalysis:
+        """Learn and analyse (simulator, or ``images``), then assert the facts and store
+        the analysis together: both or neither."""
+        w = self.worlds.model(world)
+        if images is None:
+            a = await asyncio.to_thread(analyse, w, config, None, progress)
+        else:
+            a = await asyncio.to_thread(analyse_images, w, images, config, progress)
+        async with self.worlds._write:  # same writer lock as every other mutation
+            self.worlds.model(world)  # deleted meanwhile -> NotFound
+            await self.kb.acall("eigenspace_facts", **facts_call(world, a))
+            try:
+                with self.store.transaction() as conn:
+                    self.store.put_artifact(conn, world, ARTIFACT, a.to_bytes())
+            except BaseException:  # keep the knowledge base in step with the store
+                old = self._analyses.get(world)
+                await self.kb.acall("eigenspace_facts", **(
+                    facts_call(world, old) if old is not None else
+                    {"world": world, "points": [], "triplets": [], "candidate_sets": []}))
+                raise
+            self._analyses[world] = a
+        return a
+
+    async def _learn(self, job: Job, config: EigenspaceConfig,
+                     images: ImageSet | None) -> None:
         job.status = "running"
 
         def progress(stage: str, frac: float) -> None:
             job.stage, job.progress = stage, frac
 
         try:
-            w = self.worlds.model(job.world)
-            a = await asyncio.to_thread(analyse, w, config, None, progress)
-            async with self.worlds._write:  # same writer lock as every other mutation
-                self.worlds.model(job.world)  # deleted meanwhile -> NotFound
-                await self.kb.acall("eigenspace_facts", **facts_call(job.world, a))
-                try:
-                    with self.store.transaction() as conn:
-                        self.store.put_artifact(conn, job.world, ARTIFACT, a.to_bytes())
-                except BaseException:  # keep the knowledge base in step with the store
-                    old = self._analyses.get(job.world)
-                    await self.kb.acall("eigenspace_facts", **(
-                        facts_call(job.world, old) if old is not None else
-                        {"world": job.world, "points": [], "triplets": [],
-                         "candidate_sets": []}))
-                    raise
-                self._analyses[job.world] = a
-            job.summary = a.summary(w)
+            a = await self.learn(job.world, config, images, progress)
+            job.summary = a.summary(self.worlds.model(job.world))
             job.status, job.stage, job.progress = "done", "done", 1.0
         except InvalidInput as e:
             job.status, job.error = "failed", {"detail": str(e), "field": e.field}

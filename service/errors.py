@@ -103,19 +103,30 @@ def install(app: FastAPI) -> None:
 
 
 class BodySizeLimit:
-    """ASGI middleware: refuse bodies over ``max_bytes`` with 413 before parsing them."""
+    """ASGI middleware: refuse bodies over ``max_bytes`` (``upload_bytes`` on paths
+    ending in one of ``upload_suffixes``: image-set uploads) with 413 before parsing."""
 
-    def __init__(self, app: Any, max_bytes: int) -> None:
-        self.app, self.max_bytes = app, max_bytes
+    def __init__(self, app: Any, max_bytes: int, upload_bytes: int | None = None,
+                 upload_suffixes: tuple[str, ...] = ()) -> None:
+        self.app, self.default_bytes = app, max_bytes
+        self.upload_bytes = upload_bytes or max_bytes
+        self.upload_suffixes = upload_suffixes
 
     async def __call__(self, scope: dict[str, Any], receive: Any, send: Any) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
+        upload = str(scope.get("path", "")).endswith(self.upload_suffixes) \
+            if self.upload_suffixes else False
+        limit = self.upload_bytes if upload else self.default_bytes
+        await self._limited(scope, receive, send, limit)
+
+    async def _limited(self, scope: dict[str, Any], receive: Any, send: Any,
+                       limit: int) -> None:
         headers = dict(scope.get("headers") or [])
         declared = headers.get(b"content-length")
-        if declared is not None and (not declared.isdigit() or int(declared) > self.max_bytes):
-            await self._reject(scope, send)
+        if declared is not None and (not declared.isdigit() or int(declared) > limit):
+            await self._reject(scope, send, limit)
             return
         seen = 0
 
@@ -124,18 +135,18 @@ class BodySizeLimit:
             msg: dict[str, Any] = await receive()
             if msg["type"] == "http.request":
                 seen += len(msg.get("body", b""))
-                if seen > self.max_bytes:
+                if seen > limit:
                     raise _TooLarge
             return msg
 
         try:
             await self.app(scope, limited_receive, send)
         except _TooLarge:
-            await self._reject(scope, send)
+            await self._reject(scope, send, limit)
 
-    async def _reject(self, scope: dict[str, Any], send: Any) -> None:
-        resp = problem(413, "Payload too large",
-                       f"request body exceeds {self.max_bytes} bytes",
+    @staticmethod
+    async def _reject(scope: dict[str, Any], send: Any, limit: int) -> None:
+        resp = problem(413, "Payload too large", f"request body exceeds {limit} bytes",
                        instance=scope.get("path"), field="body")
         await resp(scope, None, send)  # type: ignore[arg-type]
 

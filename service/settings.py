@@ -22,6 +22,8 @@ class Settings(BaseSettings):
     kb_time_limit_s: float = Field(10.0, gt=0)
     kb_inference_limit: int = Field(200_000_000, gt=0)
     max_body_bytes: int = Field(8 * 1024 * 1024, gt=0)
+    max_upload_bytes: int = Field(256 * 1024 * 1024, gt=0,
+                                  description="bodies of image-set uploads")
 
     @property
     def db_path(self) -> Path:

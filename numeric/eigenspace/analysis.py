@@ -1,5 +1,10 @@
 """The analysis pipeline: learn -> triplets -> eq.-6 constant -> eq.-7 entry model ->
 candidate-multiple sets, read top to bottom (paper §2-§3), plus (de)serialisation.
+
+The images come from an :class:`ImageSource`: :class:`SimulatedCamera` renders them in
+the world (the paper's experiments, §5), :class:`ImportedImages` takes a user's own
+camera's learning images (:mod:`numeric.eigenspace.image_sets`). The pipeline is the
+same; only where c_a's and eq. 7's observations come from differs.
 """
 
 from __future__ import annotations
@@ -13,12 +18,14 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from numeric.camera import Camera, CameraConfig
+from numeric.eigenspace.image_sets import ImageSet
 from numeric.eigenspace.learning import (
     EigenspaceModel,
     LearningConfig,
     add_learning_point,
-    learn,
+    learn_images,
     learning_grid,
+    render_learning_images,
 )
 from numeric.eigenspace.localization import (
     LocalizationConfig,
@@ -30,15 +37,19 @@ from numeric.eigenspace.movement_strategy import RegionLayout, StrategyConfig
 from numeric.eigenspace.regions import (
     EntryModel,
     RegionConfig,
-    calibration_observations,
+    calibration_errors,
+    calibration_pairs,
+    calibration_poses,
     false_admissions,
     fit_c_a,
     fit_entry_model,
+    leave_one_out_pairs,
     real_world_distance,
     region_candidates,
 )
 from numeric.eigenspace.triplets import TripletConfig, Triplets, find_localizable_triplets, merge
 from numeric.errors import InvalidInput
+from numeric.geometry import wrap_angle
 from numeric.world import World
 
 Progress = Callable[[str, float], None]
@@ -70,10 +81,11 @@ class EigenspaceAnalysis:
     model: EigenspaceModel
     triplets: Triplets
     c_a: float
-    entry: EntryModel
+    entry: EntryModel | None  # None: a camera's images without calibration images
     candidate_sets: list[list[int]]
     timings_s: dict[str, float] = field(default_factory=dict)
     rejected_triplets: int = 0
+    source: str = "simulator"  # or "images": a user's camera (no simulator to add points)
 
     @property
     def regions(self) -> RegionModel:
@@ -86,14 +98,21 @@ class EigenspaceAnalysis:
         return s
 
     def layout(self, world: World) -> RegionLayout:
+        if self.entry is None:
+            raise InvalidInput("this eigenspace has no entry model (eq. 7), which the "
+                               "movement and learning strategies need: learn it with "
+                               "calibration images (role 'calibrate' in poses.csv)",
+                               field="calibration")
         surf = world.surfaces
         return RegionLayout(self.entry, self.model.points[self.triplets.point_idx],
                             self.set_of(), (surf.a, surf.b))
 
-    def coverage(self, world: World, cell_m: float = 0.2) -> float:
+    def coverage(self, world: World, cell_m: float = 0.2) -> float | None:
         """Localizable area: share of the free space where one observation enters some
         region with probability >= 0.5, i.e. 1 - prod_l (1 - P(R^(l)|s)) >= 0.5 (eq. 7)."""
         grid = free_grid(world, cell_m)
+        if self.entry is None:
+            return None
         if len(grid) == 0:
             return 0.0
         return float(np.mean(self.layout(world).p_any(grid) >= 0.5))
@@ -104,9 +123,10 @@ class EigenspaceAnalysis:
                 "directions": len(self.model.directions), "k": self.model.k,
                 "image_shape": list(self.model.image_shape),
                 "triplets": len(self.triplets), "candidate_sets": len(self.candidate_sets),
-                "rejected_triplets": self.rejected_triplets,
+                "rejected_triplets": self.rejected_triplets, "source": self.source,
                 "c_a": self.c_a, "d_thd_m": self.config.regions.d_thd_m,
-                "entry_model": {"c0": self.entry.c0, "c1_per_m": self.entry.c1},
+                "entry_model": None if self.entry is None else
+                {"c0": self.entry.c0, "c1_per_m": self.entry.c1},
                 "region_coverage": self.coverage(world), "timings_s": self.timings_s}
 
     # -- persistence ----------------------------------------------------------------
@@ -114,10 +134,11 @@ class EigenspaceAnalysis:
         buf = io.BytesIO()
         m, t = self.model, self.triplets
         meta = {"config": self.config.model_dump(mode="json"), "c_a": self.c_a,
-                "entry": [self.entry.c0, self.entry.c1], "sets": self.candidate_sets,
+                "entry": None if self.entry is None else [self.entry.c0, self.entry.c1],
+                "sets": self.candidate_sets,
                 "image_shape": list(m.image_shape),
                 "normalize_brightness": m.normalize_brightness, "timings_s": self.timings_s,
-                "rejected_triplets": self.rejected_triplets}
+                "rejected_triplets": self.rejected_triplets, "source": self.source}
         np.savez_compressed(buf, points=m.points, directions=m.directions, mean=m.mean,
                             basis=m.basis, projections=m.projections, t_points=t.point_idx,
                             t_dirs=t.dir_idx, t_target=t.target, t_area=t.area,
@@ -134,9 +155,11 @@ class EigenspaceAnalysis:
                                 normalize_brightness=bool(meta["normalize_brightness"]))
         tr = Triplets(z["t_points"], z["t_dirs"], z["t_target"], z["t_area"])
         return EigenspaceAnalysis(EigenspaceConfig.model_validate(meta["config"]), model, tr,
-                                  float(meta["c_a"]), EntryModel(*meta["entry"]),
+                                  float(meta["c_a"]),
+                                  None if meta["entry"] is None else EntryModel(*meta["entry"]),
                                   [list(s) for s in meta["sets"]], dict(meta["timings_s"]),
-                                  int(meta.get("rejected_triplets", 0)))
+                                  int(meta.get("rejected_triplets", 0)),
+                                  str(meta.get("source", "simulator")))
 
 
 def free_grid(world: World, cell_m: float) -> np.ndarray:
@@ -147,43 +170,207 @@ def free_grid(world: World, cell_m: float) -> np.ndarray:
     return g[world.is_free(g)]
 
 
-def fit_entry(world: World, camera: Camera, model: EigenspaceModel, triplets: Triplets,
-              c_a: float, config: EigenspaceConfig, rng: np.random.Generator) -> EntryModel:
-    """§3.2: observe full turns at poses spread over the room, record which regions
-    each turn enters and D(s), and fit eq. 7.
+@dataclass
+class EntryObservations:
+    """Full turns for fitting eq. 7: taken at ``xy (S, 2)``, the first image at heading
+    ``theta0 (S,)``, projected ``(S, Nt, K)``."""
+
+    xy: np.ndarray
+    theta0: np.ndarray
+    projections: np.ndarray
+
+
+class ImageSource:
+    """Where the analysis gets its images: the learning turns, the observations that
+    fit c_a (eq. 6) and the turns that fit P(R|s) (eq. 7)."""
+
+    name = "source"
+
+    def learning_images(self, points: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """``(points (Nw, 2), images (Nw, Nt, H, W))``."""
+        raise NotImplementedError
+
+    def calibration(self, model: EigenspaceModel, triplets: Triplets
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(triplet index (M,), pose (M, 3), projection (M, K))`` of observations of
+        known pose, each paired with the triplet it calibrates."""
+        raise NotImplementedError
+
+    def entry_model(self, model: EigenspaceModel, triplets: Triplets,
+                    c_a: float) -> EntryModel | None:
+        """Eq. 7's P(R|s), or None when the images cannot tell it."""
+        raise NotImplementedError
+
+
+class SimulatedCamera(ImageSource):
+    """The simulator's camera in ``world`` (§5: the paper's experiments)."""
+
+    name = "simulator"
+
+    def __init__(self, world: World, config: EigenspaceConfig,
+                 rng: np.random.Generator) -> None:
+        self.world, self.config, self.rng = world, config, rng
+        self.camera = Camera(world, config.camera, rng=np.random.default_rng(config.seed + 1))
+        self.recorded: dict[str, np.ndarray] = {}
+
+    def learning_images(self, points: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        lc = self.config.learning
+        pts = learning_grid(self.world, lc.spacing_m, lc.margin_m) if points is None \
+            else np.asarray(points, dtype=float).reshape(-1, 2)
+        if len(pts) < 3:
+            raise InvalidInput("at least 3 learning points are needed", field="points")
+        imgs = render_learning_images(self.camera, pts, lc.n_directions)
+        self.recorded.update(points=pts, turns=imgs)
+        return pts, imgs
+
+    def calibration(self, model: EigenspaceModel, triplets: Triplets
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        _, poses = calibration_poses(self.world, model, triplets,
+                                     self.config.regions.calibration_per_triplet, self.rng)
+        imgs = self.camera.render_many(poses)
+        self.recorded.update(calib_poses=poses, calib_images=imgs)
+        # paired by where they stand, as a user's calibration images are
+        obs, t = calibration_pairs(model, triplets, poses)
+        return t, poses[obs], model.project(imgs[obs])
+
+    def entry_model(self, model: EigenspaceModel, triplets: Triplets,
+                    c_a: float) -> EntryModel | None:
+        return fit_entry(model, triplets, c_a, self.config,
+                         self.entry_observations(model, triplets))
+
+    def entry_observations(self, model: EigenspaceModel, triplets: Triplets
+                           ) -> EntryObservations:
+        """§3.2: full turns at poses spread over the room."""
+        xy = self.world.sample_free(self.config.entry.samples, self.rng)
+        n = len(model.directions)
+        th0 = np.empty(len(xy))
+        proj = np.empty((len(xy), n, model.k))
+        for i, p in enumerate(xy):
+            th0[i] = self.rng.uniform(-np.pi, np.pi)
+            proj[i] = model.project(self.camera.render_turn(p, th0[i], n))
+        return EntryObservations(xy, th0, proj)
+
+    def image_set(self) -> ImageSet:
+        """What this camera rendered for the learning and c_a, as an image set."""
+        r = self.recorded
+        return ImageSet(r["points"], r["turns"], r["calib_poses"], r["calib_images"])
+
+
+class ImportedImages(ImageSource):
+    """A user's camera: learning turns and optional calibration images of known pose.
+
+    c_a comes from the calibration images inside the triplets' triangles (as in the
+    simulator); with fewer than ``min_pairs`` of them, from the learning images of the
+    neighbouring points (:func:`leave_one_out_pairs`, a safe but larger c_a). P(R|s)
+    of eq. 7 is fitted on the learning turns themselves, each learning point standing
+    in for an observation of the regions it is not part of (the paper's §3.3 uses
+    learning points as observations the same way)."""
+
+    name = "images"
+
+    def __init__(self, images: ImageSet, config: EigenspaceConfig, min_pairs: int = 8) -> None:
+        self.images, self.config, self.min_pairs = images, config, min_pairs
+
+    def learning_images(self, points: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        return self.images.points, self.images.turns
+
+    def calibration(self, model: EigenspaceModel, triplets: Triplets
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        cal = self.images
+        obs, t = calibration_pairs(model, triplets, cal.calib_poses)
+        if len(obs) >= self.min_pairs:
+            q = model.project(cal.calib_images[obs])
+            return t, cal.calib_poses[obs], q
+        w, j, t = leave_one_out_pairs(model, triplets, self.config.triplets.neighbour_max_m)
+        poses = np.column_stack([model.points[w], model.directions[j]])
+        return t, poses, model.projections[w, j]
+
+    def entry_model(self, model: EigenspaceModel, triplets: Triplets,
+                    c_a: float) -> EntryModel | None:
+        """Eq. 7 pooled over the calibration images inside the triangles: D(s) to the
+        paired triplet and whether its region admits the image and places it right.
+        None with fewer than ``min_pairs`` of them: the learning turns cannot stand in
+        (a validated region admits no other learning image wrongly and hardly any from
+        outside its triangle, so the fit would say 0 everywhere), and the movement
+        strategy, which needs eq. 7, is then unavailable."""
+        cal = self.images
+        obs, t = calibration_pairs(model, triplets, cal.calib_poses)
+        if len(obs) < self.min_pairs:
+            return None
+        poses = cal.calib_poses[obs]
+        c = region_candidates(model, triplets, model.project(cal.calib_images[obs]), c_a,
+                              self.config.regions.d_thd_m)
+        loc = self.config.localization
+        mine = (c.t == t[c.m]) & agrees(c.pose, poses[c.m], loc.same_position_m,
+                                        loc.same_heading_rad)
+        entered = np.zeros(len(obs), dtype=bool)
+        entered[c.m[mine]] = True
+        dist = real_world_distance(model, triplets, poses[:, :2])[np.arange(len(obs)), t]
+        return fit_entry_model(dist[:, None], entered[:, None],
+                               self.config.entry.max_distance_m)
+
+
+def fit_entry(model: EigenspaceModel, triplets: Triplets, c_a: float,
+              config: EigenspaceConfig, obs: EntryObservations) -> EntryModel:
+    """§3.2: record which regions each observed turn enters and D(s), and fit eq. 7.
 
     The paper assumes an entered region is the right one; here an entry counts only
     when its interpolated pose agrees with the true pose within the localization
     tolerances, so false entries do not inflate P(R|s)."""
-    xy = world.sample_free(config.entry.samples, rng)
     n = len(model.directions)
     loc = config.localization
-    entered = np.zeros((len(xy), len(triplets)), dtype=bool)
-    for i, p in enumerate(xy):
-        th0 = rng.uniform(-np.pi, np.pi)
-        q = model.project(camera.render_turn(p, th0, n))
-        c = region_candidates(model, triplets, q, c_a, config.regions.d_thd_m)
-        truth = np.column_stack([np.broadcast_to(p, (len(c), 2)), th0 + 2.0 * np.pi * c.m / n])
+    entered = np.zeros((len(obs.xy), len(triplets)), dtype=bool)
+    for i, p in enumerate(obs.xy):
+        c = region_candidates(model, triplets, obs.projections[i], c_a,
+                              config.regions.d_thd_m)
+        truth = np.column_stack([np.broadcast_to(p, (len(c), 2)),
+                                 wrap_angle(obs.theta0[i] + 2.0 * np.pi * c.m / n)])
         ok = agrees(c.pose, truth, loc.same_position_m, loc.same_heading_rad)
         entered[i, c.t[ok]] = True
-    dist = real_world_distance(model, triplets, xy)
+    dist = real_world_distance(model, triplets, obs.xy)
     return fit_entry_model(dist, entered, config.entry.max_distance_m)
 
 
 def analyse(world: World, config: EigenspaceConfig, points: np.ndarray | None = None,
             progress: Progress | None = None) -> EigenspaceAnalysis:
-    """Learn and analyse ``world`` (§2.1-§3.3).  ``points`` defaults to the learning grid."""
+    """Learn and analyse ``world`` in the simulator (§2.1-§3.3).  ``points`` defaults
+    to the learning grid."""
+    source = SimulatedCamera(world, config, np.random.default_rng(config.seed))
+    return analyse_source(world, config, source, points, progress)
+
+
+def analyse_images(world: World, images: ImageSet, config: EigenspaceConfig,
+                   progress: Progress | None = None) -> EigenspaceAnalysis:
+    """Analyse a user's learning images of ``world`` (§2.1-§3.3); the world's walls give
+    the free space for coverage and the movement strategy, its textures are not used.
+    N_theta and the image size come from the images (the camera settings are ignored)."""
+    h, w = images.image_shape
+    config = config.model_copy(update={
+        "learning": config.learning.model_copy(update={"n_directions": images.n_directions}),
+        "camera": config.camera.model_copy(update={"width_px": w, "height_px": h})})
+    return analyse_source(world, config, ImportedImages(images, config), None, progress)
+
+
+def render_image_set(world: World, config: EigenspaceConfig,
+                     points: np.ndarray | None = None) -> tuple[ImageSet, EigenspaceAnalysis]:
+    """The simulator's learning and calibration images (and the analysis they gave)."""
+    source = SimulatedCamera(world, config, np.random.default_rng(config.seed))
+    a = analyse_source(world, config, source, points)
+    return source.image_set(), a
+
+
+def analyse_source(world: World, config: EigenspaceConfig, source: ImageSource,
+                   points: np.ndarray | None = None,
+                   progress: Progress | None = None) -> EigenspaceAnalysis:
+    """The analysis pipeline on ``source``'s images, step by step as in §2-§3."""
     import time
 
     report = progress or (lambda stage, frac: None)
-    rng = np.random.default_rng(config.seed)
-    camera = Camera(world, config.camera, rng=np.random.default_rng(config.seed + 1))
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    pts = learning_grid(world, config.learning.spacing_m, config.learning.margin_m) \
-        if points is None else np.asarray(points, dtype=float).reshape(-1, 2)
     report("learning", 0.0)
-    model = learn(camera, pts, config.learning)
+    pts, imgs = source.learning_images(points)
+    model = learn_images(imgs, pts, config.learning)
     timings["learning"] = time.perf_counter() - t0
     report("triplets", 0.3)
     t0 = time.perf_counter()
@@ -196,8 +383,12 @@ def analyse(world: World, config: EigenspaceConfig, points: np.ndarray | None = 
     t0 = time.perf_counter()
     c_a = config.regions.c_a
     if c_a is None:
-        ts, d, err = calibration_observations(world, camera, model, triplets,
-                                              config.regions.calibration_per_triplet, rng)
+        ts, poses, query = source.calibration(model, triplets)
+        if len(ts) == 0:
+            raise InvalidInput("no observation of known pose near any triplet to fit c_a "
+                               "with: give regions.c_a or calibration images",
+                               field="regions.c_a")
+        d, err = calibration_errors(model, triplets, ts, poses, query)
         c_a = fit_c_a(d, triplets.area[ts], err)
     found = len(triplets)
     triplets = validated(triplets, model, c_a, config)
@@ -207,7 +398,7 @@ def analyse(world: World, config: EigenspaceConfig, points: np.ndarray | None = 
     timings["region_model"] = time.perf_counter() - t0
     report("entry model", 0.6)
     t0 = time.perf_counter()
-    entry = fit_entry(world, camera, model, triplets, c_a, config, rng)
+    entry = source.entry_model(model, triplets, c_a)
     timings["entry_model"] = time.perf_counter() - t0
     report("candidate sets", 0.9)
     t0 = time.perf_counter()
@@ -216,7 +407,7 @@ def analyse(world: World, config: EigenspaceConfig, points: np.ndarray | None = 
     timings["candidate_sets"] = time.perf_counter() - t0
     report("done", 1.0)
     return EigenspaceAnalysis(config, model, triplets, c_a, entry, sets, timings,
-                              rejected_triplets=found - len(triplets))
+                              rejected_triplets=found - len(triplets), source=source.name)
 
 
 def validated(triplets: Triplets, model: EigenspaceModel, c_a: float,
@@ -236,6 +427,9 @@ def with_learning_point(analysis: EigenspaceAnalysis, world: World,
     """§4.2 step 3: learn at one more point and redo the triplet search for the triples
     that contain it (c_a and the entry model are kept), then the candidate sets."""
     cfg = analysis.config
+    if analysis.source != "simulator":
+        raise InvalidInput("learning points can be added in the simulator only; this "
+                           "eigenspace was learned from a camera's images", field="source")
     camera = Camera(world, cfg.camera, rng=np.random.default_rng(cfg.seed + 1))
     model = add_learning_point(analysis.model, camera, point)
     new = find_localizable_triplets(model, cfg.triplets, only_with={len(model.points) - 1})
@@ -246,4 +440,5 @@ def with_learning_point(analysis: EigenspaceAnalysis, world: World,
     sets = candidate_multiple_sets(regions)
     return EigenspaceAnalysis(cfg, model, triplets, analysis.c_a, analysis.entry, sets,
                               dict(analysis.timings_s),
-                              analysis.rejected_triplets + len(merged) - len(triplets))
+                              analysis.rejected_triplets + len(merged) - len(triplets),
+                              analysis.source)

@@ -123,11 +123,27 @@ def render_learning_images(camera: Camera, points: np.ndarray, n_directions: int
 
 
 def learn(camera: Camera, points: np.ndarray, config: LearningConfig) -> EigenspaceModel:
-    """Learning of §2.1: render, PCA of the mean-centred image vectors (SVD), eq. 1."""
+    """Learning of §2.1 in the simulator: render a turn at every point, then
+    :func:`learn_images`."""
     points = np.asarray(points, dtype=float).reshape(-1, 2)
     if len(points) < 3:
         raise InvalidInput("at least 3 learning points are needed", field="points")
-    images = render_learning_images(camera, points, config.n_directions)
+    return learn_images(render_learning_images(camera, points, config.n_directions), points,
+                        config)
+
+
+def learn_images(images: np.ndarray, points: np.ndarray,
+                 config: LearningConfig) -> EigenspaceModel:
+    """Learning of §2.1 from images ``(Nw, Nt, H, W)`` taken at ``points (Nw, 2)`` in the
+    directions 2 pi j / Nt (a simulator's or a user's camera): PCA of the mean-centred
+    image vectors (SVD) and the projections of eq. 1."""
+    points = np.asarray(points, dtype=float).reshape(-1, 2)
+    images = np.asarray(images, dtype=float)
+    if len(points) < 3:
+        raise InvalidInput("at least 3 learning points are needed", field="points")
+    if images.ndim != 4 or images.shape[0] != len(points):
+        raise InvalidInput(f"images must be (points, directions, H, W) with {len(points)} "
+                           f"points, got {images.shape}", field="images")
     nw, nt, h, w = images.shape
     x = prepare(images.reshape(nw * nt, h, w), config.normalize_brightness)
     mean = x.mean(axis=0)

@@ -3,7 +3,8 @@
 For a triplet t and a query projection x', d is the smallest eq.-3 difference to the
 triplet's three images and ``D_err = c_a d / sqrt(A)`` (eq. 6, A the triangle area);
 the query lies in the region when ``D_err < D_thd``.  ``c_a`` is fitted by least
-squares from simulated observations near the triplets.  In the real world the
+squares from observations of known pose inside the triplets' triangles (simulated, or
+a user's calibration images).  In the real world the
 distance of a pose to region t is ``D(s)`` = the smallest distance to the triplet's
 three learning points, and ``P(R|s) = clamp(c0 + c1 D(s), 0, 1)`` (eq. 7).
 """
@@ -15,7 +16,6 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from numeric.camera import Camera
 from numeric.eigenspace.interpolation import affine_weights, interpolate_pose
 from numeric.eigenspace.learning import EigenspaceModel, f_d
 from numeric.eigenspace.triplets import Triplets
@@ -118,15 +118,12 @@ def false_admissions(model: EigenspaceModel, triplets: Triplets, c_a: float, d_t
     return np.bincount(c.t[wrong], minlength=len(triplets))
 
 
-def calibration_observations(world: World, camera: Camera, model: EigenspaceModel,
-                             triplets: Triplets, per_triplet: int,
-                             rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray,
-                                                                np.ndarray]:
-    """Simulated observations near the triplets for fitting c_a.
-
-    For each triplet, poses uniformly inside its triangle looking at its target
-    (+-half a direction step): returns ``(triplet index, d, position error)`` arrays.
-    """
+def calibration_poses(world: World, model: EigenspaceModel, triplets: Triplets,
+                      per_triplet: int, rng: np.random.Generator
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Where the simulator observes to fit c_a: for each triplet, poses uniformly inside
+    its triangle looking at its target (+-half a direction step), in free space.
+    Returns ``(triplet index (M,), pose (M, 3))``."""
     ts, poses = [], []
     step = np.pi / len(model.directions)
     for t in range(len(triplets)):
@@ -144,12 +141,62 @@ def calibration_observations(world: World, camera: Camera, model: EigenspaceMode
                            field="triplets")
     pose_arr = np.array(poses)
     ok = world.is_free(pose_arr[:, :2], clearance_m=0.1)
-    t_arr, pose_arr = np.array(ts)[ok], pose_arr[ok]
-    query = model.project(camera.render_many(pose_arr))
-    d = triplet_differences(model, triplets, query)[np.arange(len(t_arr)), t_arr]
-    est = interpolate(model, triplets, query, t_arr)
-    err = np.linalg.norm(est[:, :2] - pose_arr[:, :2], axis=1)
-    return t_arr, d, err
+    return np.array(ts)[ok], pose_arr[ok]
+
+
+def calibration_pairs(model: EigenspaceModel, triplets: Triplets,
+                      poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Which (observation, triplet) pairs calibrate c_a the way the simulator's do: the
+    observation stands inside the triangle and looks at the triplet's target within
+    half a direction step. Returns ``(observation index, triplet index)``."""
+    poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+    if len(poses) == 0 or len(triplets) == 0:
+        z = np.zeros(0, dtype=int)
+        return z, z
+    tri = model.points[triplets.point_idx]  # (T, 3, 2)
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    v0, v1 = b - a, c - a  # (T, 2)
+    v2 = poses[:, None, :2] - a[None]  # (M, T, 2)
+    den = v0[:, 0] * v1[:, 1] - v0[:, 1] * v1[:, 0]  # (T,)
+    u = (v2[..., 0] * v1[:, 1] - v2[..., 1] * v1[:, 0]) / den
+    v = (v0[:, 0] * v2[..., 1] - v0[:, 1] * v2[..., 0]) / den
+    inside = (u >= 0) & (v >= 0) & (u + v <= 1)
+    look = np.arctan2(triplets.target[None, :, 1] - poses[:, None, 1],
+                      triplets.target[None, :, 0] - poses[:, None, 0])
+    facing = np.abs(wrap_angle(poses[:, None, 2] - look)) <= np.pi / len(model.directions)
+    obs, t = np.nonzero(inside & facing)
+    return obs, t
+
+
+def leave_one_out_pairs(model: EigenspaceModel, triplets: Triplets,
+                        radius_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Calibration pairs from the learning images alone, for a camera with no other
+    images of known pose: each learning point within ``radius_m`` of a triplet it is
+    not part of observes it in the learning direction nearest to the triplet's target.
+    Returns ``(point index, direction index, triplet index)``.
+
+    These observations stand outside the triangle, where eq. 5 extrapolates, so the c_a
+    they give is larger than the one observations inside the triangles give (about 2.7x
+    in rooms A and D and in an L-shaped room): the regions are smaller, a safe bound."""
+    dist = real_world_distance(model, triplets, model.points)  # (Nw, T)
+    member = (triplets.point_idx[None] == np.arange(len(model.points))[:, None, None]).any(2)
+    w, t = np.nonzero(~member & (dist <= radius_m))
+    look = np.arctan2(triplets.target[t, 1] - model.points[w, 1],
+                      triplets.target[t, 0] - model.points[w, 0])
+    step = 2.0 * np.pi / len(model.directions)
+    j = np.round(wrap_angle(look - model.directions[0]) / step).astype(int) % len(
+        model.directions)
+    return w, j, t
+
+
+def calibration_errors(model: EigenspaceModel, triplets: Triplets, t: np.ndarray,
+                       poses: np.ndarray, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For observations ``query (M, K)`` taken at ``poses (M, 3)``, each paired with
+    triplet ``t (M,)``: d of §2.4 and the position error of eq. 5 [m]."""
+    x3 = triplets.projections(model)[t]  # (M, 3, K)
+    d = np.asarray(f_d(query[:, None, :], x3, model.n_pixels)).min(axis=1).reshape(-1)
+    est = interpolate(model, triplets, query, t) if len(t) else np.zeros((0, 3))
+    return d, np.linalg.norm(est[:, :2] - np.asarray(poses)[:, :2], axis=1)
 
 
 def fit_c_a(d: np.ndarray, area: np.ndarray, err: np.ndarray) -> float:

@@ -2,16 +2,24 @@
 
 from __future__ import annotations
 
+import asyncio
 import base64
 import binascii
-import io
 from typing import Annotated, Any
 
 import numpy as np
-from fastapi import APIRouter, Query, Response, status
-from PIL import Image, UnidentifiedImageError
+from fastapi import APIRouter, File, Form, Query, Response, UploadFile, status
+from pydantic import ValidationError
 
 from numeric.eigenspace.analysis import EigenspaceConfig
+from numeric.eigenspace.image_sets import (
+    MAX_IMAGES,
+    POSES_FILE,
+    decode_image,
+    encode_png,
+    read_image_set,
+    read_image_zip,
+)
 from numeric.errors import InvalidInput
 from service.api.routes.worlds import WorldName
 from service.deps import EigenspaceDep
@@ -44,22 +52,56 @@ def decode_turn(body: TurnIn) -> np.ndarray:
     for i, s in enumerate(body.images_png or []):
         try:
             raw = base64.b64decode(s, validate=True)
-            with Image.open(io.BytesIO(raw)) as png:
-                if png.format != "PNG":
-                    raise InvalidInput("not a PNG file", field=f"images_png[{i}]")
-                out.append(np.asarray(png.convert("L"), dtype=np.float64) / 255.0)
-        except (binascii.Error, ValueError, UnidentifiedImageError, OSError) as e:
-            raise InvalidInput(f"not a base64 PNG image: {e}", field=f"images_png[{i}]") from e
+        except (binascii.Error, ValueError) as e:
+            raise InvalidInput(f"not base64: {e}", field=f"images_png[{i}]") from e
+        out.append(decode_image(f"images_png[{i}]", raw))
     if len({a.shape for a in out}) != 1:
         raise InvalidInput("all images must have the same size", field="images_png")
     return np.stack(out)
 
 
-def encode_png(img: np.ndarray) -> str:
-    buf = io.BytesIO()
-    Image.fromarray(np.round(np.clip(img, 0, 1) * 255).astype(np.uint8), mode="L").save(
-        buf, format="PNG")
-    return base64.b64encode(buf.getvalue()).decode()
+def png_b64(img: np.ndarray) -> str:
+    return base64.b64encode(encode_png(img, bits=8)).decode()
+
+
+def parse_size(size: str | None) -> tuple[int, int] | None:
+    """``"64x32"`` -> (64, 32): the width x height every uploaded image is resized to."""
+    if size is None or size == "":
+        return None
+    try:
+        w, h = (int(v) for v in size.lower().split("x"))
+    except ValueError:
+        raise InvalidInput(f"size must read WIDTHxHEIGHT, e.g. 64x32, got {size!r}",
+                           field="size") from None
+    if not (4 <= w <= 256 and 4 <= h <= 256):
+        raise InvalidInput("size: width and height must lie in 4..256 px", field="size")
+    return w, h
+
+
+def parse_config(text: str | None) -> EigenspaceConfig:
+    if text is None or text == "":
+        return EigenspaceConfig()
+    try:
+        return EigenspaceConfig.model_validate_json(text)
+    except ValidationError as e:
+        err = e.errors()[0]
+        where = ".".join(str(p) for p in err["loc"])
+        raise InvalidInput(f"config: {err['msg']}", field=f"config.{where}" if where
+                           else "config") from None
+
+
+async def read_uploads(files: list[UploadFile], field: str) -> dict[str, bytes]:
+    if len(files) > MAX_IMAGES:
+        raise InvalidInput(f"at most {MAX_IMAGES} files", field=field)
+    out: dict[str, bytes] = {}
+    for i, f in enumerate(files):
+        name = (f.filename or "").replace("\\", "/").rsplit("/", 1)[-1]
+        if not name:
+            raise InvalidInput("every uploaded file needs a file name", field=f"{field}[{i}]")
+        if name in out:
+            raise InvalidInput(f"{name} is uploaded twice", field=name)
+        out[name] = await f.read()
+    return out
 
 
 @router.post("/eigenspace", status_code=status.HTTP_202_ACCEPTED)
@@ -68,6 +110,43 @@ async def post_eigenspace(world: WorldName, config: EigenspaceConfig,
     """Learn the world's eigenspace in the simulator and analyse it (triplets, region
     model, entry model, candidate-multiple sets).  Runs as a job: poll ``Location``."""
     job = eig.start_learning(world, config)
+    response.headers["Location"] = f"/worlds/{world}/eigenspace/jobs/{job.id}"
+    return job.public()
+
+
+@router.post("/eigenspace/images", status_code=status.HTTP_202_ACCEPTED)
+async def post_eigenspace_images(
+        world: WorldName, eig: EigenspaceDep, response: Response,
+        archive: Annotated[UploadFile | None, File(
+            description=f"a zip of the image folder: {POSES_FILE} and the images it names "
+                        "(any number of images)")] = None,
+        poses: Annotated[UploadFile | None, File(
+            description=f"or {POSES_FILE} (file,x,y,theta[,role]: m, m, rad; role learn "
+                        "or calibrate) ...")] = None,
+        images: Annotated[list[UploadFile] | None, File(
+            description="... and the PNG/JPEG files it names, up to 1000 parts")] = None,
+        size: Annotated[str | None, Form(description="resize every image to WIDTHxHEIGHT "
+                                         "px, e.g. 64x32")] = None,
+        config: Annotated[str | None, Form(description="EigenspaceConfig as JSON "
+                                           "(n_directions and the image size come from "
+                                           "the images)")] = None) -> dict[str, Any]:
+    """Learn the world's eigenspace from a camera's own images (multipart upload): one
+    full turn per learning point, optional calibration images of known pose for c_a
+    and eq. 7. Runs as a job: poll ``Location``. Errors name the file."""
+    eig.worlds.model(world)  # 404 before reading anything
+    cfg, wh = parse_config(config), parse_size(size)
+    if (archive is None) == (poses is None):
+        raise InvalidInput(f"give either archive or {POSES_FILE} with images",
+                           field="archive")
+    if archive is not None:
+        data = await archive.read()
+        image_set = await asyncio.to_thread(read_image_zip, data, wh)
+    else:
+        assert poses is not None
+        text = (await poses.read()).decode("utf-8-sig", errors="replace")
+        files = await read_uploads(images or [], "images")
+        image_set = await asyncio.to_thread(read_image_set, text, files, wh)
+    job = eig.start_learning(world, cfg, image_set)
     response.headers["Location"] = f"/worlds/{world}/eigenspace/jobs/{job.id}"
     return job.public()
 
@@ -97,6 +176,33 @@ async def get_covering(world: WorldName, eig: EigenspaceDep,
 async def post_localize(world: WorldName, body: TurnIn, eig: EigenspaceDep) -> dict[str, Any]:
     """One full turn of images -> state (X / Y / Z), pose when Z, candidates."""
     return await eig.localize(world, decode_turn(body))
+
+
+@router.post("/localize/images", response_model=LocalizationOut)
+async def post_localize_images(
+        world: WorldName, eig: EigenspaceDep,
+        images: Annotated[list[UploadFile], File(description="one full turn of PNG/JPEG "
+                                                 "images, in order of relative heading "
+                                                 "2*pi*j/n")],
+        size: Annotated[str | None, Form(description="resize to WIDTHxHEIGHT px")] = None
+        ) -> dict[str, Any]:
+    """``/localize`` for image files (multipart upload), e.g. straight from a camera."""
+    a = eig.analysis(world)  # 404 before decoding anything
+    wh = parse_size(size)
+    files = await read_uploads(images, "images")
+
+    def decode() -> np.ndarray:
+        imgs = [decode_image(name, data, wh) for name, data in files.items()]
+        if len({i.shape for i in imgs}) != 1:
+            raise InvalidInput("all images must have the same size", field="images")
+        return np.stack(imgs)
+
+    turn = await asyncio.to_thread(decode)
+    if turn.shape[1:] != tuple(a.model.image_shape):
+        raise InvalidInput(f"images are {turn.shape[2]} x {turn.shape[1]} px, the eigenspace "
+                           f"was learned at {a.model.image_shape[1]} x "
+                           f"{a.model.image_shape[0]}: give size", field="images")
+    return await eig.localize(world, turn)
 
 
 @router.post("/localization-sessions", status_code=status.HTTP_201_CREATED,
@@ -136,5 +242,5 @@ async def post_camera(world: WorldName, body: CameraIn, eig: EigenspaceDep) -> d
     pose = np.array([body.pose.x, body.pose.y, body.pose.theta])
     imgs = eig.render(world, pose, body.camera, body.turn)
     if body.format == "png":
-        return {"images_png": [encode_png(i) for i in imgs]}
+        return {"images_png": [png_b64(i) for i in imgs]}
     return {"images": np.round(imgs, 4).tolist()}
