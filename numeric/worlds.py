@@ -175,6 +175,19 @@ def room_d(name: str = "room_d") -> WorldDescription:
     return WorldDescription(name=name, walls=walls, objects=_boxes(_D_BOXES))
 
 
+def twin_hexagon(name: str = "twin_hexagon") -> WorldDescription:
+    """A hexagon with two pillars, symmetric under a half turn about (5, 4), whose six
+    wall photographs repeat after half the walls: every place has a twin that looks the
+    same, so no camera can tell the halves apart. The eigenspace method's answer is
+    state Y (candidate-multiple sets, Maeda & Shirai §3.3), never a confident pose."""
+    walls = _polygon_walls([(2, 0), (8, 0), (10, 4), (8, 8), (2, 8), (0, 4)],
+                           ("chelsea", "gravel", "brick", "cell", "coffee", "text"), 2.5)
+    for cx, cy in ((3.5, 4.0), (6.5, 4.0)):
+        walls += _polygon_walls([(cx - 0.3, cy - 0.3), (cx + 0.3, cy - 0.3),
+                                 (cx + 0.3, cy + 0.3), (cx - 0.3, cy + 0.3)], ("page",), 1.0)
+    return WorldDescription(name=name, walls=walls)
+
+
 def stripe_corridor(name: str = "corridor", length_m: float = 40.0, width_m: float = 2.0,
                     stripe_m: tuple[float, float] = (0.3, 1.2),
                     reflectivity: tuple[float, float] = (0.15, 0.9),
@@ -237,6 +250,7 @@ TEMPLATES: dict[str, Callable[[str], WorldDescription]] = {
     "fig11b": lambda name: summary_room(name, "fig11b"),
     "room_c": room_c,
     "room_d": room_d,
+    "twin_hexagon": twin_hexagon,
 }
 
 

@@ -196,3 +196,23 @@ def test_the_schema_names_every_localization_state_and_outcome(client: TestClien
     states = {schemas[k]["properties"]["state"]["const"] for k in ("StateX", "StateY", "StateZ")}
     assert states == {"x", "y", "z"} and "set" in schemas["StateY"]["required"]
     assert "SessionLocalizationOut" in schemas and "NextMoveOut" in schemas
+
+
+def test_a_symmetric_room_answers_state_y_from_the_prolog_rules(client: TestClient) -> None:
+    """The twin hexagon (every place has a look-alike): candidate-multiple sets form,
+    and a turn at a learning point is ambiguous within one set (Fig. 4: state Y(m),
+    outcome in_set), with the two look-alike places as candidates."""
+    assert client.post("/worlds", json={"name": "twins", "template": "twin_hexagon"}
+                       ).status_code == 201
+    r = client.post("/worlds/twins/eigenspace", json=SMALL)
+    assert wait_job(client, r.headers["location"])["status"] == "done"
+    s = client.get("/worlds/twins/eigenspace").json()
+    assert s["candidate_sets"] >= 1
+    assert any(t["candidate_set"] is not None for t in s["triplet_list"])
+    for p in s["points"][::5]:
+        t = turn(client, "twins", p["x"], p["y"], 0.0, fmt="png")
+        out = client.post("/worlds/twins/localize", json=t).json()
+        assert out["state"]["state"] == "y" and isinstance(out["state"]["set"], int), out
+        assert out["outcome"] == "in_set" and out["pose"] is None
+        xy = [(c["pose"]["x"], c["pose"]["y"]) for c in out["candidates"][:2]]
+        assert len(xy) == 2 and np.hypot(xy[0][0] + xy[1][0] - 10, xy[0][1] + xy[1][1] - 8) < 1.0

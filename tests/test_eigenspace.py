@@ -28,7 +28,7 @@ from numeric.eigenspace.regions import EntryModel, false_admissions, fit_c_a, fi
 from numeric.eigenspace.triplets import TripletConfig
 from numeric.geometry import compose, relative, wrap_angle
 from numeric.world import Wall, World, WorldDescription
-from numeric.worlds import room_a, room_b, room_c, room_d
+from numeric.worlds import room_a, room_b, room_c, room_d, twin_hexagon
 
 SMALL = {"camera": {"width_px": 32, "height_px": 16}, "learning": {"k": 12},
          "entry": {"samples": 30}, "regions": {"calibration_per_triplet": 2}}
@@ -170,11 +170,39 @@ def test_triplets_that_place_other_learning_images_wrong_are_rejected(
     analysis drops them, and no kept triplet's region places a learning image of
     another point more than 1 m or 15 deg off."""
     loc = analysis.config.localization
-    bad = false_admissions(analysis.model, analysis.triplets, analysis.c_a,
-                           analysis.config.regions.d_thd_m, loc.same_position_m,
-                           loc.same_heading_rad)
+    r = analysis.config.regions
+    bad, _ = false_admissions(analysis.model, analysis.triplets, analysis.c_a, r.d_thd_m,
+                              loc.same_position_m, loc.same_heading_rad, r.plane_thd_m)
     assert analysis.rejected_triplets > 0
     assert len(bad) == len(analysis.triplets) > 0 and not bad.any()
+
+
+def test_a_symmetric_room_keeps_its_twins_in_candidate_multiple_sets() -> None:
+    """In the twin hexagon every place has a look-alike. Its triplets admit each
+    other's images, which alone would reject them all; as twins grouped by §3.3's
+    candidate-multiple sets they stay, and a stop that enters regions is ambiguous
+    (hits within one set, no unique vote) instead of a confident pose."""
+    w = World(twin_hexagon())
+    cfg = EigenspaceConfig.model_validate(SMALL)
+    a = analyse(w, cfg)
+    r, loc = cfg.regions, cfg.localization
+    bad, twins = false_admissions(a.model, a.triplets, a.c_a, r.d_thd_m,
+                                  loc.same_position_m, loc.same_heading_rad, r.plane_thd_m)
+    assert len(a.triplets) > 10 and twins and not bad.any()
+    assert a.candidate_sets
+    set_of = a.set_of()
+    cam, rng = Camera(w, cfg.camera), np.random.default_rng(0)
+    entered = 0
+    for p in w.sample_free(30, rng):
+        s = Session(loc)
+        s.add_stop(turn_candidates(a.regions, cam.render_turn(p, rng.uniform(-3, 3), 72)),
+                   r.d_thd_m)
+        if not s.triplet:
+            continue
+        entered += 1
+        assert len({int(set_of[t]) for t in s.triplet}) == 1 and min(set_of[s.triplet]) >= 0
+        assert not s.vote().unique
+    assert entered >= 2
 
 
 # -- §2.5 localization ------------------------------------------------------------------------

@@ -89,7 +89,8 @@ class EigenspaceAnalysis:
 
     @property
     def regions(self) -> RegionModel:
-        return RegionModel(self.model, self.triplets, self.c_a, self.config.regions.d_thd_m)
+        r = self.config.regions
+        return RegionModel(self.model, self.triplets, self.c_a, r.d_thd_m, r.plane_thd_m)
 
     def set_of(self) -> np.ndarray:
         s = np.full(len(self.triplets), -1, dtype=int)
@@ -298,8 +299,9 @@ class ImportedImages(ImageSource):
         if len(obs) < self.min_pairs:
             return None
         poses = cal.calib_poses[obs]
+        r = self.config.regions
         c = region_candidates(model, triplets, model.project(cal.calib_images[obs]), c_a,
-                              self.config.regions.d_thd_m)
+                              r.d_thd_m, r.plane_thd_m)
         loc = self.config.localization
         mine = (c.t == t[c.m]) & agrees(c.pose, poses[c.m], loc.same_position_m,
                                         loc.same_heading_rad)
@@ -322,7 +324,7 @@ def fit_entry(model: EigenspaceModel, triplets: Triplets, c_a: float,
     entered = np.zeros((len(obs.xy), len(triplets)), dtype=bool)
     for i, p in enumerate(obs.xy):
         c = region_candidates(model, triplets, obs.projections[i], c_a,
-                              config.regions.d_thd_m)
+                              config.regions.d_thd_m, config.regions.plane_thd_m)
         truth = np.column_stack([np.broadcast_to(p, (len(c), 2)),
                                  wrap_angle(obs.theta0[i] + 2.0 * np.pi * c.m / n)])
         ok = agrees(c.pose, truth, loc.same_position_m, loc.same_heading_rad)
@@ -402,7 +404,8 @@ def analyse_source(world: World, config: EigenspaceConfig, source: ImageSource,
     timings["entry_model"] = time.perf_counter() - t0
     report("candidate sets", 0.9)
     t0 = time.perf_counter()
-    regions = RegionModel(model, triplets, c_a, config.regions.d_thd_m)
+    regions = RegionModel(model, triplets, c_a, config.regions.d_thd_m,
+                          config.regions.plane_thd_m)
     sets = candidate_multiple_sets(regions)
     timings["candidate_sets"] = time.perf_counter() - t0
     report("done", 1.0)
@@ -413,13 +416,29 @@ def analyse_source(world: World, config: EigenspaceConfig, source: ImageSource,
 def validated(triplets: Triplets, model: EigenspaceModel, c_a: float,
               config: EigenspaceConfig) -> Triplets:
     """The triplets without false admissions (:func:`false_admissions`; all of them
-    when ``regions.reject_false_admissions`` is off)."""
+    when ``regions.reject_false_admissions`` is off). Twins (look-alike places) stay
+    when a candidate-multiple set (§3.3) groups them, so a session sees the confusion
+    as state Y; twins no set groups would give confident wrong answers and go."""
     if not config.regions.reject_false_admissions or len(triplets) == 0:
         return triplets
-    loc = config.localization
-    bad = false_admissions(model, triplets, c_a, config.regions.d_thd_m,
-                           loc.same_position_m, loc.same_heading_rad)
-    return triplets.subset(np.flatnonzero(bad == 0))
+    loc, r = config.localization, config.regions
+    while len(triplets):  # again until stable: a dropped twin leaves its partner bare
+        bad, twins = false_admissions(model, triplets, c_a, r.d_thd_m, loc.same_position_m,
+                                      loc.same_heading_rad, r.plane_thd_m)
+        keep = np.flatnonzero(bad == 0)
+        if twins:
+            sets = candidate_multiple_sets(RegionModel(model, triplets.subset(keep), c_a,
+                                                       r.d_thd_m, r.plane_thd_m))
+            set_of = np.full(len(triplets), -1)
+            for m, members in enumerate(sets):
+                set_of[keep[members]] = m
+            drop = {t for a, b in twins if set_of[a] < 0 or set_of[a] != set_of[b]
+                    for t in (a, b)}
+            keep = np.array([t for t in keep if int(t) not in drop], dtype=int)
+        if len(keep) == len(triplets):
+            break
+        triplets = triplets.subset(keep)
+    return triplets
 
 
 def with_learning_point(analysis: EigenspaceAnalysis, world: World,
@@ -436,7 +455,8 @@ def with_learning_point(analysis: EigenspaceAnalysis, world: World,
     merged = merge(analysis.triplets, new)
     # the new point's images may show that an old triplet's region admits them wrongly
     triplets = validated(merged, model, analysis.c_a, cfg)
-    regions = RegionModel(model, triplets, analysis.c_a, cfg.regions.d_thd_m)
+    regions = RegionModel(model, triplets, analysis.c_a, cfg.regions.d_thd_m,
+                          cfg.regions.plane_thd_m)
     sets = candidate_multiple_sets(regions)
     return EigenspaceAnalysis(cfg, model, triplets, analysis.c_a, analysis.entry, sets,
                               dict(analysis.timings_s),

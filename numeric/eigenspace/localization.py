@@ -47,6 +47,7 @@ class RegionModel:
     triplets: Triplets
     c_a: float
     d_thd_m: float
+    plane_thd_m: float | None = None
 
 
 @dataclass
@@ -67,7 +68,8 @@ def turn_candidates(regions: RegionModel, images: np.ndarray) -> TurnCandidates:
     """Region hits of a full turn ``(n, H, W)`` (relative headings 2 pi j / n)."""
     imgs = regions.model.check_images(images)
     q = regions.model.project(imgs)
-    c = region_candidates(regions.model, regions.triplets, q, regions.c_a, regions.d_thd_m)
+    c = region_candidates(regions.model, regions.triplets, q, regions.c_a, regions.d_thd_m,
+                          regions.plane_thd_m)
     start = c.pose.copy()
     start[:, 2] = wrap_angle(c.pose[:, 2] - 2.0 * np.pi * c.m / len(imgs))
     return TurnCandidates(t=c.t, d_err=c.d_err, start_pose=start, image=c.m)
@@ -204,7 +206,8 @@ def candidate_multiple_sets(regions: RegionModel) -> list[list[int]]:
         return []
     entered: list[frozenset[int]] = []
     for w in range(len(m.points)):
-        c = region_candidates(m, tr, m.projections[w], regions.c_a, regions.d_thd_m)
+        c = region_candidates(m, tr, m.projections[w], regions.c_a, regions.d_thd_m,
+                              regions.plane_thd_m)
         entered.append(frozenset(c.t.tolist()))
     x3 = tr.projections(m)  # (T, 3, K)
     parent = list(range(n_t))

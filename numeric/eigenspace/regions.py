@@ -29,6 +29,14 @@ class RegionConfig(BaseModel):
     d_thd_m: float = Field(0.2, gt=0.0, le=100.0, description="D_thd of §2.4 (paper 200 mm)")
     c_a: float | None = Field(None, gt=0.0, description="eq. 6 constant; fitted when None")
     calibration_per_triplet: int = Field(4, ge=1, le=100)
+    plane_ratio: float | None = Field(
+        0.5, gt=0.0, le=1.0,
+        description="also require eq. 6 on the distance to the triplet's plane (eq. 4) "
+                    "below plane_ratio x D_thd; None: the paper's test on d alone")
+
+    @property
+    def plane_thd_m(self) -> float | None:
+        return None if self.plane_ratio is None else self.plane_ratio * self.d_thd_m
     reject_false_admissions: bool = Field(
         True, description="drop triplets whose region admits a learning image of another "
                           "point and places it wrong (false_admissions)")
@@ -70,15 +78,32 @@ def interpolate(model: EigenspaceModel, triplets: Triplets, query: np.ndarray,
     return interpolate_pose(k, triplets.poses(model)[t])
 
 
+def plane_residual(model: EigenspaceModel, triplets: Triplets, query: np.ndarray,
+                   t: np.ndarray) -> np.ndarray:
+    """For pairs (query[i], triplet t[i]): the eq.-2 distance from the query to the
+    plane of eq. 4 through the triplet's three images (what eq. 4's projection drops)."""
+    x3 = triplets.projections(model)[t]
+    k = affine_weights(query, x3)
+    xp = np.einsum("ni,nik->nk", k, x3)
+    return np.asarray(f_d(query, xp, model.n_pixels))
+
+
 def region_candidates(model: EigenspaceModel, triplets: Triplets, query: np.ndarray,
-                      c_a: float, d_thd: float) -> Candidates:
-    """Every (image, triplet) pair whose D_err < D_thd, with its interpolated pose."""
+                      c_a: float, d_thd: float, plane_thd: float | None = None) -> Candidates:
+    """Every (image, triplet) pair whose D_err < D_thd, with its interpolated pose.
+
+    With ``plane_thd``, a pair must also lie near the triplet's plane: eq. 6 applied
+    to :func:`plane_residual` instead of d below ``plane_thd``."""
     if len(triplets) == 0:
         z = np.zeros(0, dtype=int)
         return Candidates(z, z, np.zeros(0), np.zeros(0), np.zeros((0, 3)))
     d = triplet_differences(model, triplets, query)
     err = estimation_error(d, triplets.area[None, :], c_a)
     m, t = np.nonzero(err < d_thd)
+    if plane_thd is not None and len(m):
+        res = estimation_error(plane_residual(model, triplets, query[m], t),
+                               triplets.area[t], c_a)
+        m, t = m[res < plane_thd], t[res < plane_thd]
     pose = interpolate(model, triplets, query[m], t) if len(m) else np.zeros((0, 3))
     return Candidates(m, t, d[m, t], err[m, t], pose)
 
@@ -93,7 +118,9 @@ def agrees(poses: np.ndarray, reference: np.ndarray, position_m: float,
 
 
 def false_admissions(model: EigenspaceModel, triplets: Triplets, c_a: float, d_thd: float,
-                     position_m: float, heading_rad: float) -> np.ndarray:
+                     position_m: float, heading_rad: float,
+                     plane_thd: float | None = None
+                     ) -> tuple[np.ndarray, set[tuple[int, int]]]:
     """How many learning images ``(T,)`` of points outside each triplet fall in its
     region (eq. 6) and are placed by eq. 5 farther than ``position_m`` / ``heading_rad``
     from where they were taken.
@@ -106,16 +133,49 @@ def false_admissions(model: EigenspaceModel, triplets: Triplets, c_a: float, d_t
     images, that image matches almost anything (room A: one such triplet entered 25 of 60
     random turns, 15 of them from more than 2 m away). Chizu's reading of §2.3-§2.4:
     such triplets are rejected at learning time, using only the learning images (a user's
-    own camera gives no other images of known pose)."""
+    own camera gives no other images of known pose).
+
+    Look-alike places are not necessarily false triplets: when triplet t admits a
+    member image of triplet t' and t' admits a member image of t, the two are twins (a
+    room symmetric under a turn, a repeated photograph). Those admissions are not
+    counted here but returned as ``twins``: the paper resolves such confusions with
+    candidate-multiple sets (§3.3, state Y) and moving, so the caller keeps twins that
+    a candidate-multiple set groups (:func:`numeric.eigenspace.analysis.validated`).
+
+    Returns ``(counts (T,), twins)`` with twins the set of twin pairs (t, t')."""
     _, n_t, k = model.projections.shape
     if len(triplets) == 0:
-        return np.zeros(0, dtype=int)
-    c = region_candidates(model, triplets, model.projections.reshape(-1, k), c_a, d_thd)
+        return np.zeros(0, dtype=int), set()
+    c = region_candidates(model, triplets, model.projections.reshape(-1, k), c_a, d_thd,
+                          plane_thd)
     w, j = np.divmod(c.m, n_t)
     member = (triplets.point_idx[c.t] == w[:, None]).any(axis=1)
     taken = np.column_stack([model.points[w], model.directions[j]])
     wrong = ~member & ~agrees(c.pose, taken, position_m, heading_rad)
-    return np.bincount(c.t[wrong], minlength=len(triplets))
+    twin = mutual_admissions(triplets, n_t, c.t[wrong], c.m[wrong])
+    return (np.bincount(c.t[wrong][twin < 0], minlength=len(triplets)),
+            {(int(a), int(b)) for a, b in zip(c.t[wrong][twin >= 0], twin[twin >= 0],
+                                              strict=True)})
+
+
+def mutual_admissions(triplets: Triplets, n_directions: int, t: np.ndarray,
+                      image: np.ndarray) -> np.ndarray:
+    """For admissions (triplet ``t[i]`` admits learning image ``image[i]`` = point x
+    N_theta + direction): a triplet t' whose member image it is and which in turn
+    admits a member image of t[i], or -1."""
+    members = triplets.point_idx * n_directions + triplets.dir_idx  # (T, 3) image ids
+    owners: dict[int, list[int]] = {}
+    for tt, row in enumerate(members):
+        for im in row:
+            owners.setdefault(int(im), []).append(tt)
+    admitted = set(zip(t.tolist(), image.tolist(), strict=True))
+    out = np.full(len(t), -1, dtype=int)
+    for i, (ti, im) in enumerate(zip(t.tolist(), image.tolist(), strict=True)):
+        for t2 in owners.get(im, ()):
+            if any((t2, int(mine)) in admitted for mine in members[ti]):
+                out[i] = t2
+                break
+    return out
 
 
 def calibration_poses(world: World, model: EigenspaceModel, triplets: Triplets,

@@ -70,7 +70,8 @@ def table1(cfg: EigenspaceConfig, a: EigenspaceAnalysis, rng: np.random.Generato
             th0 = rng.uniform(-np.pi, np.pi)
             q = model.project(cam.render_turn(p, th0, n))
             for thd in res:
-                c = region_candidates(model, tr, q, a.c_a, thd)
+                pr = cfg.regions.plane_ratio
+                c = region_candidates(model, tr, q, a.c_a, thd, None if pr is None else pr * thd)
                 head = th0 + 2 * np.pi * c.m / n
                 truth = np.column_stack([np.broadcast_to(p, (len(c), 2)), head])
                 ok = agrees(c.pose, truth, loc.same_position_m, loc.same_heading_rad)
@@ -308,7 +309,7 @@ def speed(cfg: EigenspaceConfig, a: EigenspaceAnalysis, w: World) -> list[str]:
 def unseen_rooms() -> list[tuple[str, WorldDescription]]:
     """Rooms nobody tuned the method on (not built-in templates): other outlines,
     pillars, boxes and wall photographs than rooms A-D."""
-    from numeric.worlds import _boxes, _polygon_walls
+    from numeric.worlds import _boxes, _polygon_walls, twin_hexagon
 
     rooms = []
     walls = _polygon_walls([(0, 0), (12, 0), (12, 6), (6, 6), (6, 11), (0, 11)],
@@ -321,12 +322,15 @@ def unseen_rooms() -> list[tuple[str, WorldDescription]]:
                            ("rocket", "astronaut", "grass", "coins", "moon", "camera"), 3.5)
     rooms.append(("14 m x 6 m hall, one box", WorldDescription(
         name="hall", walls=walls, objects=_boxes([(10.0, 4.5, 0.5)]))))
-    walls = _polygon_walls([(2, 0), (8, 0), (10, 4), (8, 8), (2, 8), (0, 4)],
-                           ("chelsea", "gravel", "brick", "cell", "coffee", "text"), 2.5)
-    for cx, cy in ((3.5, 4.0), (6.5, 4.0)):
-        walls += _polygon_walls([(cx - 0.3, cy - 0.3), (cx + 0.3, cy - 0.3),
-                                 (cx + 0.3, cy + 0.3), (cx - 0.3, cy + 0.3)], ("page",), 1.0)
-    rooms.append(("hexagon, two pillars", WorldDescription(name="hex", walls=walls)))
+    # pentagon, seven photographs (none repeats), a pillar and a box
+    walls = _polygon_walls([(0, 0), (9, 0), (11, 5), (5, 9), (0, 6)],
+                           ("coins", "page", "astronaut", "gravel", "clock", "moon", "cell"),
+                           3.0)
+    walls += _polygon_walls([(6.0, 3.5), (6.5, 3.5), (6.5, 4.0), (6.0, 4.0)], ("text",), 1.0)
+    rooms.append(("pentagon, a pillar, a box", WorldDescription(
+        name="pentagon", walls=walls, objects=_boxes([(2.5, 4.5, 0.6)]))))
+    # symmetric under a half turn, photographs repeating: twins everywhere (state Y)
+    rooms.append(("twin hexagon (symmetric), two pillars", twin_hexagon("hex")))
     return rooms
 
 
