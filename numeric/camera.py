@@ -1,4 +1,4 @@
-"""The camera of the one simulator (SPEC §7): pinhole, small grey images.
+"""The camera of the one simulator: pinhole, small grey images.
 
 Every image column is a ray cast (:func:`numeric.geometry.ray_cast`) against the
 world's vertical surfaces (walls and object faces); the hit surface's texture is

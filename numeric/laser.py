@@ -1,4 +1,4 @@
-"""Simulated laser range finder with received-light intensity (SPEC §7, paper §3).
+"""Simulated laser range finder with received-light intensity (Hara et al. §3).
 
 The default is the paper's URG-04LX with the intensity firmware (Table 1): 0.02-5.6 m,
 240 degrees in 360/512-degree steps, intensity 0-40 000. Every beam is ray-cast against

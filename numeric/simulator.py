@@ -1,4 +1,4 @@
-"""The one simulator: a robot with noisy odometry and a landmark observer (SPEC §7).
+"""The one simulator: a robot with noisy odometry and a landmark observer.
 
 The camera (:mod:`numeric.camera`) and the laser (:mod:`numeric.laser`) ray-cast against
 the same :class:`numeric.world.World`; :func:`follow_path` and :func:`odometry_along` drive

@@ -2,7 +2,7 @@
 
 Each texture is a grey image in [0, 1] kept as a Gaussian pyramid (mip levels), so
 the camera can sample a level whose texel size matches a pixel's footprint on the
-wall and small images do not alias (SPEC §7).
+wall and small images do not alias.
 """
 
 from __future__ import annotations

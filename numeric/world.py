@@ -1,4 +1,4 @@
-"""The one shared 2D world model (SPEC §2, §7).
+"""The one shared 2D world model.
 
 Walls are segments with a texture id (camera images) and a laser
 reflectivity; landmarks carry directional features; objects are cuboids.
@@ -113,7 +113,7 @@ class WorldObject(BaseModel):
 
 
 class WorldDescription(BaseModel):
-    """A world as clients describe it (SPEC §2)."""
+    """A world as clients describe it."""
 
     model_config = ConfigDict(extra="forbid")
     name: Id

@@ -192,9 +192,9 @@ def stripe_corridor(name: str = "corridor", length_m: float = 40.0, width_m: flo
                     stripe_m: tuple[float, float] = (0.3, 1.2),
                     reflectivity: tuple[float, float] = (0.15, 0.9),
                     seed: int = 7) -> WorldDescription:
-    """The SLAM paper's hard case (SPEC §6): a straight corridor with no geometric
-    feature along its length -- its ends lie beyond a URG's 5.6 m when the robot is in
-    the middle -- but with stripes of alternating dark and bright material (random
+    """The SLAM paper's hard case (Hara et al., the corridor experiment): a straight
+    corridor with no geometric feature along its length -- its ends lie beyond a URG's
+    5.6 m when the robot is in the middle -- but with stripes of alternating dark and bright material (random
     widths in ``stripe_m``) on both walls."""
     rng = np.random.default_rng(seed)
     walls: list[Wall] = []

@@ -1,4 +1,4 @@
-/*  Read-only sandboxed queries over one world (SPEC §8).
+/*  Read-only sandboxed queries over one world.
 
     The client's text is parsed as a term (never consulted or called as is),
     and the goal is checked against a whitelist before it runs:

@@ -1,4 +1,4 @@
-"""Simulated laser logs on the built-in worlds (URG-04LX with intensities, SPEC §7)."""
+"""Simulated laser logs on the built-in worlds (URG-04LX with intensities)."""
 
 from __future__ import annotations
 
