@@ -194,8 +194,8 @@ def stripe_corridor(name: str = "corridor", length_m: float = 40.0, width_m: flo
                     seed: int = 7) -> WorldDescription:
     """The SLAM paper's hard case (Hara et al., the corridor experiment): a straight
     corridor with no geometric feature along its length -- its ends lie beyond a URG's
-    5.6 m when the robot is in the middle -- but with stripes of alternating dark and bright material (random
-    widths in ``stripe_m``) on both walls."""
+    5.6 m when the robot is in the middle -- but with stripes of alternating dark and
+    bright material (random widths in ``stripe_m``) on both walls."""
     rng = np.random.default_rng(seed)
     walls: list[Wall] = []
     for y, side in ((0.0, 0), (width_m, 1)):
