@@ -225,7 +225,7 @@ class EigenspaceService:
     def _report(self, a: EigenspaceAnalysis, st: SessionState, state: dict[str, Any],
                 outcome: str) -> dict[str, Any]:
         s = st.session
-        vote = s.vote()
+        vote = s.vote(a.set_of())
         cands = []
         for cluster, best in list(zip(vote.clusters, s.representatives(vote), strict=True))[:10]:
             p = s.current_pose(best)
@@ -246,7 +246,7 @@ class EigenspaceService:
         st = SessionState(world, Session(a.config.localization))
         cands = await asyncio.to_thread(turn_candidates, a.regions, imgs)
         st.session.add_stop(cands, a.config.regions.d_thd_m)
-        vote = st.session.vote()
+        vote = st.session.vote(a.set_of())
         r = await self._transition(world, st.state, st.session.stop_triplets(0), vote.unique)
         return self._report(a, st, r["state"], r["outcome"])
 
@@ -286,7 +286,7 @@ class EigenspaceService:
                 raise InvalidInput("odometry since the previous stop is required after the "
                                    "first stop", field="odometry")
             st.session.add_stop(cands, a.config.regions.d_thd_m, motion)
-            vote = st.session.vote()
+            vote = st.session.vote(a.set_of())
             k = st.session.stops - 1
             r = await self._transition(world, st.state, st.session.stop_triplets(k),
                                        vote.unique)

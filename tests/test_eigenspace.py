@@ -244,6 +244,23 @@ def test_a_weak_answer_without_rivals_is_not_unique(d_err: tuple[float, ...],
     assert s.vote().unique is unique
 
 
+def test_a_lead_within_one_candidate_set_is_not_unique() -> None:
+    """Hits only on triplets of one candidate-multiple set (look-alike places) never
+    make a unique vote, however strong; a later hit outside the set lets the vote
+    decide (odometry carries the first stop's candidates to it)."""
+    set_of = np.array([0, 0, -1])
+    s = Session(LocalizationConfig())
+    poses = np.array([[2.0, 3.0, 0.0], [8.0, 5.0, np.pi]])  # twins
+    s.add_stop(TurnCandidates(np.array([0, 1]), np.array([0.0, 0.1]), poses,
+                              np.zeros(2, int)), 0.2)
+    assert s.vote().unique and not s.vote(set_of).unique
+    # one metre ahead, a triplet in no set confirms the first twin
+    s.add_stop(TurnCandidates(np.array([2]), np.array([0.0]), np.array([[3.0, 3.0, 0.0]]),
+                              np.zeros(1, int)), 0.2, motion=np.array([1.0, 0.0, 0.0]))
+    v = s.vote(set_of)
+    assert v.unique and np.allclose(s.estimate(v)[:2], [3.0, 3.0], atol=0.05)
+
+
 def test_the_estimate_is_the_weighted_mean_of_the_winning_group() -> None:
     """Three candidates agree near (2, 3), one lies far away: the answer is their
     weighted mean (weights 1 - D_err/D_thd), heading on the circle, carried by the

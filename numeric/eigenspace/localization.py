@@ -131,8 +131,14 @@ class Session:
         tol = self.config.same_position_m + self.config.odometry_slack_ratio * self.travelled_m
         return agrees(p, q, tol, self.config.same_heading_rad)
 
-    def vote(self) -> Vote:
-        """Mutual voting of §2.5 over every candidate so far."""
+    def vote(self, set_of: np.ndarray | None = None) -> Vote:
+        """Mutual voting of §2.5 over every candidate so far.
+
+        With ``set_of`` (each triplet's candidate-multiple set, -1 for none), the vote
+        is never unique while every triplet hit so far lies in one set: its members
+        are places the images cannot tell apart (§3.3), so a lead among them is noise
+        (a half-turn-symmetric room gave confident answers on the wrong side). The
+        state stays Y until a hit outside the set lets odometry decide."""
         n = len(self.pose0)
         if n == 0:
             return Vote(False, None, np.zeros(0), [])
@@ -148,6 +154,9 @@ class Session:
         # the unique answers fell from 84 to 36, the wrong ones from 9 to 0)
         unique = votes[win] >= self.config.min_votes and (
             (not rivals.any()) or votes[win] >= self.config.vote_margin * votes[rivals].max())
+        if set_of is not None and unique:
+            sets = {int(set_of[t]) for t in self.triplet}
+            unique = not (len(sets) == 1 and min(sets) >= 0)
         clusters: list[list[int]] = []
         left = np.ones(n, dtype=bool)
         for i in np.argsort(-votes):

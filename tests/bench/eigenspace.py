@@ -148,6 +148,7 @@ def run_trial(a: EigenspaceAnalysis, w: World, cam: Camera, pose: np.ndarray,
     info: dict[str, object] = {}
     truths: list[np.ndarray] = []
     hit = False
+    sets = a.set_of()
     for k in range(max_obs):
         imgs = cam.render_turn(pose[:2], pose[2], n)
         c = turn_candidates(a.regions, imgs)
@@ -156,7 +157,7 @@ def run_trial(a: EigenspaceAnalysis, w: World, cam: Camera, pose: np.ndarray,
         hit = hit or bool(len(c) and agrees(c.start_pose, pose, loc.same_position_m,
                                             loc.same_heading_rad).any())
         entered.append(hit)
-        v = s.vote()
+        v = s.vote(sets)
         if v.unique and v.winner is not None:
             est = s.estimate(v)
             info = image_baselines(a, imgs)
