@@ -90,17 +90,26 @@ def parse_config(text: str | None) -> EigenspaceConfig:
                            else "config") from None
 
 
-async def read_uploads(files: list[UploadFile], field: str) -> dict[str, bytes]:
+async def read_uploads(files: list[UploadFile], field: str
+                       ) -> list[tuple[str, bytes]]:
+    """(file name, bytes) of each part, in order; the name is the part's file name
+    without any folder, or ``field[i]`` when it has none."""
     if len(files) > MAX_IMAGES:
         raise InvalidInput(f"at most {MAX_IMAGES} files", field=field)
-    out: dict[str, bytes] = {}
+    out = []
     for i, f in enumerate(files):
-        name = (f.filename or "").replace("\\", "/").rsplit("/", 1)[-1]
-        if not name:
-            raise InvalidInput("every uploaded file needs a file name", field=f"{field}[{i}]")
+        name = (f.filename or "").replace("\\", "/").rsplit("/", 1)[-1] or f"{field}[{i}]"
+        out.append((name, await f.read()))
+    return out
+
+
+def by_name(files: list[tuple[str, bytes]]) -> dict[str, bytes]:
+    """The parts by file name (an image set names each file once)."""
+    out: dict[str, bytes] = {}
+    for name, data in files:
         if name in out:
             raise InvalidInput(f"{name} is uploaded twice", field=name)
-        out[name] = await f.read()
+        out[name] = data
     return out
 
 
@@ -144,7 +153,7 @@ async def post_eigenspace_images(
     else:
         assert poses is not None
         text = (await poses.read()).decode("utf-8-sig", errors="replace")
-        files = await read_uploads(images or [], "images")
+        files = by_name(await read_uploads(images or [], "images"))
         image_set = await asyncio.to_thread(read_image_set, text, files, wh)
     job = eig.start_learning(world, cfg, image_set)
     response.headers["Location"] = f"/worlds/{world}/eigenspace/jobs/{job.id}"
@@ -192,7 +201,7 @@ async def post_localize_images(
     files = await read_uploads(images, "images")
 
     def decode() -> np.ndarray:
-        imgs = [decode_image(name, data, wh) for name, data in files.items()]
+        imgs = [decode_image(f"images[{i}]", data, wh) for i, (_, data) in enumerate(files)]
         if len({i.shape for i in imgs}) != 1:
             raise InvalidInput("all images must have the same size", field="images")
         return np.stack(imgs)
