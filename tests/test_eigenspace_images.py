@@ -76,6 +76,10 @@ def test_an_exported_folder_learns_the_same_eigenspace_and_answers(exported: Any
     # c_a from the calibration images, the same triplets
     assert b.c_a == pytest.approx(a.c_a, rel=1e-3)
     assert {tuple(r) for r in b.triplets.point_idx} == {tuple(r) for r in a.triplets.point_idx}
+    # eq. 7 from the calibration images and the learning turns: it reaches 0 within the
+    # range the learning turns cover (they hold the zeros beyond one grid spacing)
+    assert b.entry is not None and b.entry.c0 > 0 and b.entry.c1 < 0
+    assert -b.entry.c0 / b.entry.c1 <= b.config.entry.max_distance_m
     # the same answers to turns uploaded as 16-bit PNGs
     cam, rng = Camera(w, a.config.camera), np.random.default_rng(3)
     localized = 0

@@ -42,6 +42,7 @@ from numeric.eigenspace.regions import (
     calibration_poses,
     false_admissions,
     fit_c_a,
+    fit_clamped_line,
     fit_entry_model,
     leave_one_out_pairs,
     real_world_distance,
@@ -263,9 +264,8 @@ class ImportedImages(ImageSource):
     c_a comes from the calibration images inside the triplets' triangles (as in the
     simulator); with fewer than ``min_pairs`` of them, from the learning images of the
     neighbouring points (:func:`leave_one_out_pairs`, a safe but larger c_a). P(R|s)
-    of eq. 7 is fitted on the learning turns themselves, each learning point standing
-    in for an observation of the regions it is not part of (the paper's §3.3 uses
-    learning points as observations the same way)."""
+    of eq. 7 comes from the calibration images and the learning turns together
+    (:meth:`entry_model`)."""
 
     name = "images"
 
@@ -288,28 +288,47 @@ class ImportedImages(ImageSource):
 
     def entry_model(self, model: EigenspaceModel, triplets: Triplets,
                     c_a: float) -> EntryModel | None:
-        """Eq. 7 pooled over the calibration images inside the triangles: D(s) to the
-        paired triplet and whether its region admits the image and places it right.
-        None with fewer than ``min_pairs`` of them: the learning turns cannot stand in
-        (a validated region admits no other learning image wrongly and hardly any from
-        outside its triangle, so the fit would say 0 everywhere), and the movement
-        strategy, which needs eq. 7, is then unavailable."""
-        cal = self.images
+        """Eq. 7 from observations of known pose: the calibration images inside the
+        triangles (D(s) to the paired triplet; entered when its region admits the image
+        and places it right) pooled with each learning point's own turn as an
+        observation of the regions it is not part of (§3.3 uses learning points as
+        observations the same way).
+
+        The calibration images alone stand within 1.4 m of a point (room A), where P is
+        still 0.2, so the clamp's zero crossing is unseen and a fit ran it out to 12 m;
+        the learning turns add the zeros at one grid spacing and beyond (room A: 0.33 -
+        0.16 D, the simulator's turns give 0.39 - 0.29 D). None with fewer than
+        ``min_pairs`` calibration images: the learning turns alone hold only zeros (a
+        validated region admits no other learning image wrongly and hardly any from
+        outside its triangle), and the movement strategy, which needs eq. 7, is then
+        unavailable."""
+        cal, r, loc = self.images, self.config.regions, self.config.localization
         obs, t = calibration_pairs(model, triplets, cal.calib_poses)
         if len(obs) < self.min_pairs:
             return None
         poses = cal.calib_poses[obs]
-        r = self.config.regions
         c = region_candidates(model, triplets, model.project(cal.calib_images[obs]), c_a,
                               r.d_thd_m, r.plane_thd_m)
-        loc = self.config.localization
         mine = (c.t == t[c.m]) & agrees(c.pose, poses[c.m], loc.same_position_m,
                                         loc.same_heading_rad)
-        entered = np.zeros(len(obs), dtype=bool)
-        entered[c.m[mine]] = True
-        dist = real_world_distance(model, triplets, poses[:, :2])[np.arange(len(obs)), t]
-        return fit_entry_model(dist[:, None], entered[:, None],
-                               self.config.entry.max_distance_m)
+        y_cal = np.zeros(len(obs))
+        y_cal[c.m[mine]] = 1.0
+        x_cal = real_world_distance(model, triplets, poses[:, :2])[np.arange(len(obs)), t]
+        n_w = len(model.points)
+        turns = np.zeros((n_w, len(triplets)))
+        for w in range(n_w):
+            ct = region_candidates(model, triplets, model.projections[w], c_a, r.d_thd_m,
+                                   r.plane_thd_m)
+            truth = np.column_stack([np.broadcast_to(model.points[w], (len(ct), 2)),
+                                     model.directions[ct.m]])
+            ok = agrees(ct.pose, truth, loc.same_position_m, loc.same_heading_rad)
+            turns[w, ct.t[ok]] = 1.0
+        dist = real_world_distance(model, triplets, model.points)
+        member = (triplets.point_idx[None] == np.arange(n_w)[:, None, None]).any(axis=2)
+        near = ~member & (dist <= self.config.entry.max_distance_m)
+        x = np.concatenate([x_cal, dist[near]])
+        y = np.concatenate([y_cal, turns[near]])
+        return EntryModel(*fit_clamped_line(x, y, self.config.entry.max_distance_m))
 
 
 def fit_entry(model: EigenspaceModel, triplets: Triplets, c_a: float,
