@@ -300,3 +300,35 @@ def test_cli_export_learn_localize(tmp_path: Path) -> None:
     assert out["state"] == {"state": "z"} and abs(out["pose"]["x"] - 5.0) < 0.05
     r = run("localize", "room_a", *turn[:5])
     assert r.returncode == 2 and "images" in r.stdout
+
+
+def test_uploads_have_their_own_size_limits(client: TestClient, exported: Any) -> None:
+    """An image set may exceed the 8 MiB body limit of other routes (up to
+    CHIZU_MAX_UPLOAD_BYTES); a member that inflates past 16 MiB is refused by its
+    declared size before it is inflated; a turn upload keeps the 8 MiB limit."""
+    folder = exported[0]
+    assert client.post("/worlds", json={"name": "cam_big", "template": "room_a"}
+                       ).status_code == 201
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED) as z:
+        for f in sorted(folder.iterdir()):
+            z.writestr(f"set/{f.name}", f.read_bytes())
+        z.writestr("other/padding.bin", np.random.default_rng(0).bytes(9 * 1024 * 1024))
+    assert len(buf.getvalue()) > 8 * 1024 * 1024
+    r = client.post("/worlds/cam_big/eigenspace/images",
+                    files=[("archive", ("set.zip", buf.getvalue(), "application/zip"))])
+    assert r.status_code == 202, r.text
+    assert _wait(client, r.headers["location"])["status"] == "done"
+    bomb = io.BytesIO()
+    with zipfile.ZipFile(bomb, "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr("poses.csv", (folder / POSES_FILE).read_text())
+        z.writestr("learn_000_000.png", b"\0" * (17 * 1024 * 1024))
+    assert len(bomb.getvalue()) < 100_000
+    r = client.post("/worlds/cam_big/eigenspace/images",
+                    files=[("archive", ("bomb.zip", bomb.getvalue(), "application/zip"))])
+    assert r.status_code == 422 and r.json()["field"] == "learn_000_000.png", r.text
+    big = [("images", (f"{j}.png", np.random.default_rng(j).bytes(200_000), "image/png"))
+           for j in range(50)]
+    r = client.post("/worlds/cam_big/localize/images", files=big)
+    assert r.status_code == 413 and r.headers["content-type"].startswith(PROBLEM)
+    assert client.get("/health").status_code == 200
