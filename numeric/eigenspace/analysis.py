@@ -90,8 +90,7 @@ class EigenspaceAnalysis:
 
     @property
     def regions(self) -> RegionModel:
-        r = self.config.regions
-        return RegionModel(self.model, self.triplets, self.c_a, r.d_thd_m, r.plane_thd_m)
+        return RegionModel.of(self.model, self.triplets, self.c_a, self.config.regions)
 
     def set_of(self) -> np.ndarray:
         s = np.full(len(self.triplets), -1, dtype=int)
@@ -112,9 +111,9 @@ class EigenspaceAnalysis:
     def coverage(self, world: World, cell_m: float = 0.2) -> float | None:
         """Localizable area: share of the free space where one observation enters some
         region with probability >= 0.5, i.e. 1 - prod_l (1 - P(R^(l)|s)) >= 0.5 (eq. 7)."""
-        grid = free_grid(world, cell_m)
         if self.entry is None:
             return None
+        grid = free_grid(world, cell_m)
         if len(grid) == 0:
             return 0.0
         return float(np.mean(self.layout(world).p_any(grid) >= 0.5))
@@ -315,41 +314,41 @@ class ImportedImages(ImageSource):
         y_cal[c.m[mine]] = 1.0
         x_cal = real_world_distance(model, triplets, poses[:, :2])[np.arange(len(obs)), t]
         n_w = len(model.points)
-        turns = np.zeros((n_w, len(triplets)))
-        for w in range(n_w):
-            ct = region_candidates(model, triplets, model.projections[w], c_a, r.d_thd_m,
-                                   r.plane_thd_m)
-            truth = np.column_stack([np.broadcast_to(model.points[w], (len(ct), 2)),
-                                     model.directions[ct.m]])
-            ok = agrees(ct.pose, truth, loc.same_position_m, loc.same_heading_rad)
-            turns[w, ct.t[ok]] = 1.0
+        turns = EntryObservations(model.points, np.full(n_w, model.directions[0]),
+                                  model.projections)
+        entered = right_entries(model, triplets, c_a, self.config, turns)
         dist = real_world_distance(model, triplets, model.points)
-        member = (triplets.point_idx[None] == np.arange(n_w)[:, None, None]).any(axis=2)
-        near = ~member & (dist <= self.config.entry.max_distance_m)
+        near = ~triplets.membership(n_w) & (dist <= self.config.entry.max_distance_m)
         x = np.concatenate([x_cal, dist[near]])
-        y = np.concatenate([y_cal, turns[near]])
+        y = np.concatenate([y_cal, entered[near]])
         return EntryModel(*fit_clamped_line(x, y, self.config.entry.max_distance_m))
 
 
-def fit_entry(model: EigenspaceModel, triplets: Triplets, c_a: float,
-              config: EigenspaceConfig, obs: EntryObservations) -> EntryModel:
-    """§3.2: record which regions each observed turn enters and D(s), and fit eq. 7.
-
-    The paper assumes an entered region is the right one; here an entry counts only
-    when its interpolated pose agrees with the true pose within the localization
-    tolerances, so false entries do not inflate P(R|s)."""
+def right_entries(model: EigenspaceModel, triplets: Triplets, c_a: float,
+                  config: EigenspaceConfig, obs: EntryObservations) -> np.ndarray:
+    """``(S, T)``: which regions each observed turn enters *and* is placed right in,
+    within the localization tolerances (the paper assumes an entered region is the
+    right one; counting only right entries keeps false ones out of P(R|s))."""
     n = len(model.directions)
-    loc = config.localization
+    r, loc = config.regions, config.localization
     entered = np.zeros((len(obs.xy), len(triplets)), dtype=bool)
     for i, p in enumerate(obs.xy):
-        c = region_candidates(model, triplets, obs.projections[i], c_a,
-                              config.regions.d_thd_m, config.regions.plane_thd_m)
+        c = region_candidates(model, triplets, obs.projections[i], c_a, r.d_thd_m,
+                              r.plane_thd_m)
         truth = np.column_stack([np.broadcast_to(p, (len(c), 2)),
                                  wrap_angle(obs.theta0[i] + 2.0 * np.pi * c.m / n)])
         ok = agrees(c.pose, truth, loc.same_position_m, loc.same_heading_rad)
         entered[i, c.t[ok]] = True
-    dist = real_world_distance(model, triplets, obs.xy)
-    return fit_entry_model(dist, entered, config.entry.max_distance_m)
+    return entered
+
+
+def fit_entry(model: EigenspaceModel, triplets: Triplets, c_a: float,
+              config: EigenspaceConfig, obs: EntryObservations) -> EntryModel:
+    """§3.2: record which regions each observed turn enters rightly
+    (:func:`right_entries`) and D(s), and fit eq. 7."""
+    return fit_entry_model(real_world_distance(model, triplets, obs.xy),
+                           right_entries(model, triplets, c_a, config, obs),
+                           config.entry.max_distance_m)
 
 
 def analyse(world: World, config: EigenspaceConfig, points: np.ndarray | None = None,
@@ -423,9 +422,7 @@ def analyse_source(world: World, config: EigenspaceConfig, source: ImageSource,
     timings["entry_model"] = time.perf_counter() - t0
     report("candidate sets", 0.9)
     t0 = time.perf_counter()
-    regions = RegionModel(model, triplets, c_a, config.regions.d_thd_m,
-                          config.regions.plane_thd_m)
-    sets = candidate_multiple_sets(regions)
+    sets = candidate_multiple_sets(RegionModel.of(model, triplets, c_a, config.regions))
     timings["candidate_sets"] = time.perf_counter() - t0
     report("done", 1.0)
     return EigenspaceAnalysis(config, model, triplets, c_a, entry, sets, timings,
@@ -446,8 +443,8 @@ def validated(triplets: Triplets, model: EigenspaceModel, c_a: float,
                                       loc.same_heading_rad, r.plane_thd_m)
         keep = np.flatnonzero(bad == 0)
         if twins:
-            sets = candidate_multiple_sets(RegionModel(model, triplets.subset(keep), c_a,
-                                                       r.d_thd_m, r.plane_thd_m))
+            sets = candidate_multiple_sets(RegionModel.of(model, triplets.subset(keep), c_a,
+                                                          r))
             set_of = np.full(len(triplets), -1)
             for m, members in enumerate(sets):
                 set_of[keep[members]] = m
@@ -474,9 +471,7 @@ def with_learning_point(analysis: EigenspaceAnalysis, world: World,
     merged = merge(analysis.triplets, new)
     # the new point's images may show that an old triplet's region admits them wrongly
     triplets = validated(merged, model, analysis.c_a, cfg)
-    regions = RegionModel(model, triplets, analysis.c_a, cfg.regions.d_thd_m,
-                          cfg.regions.plane_thd_m)
-    sets = candidate_multiple_sets(regions)
+    sets = candidate_multiple_sets(RegionModel.of(model, triplets, analysis.c_a, cfg.regions))
     return EigenspaceAnalysis(cfg, model, triplets, analysis.c_a, analysis.entry, sets,
                               dict(analysis.timings_s),
                               analysis.rejected_triplets + len(merged) - len(triplets),

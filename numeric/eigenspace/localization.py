@@ -19,7 +19,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from numeric.eigenspace.learning import EigenspaceModel
-from numeric.eigenspace.regions import agrees, region_candidates
+from numeric.eigenspace.regions import RegionConfig, agrees, region_candidates
 from numeric.eigenspace.triplets import Triplets
 from numeric.geometry import compose, relative, wrap_angle
 
@@ -48,6 +48,12 @@ class RegionModel:
     c_a: float
     d_thd_m: float
     plane_thd_m: float | None = None
+
+    @staticmethod
+    def of(model: EigenspaceModel, triplets: Triplets, c_a: float,
+           config: RegionConfig) -> RegionModel:
+        """The region model with ``config``'s thresholds (D_thd and the plane test)."""
+        return RegionModel(model, triplets, c_a, config.d_thd_m, config.plane_thd_m)
 
 
 @dataclass

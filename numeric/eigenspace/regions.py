@@ -41,13 +41,13 @@ class RegionConfig(BaseModel):
         0.5, gt=0.0, le=1.0,
         description="also require eq. 6 on the distance to the triplet's plane (eq. 4) "
                     "below plane_ratio x D_thd; None: the paper's test on d alone")
+    reject_false_admissions: bool = Field(
+        True, description="drop triplets whose region admits a learning image of another "
+                          "point and places it wrong (false_admissions)")
 
     @property
     def plane_thd_m(self) -> float | None:
         return None if self.plane_ratio is None else self.plane_ratio * self.d_thd_m
-    reject_false_admissions: bool = Field(
-        True, description="drop triplets whose region admits a learning image of another "
-                          "point and places it wrong (false_admissions)")
 
 
 @dataclass
@@ -247,8 +247,7 @@ def leave_one_out_pairs(model: EigenspaceModel, triplets: Triplets,
     they give is larger than the one observations inside the triangles give (about 2.7x
     in rooms A and D and in an L-shaped room): the regions are smaller, a safe bound."""
     dist = real_world_distance(model, triplets, model.points)  # (Nw, T)
-    member = (triplets.point_idx[None] == np.arange(len(model.points))[:, None, None]).any(2)
-    w, t = np.nonzero(~member & (dist <= radius_m))
+    w, t = np.nonzero(~triplets.membership(len(model.points)) & (dist <= radius_m))
     look = np.arctan2(triplets.target[t, 1] - model.points[w, 1],
                       triplets.target[t, 0] - model.points[w, 0])
     step = 2.0 * np.pi / len(model.directions)

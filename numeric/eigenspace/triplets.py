@@ -65,6 +65,11 @@ class Triplets:
         """x'(s_ti) as ``(T, 3, K)``."""
         return model.projections[self.point_idx, self.dir_idx]
 
+    def membership(self, n_points: int) -> np.ndarray:
+        """``(n_points, T)``: whether learning point w is one of triplet t's three."""
+        return np.asarray((self.point_idx[None] == np.arange(n_points)[:, None, None])
+                          .any(axis=2))
+
     def subset(self, idx: np.ndarray) -> Triplets:
         return Triplets(self.point_idx[idx], self.dir_idx[idx], self.target[idx], self.area[idx])
 
