@@ -381,17 +381,6 @@ def _eigen_config(path: Path | None):  # type: ignore[no-untyped-def]
         raise typer.Exit(2) from None
 
 
-def _size(text: str | None) -> tuple[int, int] | None:
-    if not text:
-        return None
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        console.print(f"[red]--size must read WIDTHxHEIGHT, e.g. 64x32, not {text!r}[/red]")
-        raise typer.Exit(2) from None
-    return w, h
-
-
 def _open_eigenspace():  # type: ignore[no-untyped-def]
     from service.eigenspace import EigenspaceService
 
@@ -428,7 +417,7 @@ def eigen_learn(world: Annotated[str, typer.Argument(help="stored world")],
     not stored yet but named like a template (e.g. room_a) is created from it."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from numeric.eigenspace.image_sets import read_image_folder
+    from numeric.eigenspace.image_sets import parse_size, read_image_folder
     from numeric.errors import InvalidInput
     from numeric.world import WorldDescription
     from numeric.worlds import TEMPLATES
@@ -440,7 +429,7 @@ def eigen_learn(world: Annotated[str, typer.Argument(help="stored world")],
         if eig.store.world(world) is None and world in TEMPLATES:
             asyncio.run(eig.worlds.create(WorldDescription(name=world, template=world)))
             console.print(f"created world {world!r} from its template")
-        image_set = None if images is None else read_image_folder(images, _size(size))
+        image_set = None if images is None else read_image_folder(images, parse_size(size))
         with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(),
                       console=console) as bar:
             task = bar.add_task("learning", total=1.0)
@@ -469,13 +458,13 @@ def eigen_localize(world: Annotated[str, typer.Argument(help="stored world with 
 
     import numpy as np
 
-    from numeric.eigenspace.image_sets import decode_image
+    from numeric.eigenspace.image_sets import decode_image, parse_size
     from numeric.errors import InvalidInput
     from service.worlds import NotFound
 
     eig = _open_eigenspace()
     try:
-        wh = _size(size)
+        wh = parse_size(size)
         turn = np.stack([decode_image(f.name, f.read_bytes(), wh) for f in files])
         r = asyncio.run(eig.localize(world, turn))
         console.print_json(json.dumps(r))

@@ -31,6 +31,7 @@ from numeric.eigenspace.analysis import (
 from numeric.eigenspace.image_sets import ImageSet
 from numeric.eigenspace.localization import (
     Session,
+    Vote,
     session_from_dict,
     session_to_dict,
     turn_candidates,
@@ -223,9 +224,11 @@ class EigenspaceService:
         return dict(r)
 
     def _report(self, a: EigenspaceAnalysis, st: SessionState, state: dict[str, Any],
-                outcome: str) -> dict[str, Any]:
+                outcome: str, vote: Vote | None = None) -> dict[str, Any]:
+        """The answer: state, outcome, pose (in state Z), candidates; ``vote`` is the
+        session's current vote when the caller has it already."""
         s = st.session
-        vote = s.vote(a.set_of())
+        vote = vote if vote is not None else s.vote(a.set_of())
         cands = []
         for cluster, best in list(zip(vote.clusters, s.representatives(vote), strict=True))[:10]:
             p = s.current_pose(best)
@@ -248,7 +251,7 @@ class EigenspaceService:
         st.session.add_stop(cands, a.config.regions.d_thd_m)
         vote = st.session.vote(a.set_of())
         r = await self._transition(world, st.state, st.session.stop_triplets(0), vote.unique)
-        return self._report(a, st, r["state"], r["outcome"])
+        return self._report(a, st, r["state"], r["outcome"], vote)
 
     async def create_session(self, world: str) -> dict[str, Any]:
         a = self.analysis(world)
@@ -294,7 +297,7 @@ class EigenspaceService:
             st.history.append({"stop": k, "outcome": r["outcome"], "state": r["state"]})
             with self.store.transaction() as conn:
                 self.store.put_session(conn, sid, world, st.to_dict())
-        return {"id": sid, **self._report(a, st, st.state, r["outcome"])}
+        return {"id": sid, **self._report(a, st, st.state, r["outcome"], vote)}
 
     async def next_move(self, world: str, sid: str) -> dict[str, Any]:
         """The movement strategy's action (alpha, l, beta) and its Q(Z) (§3.5)."""

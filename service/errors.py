@@ -116,13 +116,8 @@ class BodySizeLimit:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        upload = str(scope.get("path", "")).endswith(self.upload_suffixes) \
-            if self.upload_suffixes else False
+        upload = str(scope.get("path", "")).endswith(self.upload_suffixes)
         limit = self.upload_bytes if upload else self.default_bytes
-        await self._limited(scope, receive, send, limit)
-
-    async def _limited(self, scope: dict[str, Any], receive: Any, send: Any,
-                       limit: int) -> None:
         headers = dict(scope.get("headers") or [])
         declared = headers.get(b"content-length")
         if declared is not None and (not declared.isdigit() or int(declared) > limit):

@@ -12,9 +12,10 @@ optional ``role``:
   Those inside a triplet's triangle fit the constant c_a of eq. 6 as the simulator's
   observations do (:func:`numeric.eigenspace.analysis.analyse_images`).
 
-:func:`render_image_set` writes the simulator's images in the same form, so a user can
-see the format, and an imported folder gives the same eigenspace as learning in the
-simulator (a test does the round trip).
+:func:`numeric.eigenspace.analysis.render_image_set` renders the simulator's images and
+:func:`write_image_folder` writes them in this form, so a user can see the format; an
+imported folder gives the same eigenspace as learning in the simulator (a test does
+the round trip).
 """
 
 from __future__ import annotations
@@ -61,15 +62,31 @@ class ImageSet:
         return int(self.turns.shape[2]), int(self.turns.shape[3])
 
 
-def decode_image(name: str, data: bytes, size: tuple[int, int] | None = None) -> np.ndarray:
-    """A grey image ``(H, W)`` in [0, 1] from PNG/JPEG bytes, resized to ``size``
-    (width, height) when given; the file's size is checked from its header before any
-    pixel is decoded. Errors name the file."""
+def parse_size(text: str | None) -> tuple[int, int] | None:
+    """``"64x32"`` -> (64, 32): the width x height images are resized to (None: keep)."""
+    if not text:
+        return None
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise InvalidInput(f"size must read WIDTHxHEIGHT, e.g. 64x32, got {text!r}",
+                           field="size") from None
+    if not (4 <= w <= MAX_SIDE_PX and 4 <= h <= MAX_SIDE_PX):
+        raise InvalidInput(f"size: width and height must lie in 4..{MAX_SIDE_PX} px",
+                           field="size")
+    return w, h
+
+
+def decode_image(name: str, data: bytes, size: tuple[int, int] | None = None,
+                 formats: tuple[str, ...] = FORMATS) -> np.ndarray:
+    """A grey image ``(H, W)`` in [0, 1] from the bytes of a file in one of ``formats``
+    (PNG or JPEG), resized to ``size`` (width, height) when given; the file's size is
+    checked from its header before any pixel is decoded. Errors name the file."""
     try:
         with Image.open(io.BytesIO(data)) as im:
-            if im.format not in FORMATS:
-                raise InvalidInput(f"{name}: {im.format or 'unknown'} image; PNG or JPEG "
-                                   "expected", field=name)
+            if im.format not in formats:
+                raise InvalidInput(f"{name}: {im.format or 'unknown'} image; "
+                                   f"{' or '.join(formats)} expected", field=name)
             w, h = im.size
             if max(w, h) > MAX_FILE_SIDE_PX:
                 raise InvalidInput(f"{name}: {w} x {h} px; at most {MAX_FILE_SIDE_PX} px a "

@@ -61,9 +61,13 @@ class EigenspaceModel:
     def check_images(self, images: np.ndarray, field: str = "images") -> np.ndarray:
         """Validate ``(M, H, W)`` images against the model; returns them as float."""
         a = np.asarray(images, dtype=float)
-        if a.ndim != 3 or a.shape[1:] != tuple(self.image_shape):
-            raise InvalidInput(f"images must have shape (n, {self.image_shape[0]}, "
-                               f"{self.image_shape[1]}), got {a.shape}", field=field)
+        h, w = self.image_shape
+        if a.ndim != 3:
+            raise InvalidInput(f"images must have shape (n, {h}, {w}), got {a.shape}",
+                               field=field)
+        if a.shape[1:] != (h, w):
+            raise InvalidInput(f"images are {a.shape[2]} x {a.shape[1]} px; the eigenspace "
+                               f"was learned at {w} x {h} (resize them first)", field=field)
         if not np.isfinite(a).all():
             raise InvalidInput("images contain NaN or infinity", field=field)
         if a.min() < 0.0 or a.max() > 1.0:

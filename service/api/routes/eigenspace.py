@@ -17,6 +17,7 @@ from numeric.eigenspace.image_sets import (
     POSES_FILE,
     decode_image,
     encode_png,
+    parse_size,
     read_image_set,
     read_image_zip,
 )
@@ -54,28 +55,19 @@ def decode_turn(body: TurnIn) -> np.ndarray:
             raw = base64.b64decode(s, validate=True)
         except (binascii.Error, ValueError) as e:
             raise InvalidInput(f"not base64: {e}", field=f"images_png[{i}]") from e
-        out.append(decode_image(f"images_png[{i}]", raw))
-    if len({a.shape for a in out}) != 1:
-        raise InvalidInput("all images must have the same size", field="images_png")
-    return np.stack(out)
+        out.append(decode_image(f"images_png[{i}]", raw, formats=("PNG",)))
+    return stack_turn(out, "images_png")
+
+
+def stack_turn(images: list[np.ndarray], field: str) -> np.ndarray:
+    """One turn ``(n, H, W)`` from decoded images, which must share one size."""
+    if len({a.shape for a in images}) != 1:
+        raise InvalidInput("all images must have the same size", field=field)
+    return np.stack(images)
 
 
 def png_b64(img: np.ndarray) -> str:
     return base64.b64encode(encode_png(img, bits=8)).decode()
-
-
-def parse_size(size: str | None) -> tuple[int, int] | None:
-    """``"64x32"`` -> (64, 32): the width x height every uploaded image is resized to."""
-    if size is None or size == "":
-        return None
-    try:
-        w, h = (int(v) for v in size.lower().split("x"))
-    except ValueError:
-        raise InvalidInput(f"size must read WIDTHxHEIGHT, e.g. 64x32, got {size!r}",
-                           field="size") from None
-    if not (4 <= w <= 256 and 4 <= h <= 256):
-        raise InvalidInput("size: width and height must lie in 4..256 px", field="size")
-    return w, h
 
 
 def parse_config(text: str | None) -> EigenspaceConfig:
@@ -196,22 +188,15 @@ async def post_localize_images(
         size: Annotated[str | None, Form(description="resize to WIDTHxHEIGHT px")] = None
         ) -> dict[str, Any]:
     """``/localize`` for image files (multipart upload), e.g. straight from a camera."""
-    a = eig.analysis(world)  # 404 before decoding anything
+    eig.analysis(world)  # 404 before decoding anything
     wh = parse_size(size)
     files = await read_uploads(images, "images")
 
     def decode() -> np.ndarray:
-        imgs = [decode_image(f"images[{i}]", data, wh) for i, (_, data) in enumerate(files)]
-        if len({i.shape for i in imgs}) != 1:
-            raise InvalidInput("all images must have the same size", field="images")
-        return np.stack(imgs)
+        return stack_turn([decode_image(f"images[{i}]", data, wh)
+                           for i, (_, data) in enumerate(files)], "images")
 
-    turn = await asyncio.to_thread(decode)
-    if turn.shape[1:] != tuple(a.model.image_shape):
-        raise InvalidInput(f"images are {turn.shape[2]} x {turn.shape[1]} px, the eigenspace "
-                           f"was learned at {a.model.image_shape[1]} x "
-                           f"{a.model.image_shape[0]}: give size", field="images")
-    return await eig.localize(world, turn)
+    return await eig.localize(world, await asyncio.to_thread(decode))
 
 
 @router.post("/localization-sessions", status_code=status.HTTP_201_CREATED,
