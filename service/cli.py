@@ -412,7 +412,12 @@ def eigen_export(world: Annotated[str, typer.Argument(help="stored world or temp
 def eigen_learn(world: Annotated[str, typer.Argument(help="stored world")],
                 images: Annotated[Path | None, typer.Option(
                     help="image folder (poses.csv + images); default: the simulator")] = None,
-                size: SizeOpt = None, config: ConfigOpt = None) -> None:
+                size: SizeOpt = None, config: ConfigOpt = None,
+                strategy: Annotated[bool, typer.Option(
+                    help="after the grid, add learning points by the learning strategy "
+                         "(§4.2) until P(Z within 5 stops) >= 0.9 (simulator only; "
+                         "--config sets its learning_strategy parameters); "
+                         "--no-strategy: the grid alone")] = True) -> None:
     """Learn WORLD's eigenspace and store it (the service and the REPL see it). A WORLD
     not stored yet but named like a template (e.g. room_a) is created from it."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -424,6 +429,8 @@ def eigen_learn(world: Annotated[str, typer.Argument(help="stored world")],
     from service.worlds import NotFound
 
     cfg = _eigen_config(config)
+    if not strategy:
+        cfg = cfg.model_copy(update={"learning_strategy": None})
     eig = _open_eigenspace()
     try:
         if eig.store.world(world) is None and world in TEMPLATES:

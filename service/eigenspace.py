@@ -25,10 +25,10 @@ from numeric.eigenspace.analysis import (
     EigenspaceAnalysis,
     EigenspaceConfig,
     Progress,
-    analyse,
     analyse_images,
 )
 from numeric.eigenspace.image_sets import ImageSet
+from numeric.eigenspace.learning_strategy import learn_with_strategy
 from numeric.eigenspace.localization import (
     Session,
     Vote,
@@ -91,6 +91,16 @@ def facts_call(world: str, a: EigenspaceAnalysis) -> dict[str, Any]:
             "candidate_sets": a.candidate_sets}
 
 
+def check_source(config: EigenspaceConfig, from_images: bool) -> None:
+    """The learning strategy adds points by rendering them: the simulator only (asked
+    for by name with a camera's images: 422; by default it is left out)."""
+    if (from_images and config.learning_strategy is not None
+            and "learning_strategy" in config.model_fields_set):
+        raise InvalidInput("the learning strategy (§4.2) adds learning points in the "
+                           "simulator; a camera's image set cannot grow by itself: leave "
+                           "learning_strategy null", field="config.learning_strategy")
+
+
 class EigenspaceService:
     def __init__(self, store: Store, kb: KnowledgeBase, worlds: WorldService,
                  executor: Executor | None = None) -> None:
@@ -134,6 +144,7 @@ class EigenspaceService:
                        images: ImageSet | None = None) -> Job:
         """A learning job: in the simulator, or from a camera's ``images``."""
         self.worlds.model(world)
+        check_source(config, images is not None)
         if any(j.world == world and j.status in ("queued", "running")
                for j in self._jobs.values()):
             raise Conflict(f"a learning job for world {world!r} is already running",
@@ -157,8 +168,9 @@ class EigenspaceService:
         """Learn and analyse (simulator, or ``images``), then assert the facts and store
         the analysis together: both or neither."""
         w = self.worlds.model(world)
+        check_source(config, images is not None)
         if images is None:
-            a = await asyncio.to_thread(analyse, w, config, None, progress)
+            a = await asyncio.to_thread(learn_with_strategy, w, config, progress, self.executor)
         else:
             a = await asyncio.to_thread(analyse_images, w, images, config, progress)
         async with self.worlds._write:  # same writer lock as every other mutation

@@ -17,7 +17,7 @@ from service.settings import Settings
 
 SMALL = {"camera": {"width_px": 32, "height_px": 16}, "learning": {"k": 12},
          "entry": {"samples": 30}, "regions": {"calibration_per_triplet": 2},
-         "strategy": {"n_samples": 60}}
+         "strategy": {"n_samples": 60}, "learning_strategy": None}
 PROBLEM = "application/problem+json"
 
 
@@ -39,6 +39,23 @@ def learned(client: TestClient) -> str:
     job = wait_job(client, r.headers["location"])
     assert job["status"] == "done", job
     return "eig_a"
+
+
+def test_learning_strategy_adds_points_in_the_job(client: TestClient) -> None:
+    """By default learning ends with §4.2's additions; the summary traces them."""
+    assert client.post("/worlds", json={"name": "eig_s", "template": "room_a"}
+                       ).status_code == 201
+    cfg = {**SMALL, "learning_strategy": {"target_probability": 1.0, "max_additions": 1}}
+    job = wait_job(client, client.post("/worlds/eig_s/eigenspace", json=cfg
+                                       ).headers["location"])
+    assert job["status"] == "done", job
+    s = client.get("/worlds/eig_s/eigenspace").json()
+    trace = s["learning_strategy"]
+    assert [t["learning_points"] for t in trace] == [25, 26] and s["learning_points"] == 26
+    assert trace[0]["added"] is None and len(trace[1]["added"]) == 2
+    assert all(0.0 <= p <= 1.0 for t in trace for p in t["p_z"])
+    assert_problem(client.post("/worlds/eig_s/eigenspace", json={
+        "learning_strategy": {"max_additions": -1}}), 422, "max_additions")
 
 
 def turn(client: TestClient, world: str, x: float, y: float, theta: float,

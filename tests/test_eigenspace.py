@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from numeric.camera import Camera, CameraConfig
-from numeric.eigenspace.analysis import EigenspaceAnalysis, EigenspaceConfig, analyse
+from numeric.eigenspace.analysis import EigenspaceAnalysis, EigenspaceConfig, analyse, free_grid
 from numeric.eigenspace.interpolation import affine_weights, interpolate_pose
-from numeric.eigenspace.learning import f_d
+from numeric.eigenspace.learning import f_d, learning_grid
 from numeric.eigenspace.learning_strategy import hypothetical_gain
 from numeric.eigenspace.localization import (
     LocalizationConfig,
@@ -342,3 +344,43 @@ def test_analysis_roundtrip(analysis: EigenspaceAnalysis, room: World) -> None:
     b = EigenspaceAnalysis.from_bytes(analysis.to_bytes())
     assert b.summary(room)["triplets"] == analysis.summary(room)["triplets"]
     np.testing.assert_array_equal(b.model.projections, analysis.model.projections)
+
+
+# -- §4.2 learning strategy -----------------------------------------------------------------
+def test_learning_strategy_does_not_learn_where_a_point_is(
+        analysis: EigenspaceAnalysis, room: World, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A candidate that already has a learning point is no candidate: when its triplets
+    are all rejected it gains nothing, stays the best, and was learned again and again."""
+    import numeric.eigenspace.learning_strategy as ls
+
+    cfg = ls.LearningStrategyConfig()
+    spot = free_grid(room, cfg.candidate_spacing_m)[40]
+    learned = replace(analysis, model=replace(
+        analysis.model, points=np.vstack([analysis.model.points, spot])))
+    # make the spot the best candidate by far
+    monkeypatch.setattr(ls, "hypothetical_gain", lambda lay, pts, cand, *a: -np.linalg.norm(
+        cand - spot, axis=1))
+    assert np.allclose(ls.choose_learning_point(analysis, room, cfg, 0.0,
+                                                np.random.default_rng(0)), spot)
+    p = ls.choose_learning_point(learned, room, cfg, 0.0, np.random.default_rng(0))
+    assert p is not None and np.linalg.norm(p - spot) >= cfg.candidate_spacing_m / 2
+
+
+def test_learn_with_strategy_adds_points_and_keeps_the_trace(room: World) -> None:
+    from numeric.eigenspace.learning_strategy import learn_with_strategy
+
+    cfg = EigenspaceConfig.model_validate({
+        **SMALL, "strategy": {"n_samples": 40},
+        "learning_strategy": {"target_probability": 1.0, "max_additions": 2}})
+    stages: list[str] = []
+    a = learn_with_strategy(room, cfg, lambda stage, frac: stages.append(stage))
+    grid = len(learning_grid(room, cfg.learning.spacing_m, cfg.learning.margin_m))
+    assert len(a.model.points) == grid + 2
+    assert [s["added"] is None for s in a.strategy_trace] == [True, False, False]
+    assert [s["learning_points"] for s in a.strategy_trace] == [grid, grid + 1, grid + 2]
+    added = np.array([s["added"] for s in a.strategy_trace[1:]])
+    np.testing.assert_allclose(a.model.points[grid:], added)
+    assert any(s.startswith("learning strategy") for s in stages)
+    b = EigenspaceAnalysis.from_bytes(a.to_bytes())
+    assert b.strategy_trace == a.strategy_trace
+    assert b.summary(room)["learning_strategy"] == a.strategy_trace

@@ -261,6 +261,10 @@ def test_rest_upload_errors_name_the_file(client: TestClient, exported: Any,
     r = client.post("/worlds/cam_bad/eigenspace/images", files=_files(folder),
                     data={"config": '{"learning": {"k": -1}}'})
     assert r.status_code == 422 and r.json()["field"] == "config.learning.k", r.text
+    # the learning strategy renders the points it adds: not for a camera's images
+    r = client.post("/worlds/cam_bad/eigenspace/images", files=_files(folder),
+                    data={"config": '{"learning_strategy": {}}'})
+    assert r.status_code == 422 and r.json()["field"] == "config.learning_strategy", r.text
     r = client.post("/worlds/cam_bad/eigenspace/images", files=_files(folder),
                     data={"size": "big"})
     assert r.status_code == 422 and r.json()["field"] == "size"

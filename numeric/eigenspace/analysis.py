@@ -22,6 +22,7 @@ from numeric.eigenspace.image_sets import ImageSet
 from numeric.eigenspace.learning import (
     EigenspaceModel,
     LearningConfig,
+    LearningStrategyConfig,
     add_learning_point,
     learn_images,
     learning_grid,
@@ -73,6 +74,11 @@ class EigenspaceConfig(BaseModel):
     entry: EntryFitConfig = EntryFitConfig()
     localization: LocalizationConfig = LocalizationConfig()
     strategy: StrategyConfig = StrategyConfig()
+    learning_strategy: LearningStrategyConfig | None = Field(
+        LearningStrategyConfig(),
+        description="§4.2: after the grid, add learning points until P(Z within n "
+                    "observations) reaches the target (simulator only: ignored for a "
+                    "camera's images); null: the grid alone")
     seed: int = Field(0, ge=0)
 
 
@@ -87,6 +93,8 @@ class EigenspaceAnalysis:
     timings_s: dict[str, float] = field(default_factory=dict)
     rejected_triplets: int = 0
     source: str = "simulator"  # or "images": a user's camera (no simulator to add points)
+    # §4.2's additions, one entry per step: added [x, y] or None, points, triplets, P(Z)
+    strategy_trace: list[dict[str, object]] = field(default_factory=list)
 
     @property
     def regions(self) -> RegionModel:
@@ -128,7 +136,8 @@ class EigenspaceAnalysis:
                 "c_a": self.c_a, "d_thd_m": self.config.regions.d_thd_m,
                 "entry_model": None if self.entry is None else
                 {"c0": self.entry.c0, "c1_per_m": self.entry.c1},
-                "region_coverage": self.coverage(world), "timings_s": self.timings_s}
+                "region_coverage": self.coverage(world),
+                "learning_strategy": self.strategy_trace or None, "timings_s": self.timings_s}
 
     # -- persistence ----------------------------------------------------------------
     def to_bytes(self) -> bytes:
@@ -139,7 +148,8 @@ class EigenspaceAnalysis:
                 "sets": self.candidate_sets,
                 "image_shape": list(m.image_shape),
                 "normalize_brightness": m.normalize_brightness, "timings_s": self.timings_s,
-                "rejected_triplets": self.rejected_triplets, "source": self.source}
+                "rejected_triplets": self.rejected_triplets, "source": self.source,
+                "strategy_trace": self.strategy_trace}
         np.savez_compressed(buf, points=m.points, directions=m.directions, mean=m.mean,
                             basis=m.basis, projections=m.projections, t_points=t.point_idx,
                             t_dirs=t.dir_idx, t_target=t.target, t_area=t.area,
@@ -160,7 +170,8 @@ class EigenspaceAnalysis:
                                   None if meta["entry"] is None else EntryModel(*meta["entry"]),
                                   [list(s) for s in meta["sets"]], dict(meta["timings_s"]),
                                   int(meta.get("rejected_triplets", 0)),
-                                  str(meta.get("source", "simulator")))
+                                  str(meta.get("source", "simulator")),
+                                  list(meta.get("strategy_trace", [])))
 
 
 def free_grid(world: World, cell_m: float) -> np.ndarray:
@@ -354,7 +365,8 @@ def fit_entry(model: EigenspaceModel, triplets: Triplets, c_a: float,
 def analyse(world: World, config: EigenspaceConfig, points: np.ndarray | None = None,
             progress: Progress | None = None) -> EigenspaceAnalysis:
     """Learn and analyse ``world`` in the simulator (§2.1-§3.3).  ``points`` defaults
-    to the learning grid."""
+    to the learning grid; the learning strategy's additions (§4.2) are
+    :func:`numeric.eigenspace.learning_strategy.learn_with_strategy`."""
     source = SimulatedCamera(world, config, np.random.default_rng(config.seed))
     return analyse_source(world, config, source, points, progress)
 
@@ -366,6 +378,7 @@ def analyse_images(world: World, images: ImageSet, config: EigenspaceConfig,
     N_theta and the image size come from the images (the camera settings are ignored)."""
     h, w = images.image_shape
     config = config.model_copy(update={
+        "learning_strategy": None,  # no simulator to render added points in
         "learning": config.learning.model_copy(update={"n_directions": images.n_directions}),
         "camera": config.camera.model_copy(update={"width_px": w, "height_px": h})})
     return analyse_source(world, config, ImportedImages(images, config), None, progress)

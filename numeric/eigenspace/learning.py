@@ -37,6 +37,23 @@ class LearningConfig(BaseModel):
         True, description="scale every image to mean 0.5 before PCA (lighting changes)")
 
 
+class LearningStrategyConfig(BaseModel):
+    """The learning strategy of §4.2: add learning points to the grid until a robot is
+    localized within ``n_observations`` with probability >= ``target_probability``."""
+
+    model_config = ConfigDict(extra="forbid")
+    target_probability: float = Field(0.9, gt=0.0, le=1.0,
+                                      description="P(Z) to reach (eq. 7 model)")
+    n_observations: int = Field(5, ge=1, le=50, description="within this many stops")
+    candidate_spacing_m: float = Field(0.5, gt=0.01, le=10.0,
+                                       description="grid of candidate learning points")
+    area_cell_m: float = Field(0.2, gt=0.01, le=10.0,
+                               description="raster on which the localizable area is counted")
+    max_additions: int = Field(10, ge=0, le=200, description="learning points added at most")
+    circle_points: int = Field(16, ge=4, le=360,
+                               description="step 2's circle around tied candidates")
+
+
 @dataclass
 class EigenspaceModel:
     """Learned eigenspace: points ``(Nw, 2)`` [m], directions ``(Nt,)`` [rad],

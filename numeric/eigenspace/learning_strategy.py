@@ -15,14 +15,23 @@ the same candidates.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from concurrent.futures import Executor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from scipy.spatial import cKDTree
 
-from numeric.eigenspace.analysis import EigenspaceAnalysis, free_grid, with_learning_point
+from numeric.eigenspace.analysis import (
+    EigenspaceAnalysis,
+    EigenspaceConfig,
+    Progress,
+    analyse,
+    free_grid,
+    with_learning_point,
+)
+from numeric.eigenspace.learning import LearningStrategyConfig
 from numeric.eigenspace.movement_strategy import (
     RegionLayout,
     initial_samples,
@@ -30,16 +39,6 @@ from numeric.eigenspace.movement_strategy import (
 )
 from numeric.eigenspace.triplets import triangle_area
 from numeric.world import World
-
-
-class LearningStrategyConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-    target_probability: float = Field(0.9, gt=0.0, le=1.0)
-    n_observations: int = Field(5, ge=1, le=50)
-    candidate_spacing_m: float = Field(0.5, gt=0.01, le=10.0)
-    area_cell_m: float = Field(0.2, gt=0.01, le=10.0)
-    max_additions: int = Field(10, ge=0, le=200)
-    circle_points: int = Field(16, ge=4, le=360)
 
 
 @dataclass
@@ -85,13 +84,23 @@ def hypothetical_gain(layout: RegionLayout, points: np.ndarray, candidates: np.n
 
 def choose_learning_point(analysis: EigenspaceAnalysis, world: World,
                           config: LearningStrategyConfig, first_move_m: float,
-                          rng: np.random.Generator, random_choice: bool = False) -> np.ndarray:
-    """Steps 1-2: where to learn next (or at random among the candidates)."""
+                          rng: np.random.Generator, random_choice: bool = False
+                          ) -> np.ndarray | None:
+    """Steps 1-2: where to learn next (or at random among the candidates); None when
+    every candidate already has a learning point.
+
+    A candidate within half the candidate spacing of a learning point is not one: a
+    point whose triplets were all rejected gains nothing, so it stayed the best
+    candidate and was learned again and again (a 14 m x 6 m hall: the same point
+    three times in a row)."""
     layout = analysis.layout(world)
-    cand = free_grid(world, config.candidate_spacing_m)
-    cand = cand[layout.p_any(cand) < 0.5] if len(analysis.triplets) else cand
+    fresh = free_grid(world, config.candidate_spacing_m)
+    fresh = fresh[far_from(fresh, analysis.model.points, config.candidate_spacing_m / 2)]
+    if len(fresh) == 0:
+        return None
+    cand = fresh[layout.p_any(fresh) < 0.5] if len(analysis.triplets) else fresh
     if len(cand) == 0:
-        cand = free_grid(world, config.candidate_spacing_m)
+        cand = fresh
     if random_choice:
         return np.asarray(cand[rng.integers(len(cand))])
     grid = free_grid(world, config.area_cell_m)
@@ -105,9 +114,17 @@ def choose_learning_point(analysis: EigenspaceAnalysis, world: World,
     ring = (cand[best][:, None, :] + first_move_m * np.stack([np.cos(ang), np.sin(ang)], 1)
             ).reshape(-1, 2)
     ring = ring[world.is_free(ring)]
+    ring = ring[far_from(ring, analysis.model.points, config.candidate_spacing_m / 2)]
     if len(ring) == 0:
         return np.asarray(cand[best[0]])
     return np.asarray(ring[int(np.argmin(layout.p_any(ring)))])
+
+
+def far_from(xy: np.ndarray, points: np.ndarray, min_m: float) -> np.ndarray:
+    """Whether each of ``xy (n, 2)`` is at least ``min_m`` from every one of ``points``."""
+    if len(xy) == 0 or len(points) == 0:
+        return np.ones(len(xy), dtype=bool)
+    return np.asarray(cKDTree(points).query(xy)[0] >= min_m)
 
 
 def learning_strategy(analysis: EigenspaceAnalysis, world: World,
@@ -134,6 +151,36 @@ def learning_strategy(analysis: EigenspaceAnalysis, world: World,
         first = float(acts[0][1]) if acts else 0.0
         point = choose_learning_point(result.analysis, world, config, first, rng,
                                       random_additions)
+        if point is None:
+            break
         result.analysis = with_learning_point(result.analysis, world, point)
         added = [float(point[0]), float(point[1])]
     return result
+
+
+def learn_with_strategy(world: World, config: EigenspaceConfig,
+                        progress: Progress | None = None,
+                        executor: Executor | None = None) -> EigenspaceAnalysis:
+    """§4: learn on the grid and analyse, then, with ``config.learning_strategy``, add
+    learning points (§4.2) until P(Z within n observations) reaches the target. The
+    trace of additions and P(Z) is kept on the analysis (``strategy_trace``)."""
+    strategy = config.learning_strategy
+    report = progress or (lambda stage, frac: None)
+    if strategy is None:
+        return analyse(world, config, None, progress)
+    a = analyse(world, config, None, lambda stage, frac: report(stage, 0.5 * frac))
+    t0 = time.perf_counter()
+
+    def step(st: LearningStep) -> None:
+        done = len(trace) / max(1, strategy.max_additions)
+        trace.append({"added": st.added, "learning_points": st.learning_points,
+                      "triplets": st.triplets, "p_z": st.p_z})
+        report(f"learning strategy: {st.learning_points} points, P(Z within "
+               f"{strategy.n_observations}) {st.p_z[-1]:.2f}", 0.5 + 0.5 * min(1.0, done))
+
+    trace: list[dict[str, object]] = []
+    res = learning_strategy(a, world, strategy, np.random.default_rng(config.seed + 11),
+                            executor=executor, progress=step)
+    timings = dict(res.analysis.timings_s, learning_strategy=time.perf_counter() - t0)
+    report("done", 1.0)
+    return replace(res.analysis, timings_s=timings, strategy_trace=trace)

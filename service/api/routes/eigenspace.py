@@ -24,6 +24,7 @@ from numeric.eigenspace.image_sets import (
 from numeric.errors import InvalidInput
 from service.api.routes.worlds import WorldName
 from service.deps import EigenspaceDep
+from service.eigenspace import check_source
 from service.schemas import (
     CameraIn,
     LocalizationOut,
@@ -136,6 +137,7 @@ async def post_eigenspace_images(
     and eq. 7. Runs as a job: poll ``Location``. Errors name the file."""
     eig.worlds.model(world)  # 404 before reading anything
     cfg, wh = parse_config(config), parse_size(size)
+    check_source(cfg, from_images=True)
     if (archive is None) == (poses is None):
         raise InvalidInput(f"give either archive or {POSES_FILE} with images",
                            field="archive")
