@@ -83,6 +83,8 @@ def group_json(g: PlannedGroup) -> dict[str, Any]:
         out["joint_point"] = list(g.local.joint_point) if g.local.joint_point else None
         out["t_seq_s"] = g.local.t_seq_s
         out["t_par_s"] = g.local.t_par_s
+        # False: a group past the exact size, its time that of a followable policy (>= min)
+        out["exact"] = g.local.exact
     if g.area_m2 is not None and g.centroid is not None:
         out["area_m2"] = g.area_m2
         out["centroid"] = [float(g.centroid[0]), float(g.centroid[1])]

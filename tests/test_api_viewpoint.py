@@ -107,6 +107,24 @@ def test_posted_grid_gives_an_unknown_region(rooms: TestClient) -> None:
     assert out["grid"]["source"] == "posted"
 
 
+def test_a_twelve_object_cluster_plans_with_a_bound(rooms: TestClient) -> None:
+    """One group of 12 objects (before: no answer in 300 s): planned, its time flagged as
+    a bound (a followable policy's), every member in the order."""
+    cells = np.zeros((100, 100), dtype=int)           # 10 m x 10 m at 10 cm
+    cells[0, :] = cells[-1, :] = cells[:, 0] = cells[:, -1] = 100
+    xy = [(4.0 + 0.7 * (i % 4), 4.0 + 0.7 * (i // 4)) for i in range(12)]
+    body = {"robot": [0.5, 0.5, 0], "exit": [0.5, 0.5], "time_limit_s": 300,
+            "object_types": TYPES, "grid": _grid_body(cells.ravel().tolist(), 100, 100),
+            "candidates": [{"id": f"o{i}", "type": "A", "x": x, "y": y}
+                           for i, (x, y) in enumerate(xy)]}
+    r = rooms.post("/worlds/demo/viewpoint-plan", json=body)
+    assert r.status_code == 200, r.text
+    (g,) = [g for g in r.json()["groups"] if g["kind"] == "objects"]
+    assert len(g["members"]) == 12 and g["exact"] is False
+    assert sorted(g["order"]) == sorted(f"o{i}" for i in range(12)) or g["strategy"] == "par"
+    assert g["t_obs_s"] > 12 * 2.0                      # at least the 12 verifications
+
+
 def test_empty_candidates_and_no_time_means_leave(rooms: TestClient) -> None:
     body = {**table1_body("L1"), "time_limit_s": 0}
     out = rooms.post("/worlds/vp_a/viewpoint-plan", json=body).json()

@@ -25,6 +25,7 @@ from numeric.viewpoint.verification import (
     PATTERNS,
     Candidate,
     Verifier,
+    min_plus,
     single_dp,
     unknown_region_time,
     viewpoint_circles,
@@ -192,10 +193,109 @@ def test_sequential_order_prefers_the_near_object_first(models: dict[str, Appear
     v = Verifier(None, 0.4, 2.0)
     near = Candidate("near", "A", np.array([1.5, 0.0]), models["A"])
     far = Candidate("far", "A", np.array([6.0, 0.0]), models["A"])
-    t, which, orders = v.sequential([far, near], np.zeros((1, 2)), np.array([[8.0, 0.0]]))
-    assert orders[which[0, 0]] == ("near", "far")
+    t, order_of, exact = v.sequential([far, near], np.zeros((1, 2)), np.array([[8.0, 0.0]]))
+    assert exact and order_of(0, 0) == ("near", "far")
     rev, _, _ = v.sequential([far, near], np.zeros((1, 2)), np.array([[-2.0, 0.0]]))
     assert np.isfinite(rev[0, 0])
+
+
+def cluster(models: dict[str, AppearanceModel], k: int, seed: int = 1) -> list[Candidate]:
+    """k objects of mixed types scattered over a 3 m x 3 m patch."""
+    rng = np.random.default_rng(seed)
+    types = list(OBJECT_KINDS)
+    return [Candidate(f"o{i}", types[i % len(types)], rng.uniform(2.0, 5.0, 2),
+                      models[types[i % len(types)]]) for i in range(k)]
+
+
+def chain_time(v: Verifier, order: tuple[Candidate, ...], start: np.ndarray,
+               goal: np.ndarray) -> float:
+    """Eq. 7 along one order, over every hand-over viewpoint (the permutation form)."""
+    if len(order) == 1:
+        return float(v.single(order[0], start, goal)[0, 0])
+    pts = [v.viewpoints(c).points for c in order]
+    vec = v.single(order[0], start, pts[0])
+    for i in range(1, len(order) - 1):
+        vec = min_plus(vec, v.single(order[i], pts[i - 1], pts[i]))
+    return float(min_plus(vec, v.single(order[-1], pts[-2], goal))[0, 0])
+
+
+def test_sequential_dp_equals_every_order(models: dict[str, AppearanceModel]) -> None:
+    """The DP over subsets finds eq. 7's minimum over all k! orders and hand-overs, and
+    the order it reports attains it."""
+    v = Verifier(None, 0.4, 2.0)
+    cands = cluster(models, 4)
+    s, g = np.array([[0.0, 0.0]]), np.array([[7.0, 1.0]])
+    t, order_of, exact = v.sequential(cands, s, g)
+    brute = [chain_time(v, o, s, g) for o in itertools.permutations(cands)]
+    assert exact and t[0, 0] == pytest.approx(min(brute), rel=1e-9)
+    by_id = {c.id: c for c in cands}
+    assert chain_time(v, tuple(by_id[i] for i in order_of(0, 0)), s, g) == pytest.approx(
+        t[0, 0], rel=1e-9)
+
+
+def test_parallel_sums_every_failure_set(models: dict[str, AppearanceModel]) -> None:
+    """Eq. 8 generalised: the expected rest after a joint observation is the sum over the
+    2^k failure sets of P(F) times eq. 7 over F, computed once for all F."""
+    v = Verifier(None, 0.4, 2.0)
+    cands = cluster(models, 3)
+    g = np.array([[0.0, 0.0]])
+    x = np.array([[3.5, 3.5], [3.0, 4.0]])
+    p = np.array([[0.3, 0.6, 0.8], [0.5, 0.2, 0.9]])
+    tab = v.handover_table(cands, g)
+    want = np.zeros(len(x))
+    for mask in range(8):
+        failed = [c for i, c in enumerate(cands) if mask >> i & 1]
+        prob = np.prod([1 - p[:, i] if mask >> i & 1 else p[:, i] for i in range(3)], axis=0)
+        if not failed:
+            rest = np.hypot(*x.T) / 0.4
+        else:
+            rest = np.array([min(chain_time(v, o, xi[None], g)
+                                 for o in itertools.permutations(failed)) for xi in x])
+        want += prob * rest
+    np.testing.assert_allclose(tab.expected_rest(x, p)[:, 0], want, rtol=1e-9)
+
+
+def test_large_groups_are_bounded_and_fast(models: dict[str, AppearanceModel],
+                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    """Past EXACT_GROUP objects every object hands over at one viewpoint: the time of a
+    policy the robot can follow, never below the exact minimum; its t_par expectation
+    in closed form equals the sum over the failure sets for that fixed order."""
+    import numeric.viewpoint.verification as ver
+
+    cands = cluster(models, 4)
+    s, g = np.array([[0.0, 0.0]]), np.array([[7.0, 1.0]])
+    exact = Verifier(None, 0.4, 2.0).sequential(cands, s, g)[0][0, 0]
+    monkeypatch.setattr(ver, "EXACT_GROUP", 2)
+    v = Verifier(None, 0.4, 2.0)
+    t, order_of, is_exact = v.sequential(cands, s, g)
+    assert not is_exact and exact <= t[0, 0] < 1.5 * exact
+    assert sorted(order_of(0, 0)) == sorted(c.id for c in cands)
+    tab = v.handover_table(cands, g)
+    assert isinstance(tab, ver.PortChain)
+    x = np.array([[3.5, 3.5]])
+    p = np.array([[0.3, 0.6, 0.8, 0.5]])
+    by_id = {c.id: i for i, c in enumerate(cands)}
+    chain = [by_id[c] for c in tab.chain]
+    want = 0.0
+    for mask in range(16):
+        f = [i for i in chain if mask >> i & 1]
+        prob = float(np.prod([1 - p[0, i] if mask >> i & 1 else p[0, i] for i in range(4)]))
+        if not f:
+            cost = float(np.hypot(*(x[0] - g[0])) / 0.4)
+        elif len(f) == 1:
+            cost = float(v.single(cands[f[0]], x, g)[0, 0])
+        else:
+            cost = float(v.single(cands[f[0]], x, tab.hand[f[0]][None])[0, 0])
+            cost += sum(tab.cs[a, b] for a, b in zip(f[:-2], f[1:-1], strict=True))
+            cost += float(tab.last[f[-2], f[-1]][0])
+        want += prob * cost
+    assert tab.expected_rest(x, p)[0, 0] == pytest.approx(want, rel=1e-9)
+    # a 12-object group: the whole local plan, with a bound, in well under a second
+    big = cluster(models, 12, seed=3)
+    monkeypatch.setattr(ver, "EXACT_GROUP", 6)
+    plans = Verifier(None, 0.4, 2.0).group(big, np.array([[0.0, 0.0]]), np.array([[0.0, 0.0]]))
+    assert np.isfinite(plans[0].time_s) and not plans[0].exact
+    assert sorted(plans[0].order) == sorted(c.id for c in big)
 
 
 def test_unknown_region_time_eqs_9_10(models: dict[str, AppearanceModel]) -> None:

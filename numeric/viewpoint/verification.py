@@ -26,13 +26,19 @@ t_seq (eq. 7) verifies the objects one after the other, handing over at a viewpo
 the previous object, in the best order; t_par (eq. 8) observes all objects of the group
 at once from a point where every one is recognisable, then verifies the failures
 singly (one failure) or sequentially (several) -- eq. 8 written for k >= 2 objects over
-the 2**k outcomes. Unknown regions: t_u = t_sea + t_obj_hat (eqs. 9-10).
+the 2**k outcomes. The paper writes both for two objects. For k objects chizu solves
+eq. 7 for every subset of the group at once by dynamic programming over subsets from the
+goal backwards (:class:`HandoverDP`), which serves t_seq and all of t_par's failure
+sets; that is exact and takes 2^k k^2 small min-plus products, so past EXACT_GROUP
+objects a chain over every hand-over viewpoint (:class:`PortChain`) gives the time of a
+policy the robot can follow -- an upper bound, flagged ``exact = False``. (Before, t_seq
+tried all k! orders and t_par called it for every failure set: 9 objects took 10 s, 12
+did not finish in 300 s.) Unknown regions: t_u = t_sea + t_obj_hat (eqs. 9-10).
 """
 
 from __future__ import annotations
 
-import itertools
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -54,7 +60,10 @@ PATTERNS: dict[str, tuple[int, ...]] = {
     "corner": (0, 1, 2),
     "front": (0,),
 }
-MAX_SEQ_OBJECTS = 7  # t_seq tries every order up to this group size
+#: t_seq / t_par exact (every order and hand-over viewpoint) up to this group size
+EXACT_GROUP = 6
+#: a larger group's chain is the best order by dynamic programming up to this size
+SCALAR_DP_MAX = 12
 MAX_PAR_POINTS = 400
 
 
@@ -207,6 +216,7 @@ class LocalPlan:
     joint_point: tuple[float, float] | None = None
     t_seq_s: float | None = None
     t_par_s: float | None = None
+    exact: bool = True  # False: a large group's bound (a policy's time, >= the optimum)
 
 
 class Verifier:
@@ -301,53 +311,37 @@ class Verifier:
         return np.asarray(pts[int(np.argmin(cost))])
 
     # -- t_seq (eq. 7) ----------------------------------------------------------------
+    def handover_table(self, cands: Sequence[Candidate], goals: np.ndarray) -> HandoverTable:
+        """Eq. 7 for every subset of the group at once, by dynamic programming over subsets
+        from the goal backwards (exact for up to EXACT_GROUP objects, else the fixed-port
+        bound of :class:`PortChain`)."""
+        goals = np.atleast_2d(goals)
+        if any(len(self.viewpoints(c).points) == 0 for c in cands):
+            return Unverifiable(goals)
+        if len(cands) > EXACT_GROUP:
+            return PortChain(self, cands, goals)
+        return HandoverDP(self, cands, goals)
+
     def sequential(self, cands: Sequence[Candidate], starts: np.ndarray, goals: np.ndarray,
-                   ) -> tuple[np.ndarray, np.ndarray, list[tuple[str, ...]]]:
-        """t_seq from every start ``(S, 2)`` to every goal ``(G, 2)``: ``(S, G)``, the
-        index of the best order per pair and the orders tried. The objects are verified
-        one after the other, handing over at the previous object's viewpoint (eq. 7), in
-        every order (up to MAX_SEQ_OBJECTS objects; beyond, nearest-neighbour order)."""
+                   ) -> tuple[np.ndarray, Callable[[int, int], tuple[str, ...]], bool]:
+        """t_seq from every start ``(S, 2)`` to every goal ``(G, 2)``: ``(S, G)``; a function
+        giving the best order for a (start, goal) pair; and whether the value is exact.
+
+        Eq. 7 verifies the objects one after the other, handing over at a viewpoint of the
+        previous object. Over all orders and hand-over viewpoints this is a shortest path
+        over (objects done, last object, its viewpoint), solved by dynamic programming over
+        subsets -- 2^k k^2 small min-plus products instead of k! orders -- exactly up to
+        EXACT_GROUP objects. Larger groups fix each object's hand-over viewpoint (the one
+        nearest the group's centre) and order them by the same DP on scalars: the expected
+        time of a policy the robot can follow, so an upper bound of eq. 7's minimum."""
         starts = np.atleast_2d(starts)
         goals = np.atleast_2d(goals)
         if len(cands) == 1:
-            return (self.single(cands[0], starts, goals),
-                    np.zeros((len(starts), len(goals)), dtype=int), [(cands[0].id,)])
-        pts = {c.id: self.viewpoints(c).points for c in cands}
-        first = {c.id: self.single(c, starts, pts[c.id]) for c in cands}      # (S, Vc)
-        pair: dict[tuple[str, str], np.ndarray] = {}
-        last: dict[tuple[str, str], np.ndarray] = {}
-        orders: list[tuple[Candidate, ...]]
-        if len(cands) <= MAX_SEQ_OBJECTS:
-            orders = list(itertools.permutations(cands))
-        else:
-            orders = [tuple(self._nearest_order(cands, starts[0]))]
-        best = np.full((len(starts), len(goals)), np.inf)
-        which = np.zeros(best.shape, dtype=int)
-        for k, order in enumerate(orders):
-            vec = first[order[0].id]                                          # (S, V0)
-            for prev, cur in zip(order[:-2], order[1:-1], strict=True):
-                key = (prev.id, cur.id)
-                if key not in pair:
-                    pair[key] = self.single(cur, pts[prev.id], pts[cur.id])   # (Vp, Vc)
-                vec = min_plus(vec, pair[key])
-            key = (order[-2].id, order[-1].id)
-            if key not in last:  # the last object: from the hand-over point to the goal
-                last[key] = self.single(order[-1], pts[order[-2].id], goals)  # (Vp, G)
-            tot = min_plus(vec, last[key])                                    # (S, G)
-            better = tot < best
-            best = np.where(better, tot, best)
-            which = np.where(better, k, which)
-        return best, which, [tuple(c.id for c in o) for o in orders]
-
-    def _nearest_order(self, cands: Sequence[Candidate], start: np.ndarray) -> list[Candidate]:
-        left = list(cands)
-        out = []
-        at = start
-        while left:
-            k = int(np.argmin([np.hypot(*(c.xy - at)) for c in left]))
-            at = left[k].xy
-            out.append(left.pop(k))
-        return out
+            order = (cands[0].id,)
+            return self.single(cands[0], starts, goals), lambda s, g: order, True
+        tab = self.handover_table(cands, goals)
+        full = (1 << len(cands)) - 1
+        return tab.rest(full, starts), lambda s, g: tab.order(full, starts[s], g), tab.exact
 
     # -- t_par (eq. 8, k >= 2) --------------------------------------------------------
     def joint_points(self, cands: Sequence[Candidate]) -> np.ndarray:
@@ -391,20 +385,12 @@ class Verifier:
             return np.full(n, np.inf), np.full((n, 2), np.nan)
         k = len(cands)
         p = np.stack([c.model.p_recog(jp, c.xy, c.prior()) for c in cands], 1)  # (J, k)
-        # cost after the joint observation, per outcome F (set of failures): (J, N)
-        after = np.zeros((len(jp), n))
-        for mask in range(1 << k):
-            failed = [cands[i] for i in range(k) if mask >> i & 1]
-            prob = np.prod(np.where([(mask >> i) & 1 for i in range(k)], 1 - p, p), axis=1)
-            if not failed:
-                rest = cdist(jp, goals) / self.speed
-            elif len(failed) == 1:
-                rest = self.single(failed[0], jp, goals)
-            else:
-                rest = self.sequential(failed, jp, goals)[0]
-            with np.errstate(invalid="ignore"):
-                after += np.where(prob[:, None] > 0, prob[:, None] * rest, 0.0)
-        total = cdist(starts, jp) / self.speed + k * self.t_verify + after.T    # (N, J)
+        # cost after the joint observation, summed over the outcomes F (sets of
+        # failures) weighted by their probability: (J, G); only the paired goals matter
+        tab = self.handover_table(cands, goals)
+        after = tab.expected_rest(jp, p)
+        total = cdist(starts, jp) / self.speed + k * self.t_verify \
+            + after.T[np.arange(n)]                                                # (N, J)
         j = np.argmin(total, axis=1)
         return total[np.arange(n), j], jp[j]
 
@@ -414,9 +400,9 @@ class Verifier:
         starts = np.atleast_2d(starts)
         goals = np.atleast_2d(goals)
         n = len(starts)
-        seq_m, which, orders_tried = self.sequential(cands, starts, goals)
+        seq_m, order_of, exact = self.sequential(cands, starts, goals)
         seq = seq_m[np.arange(n), np.arange(n)]
-        orders = [orders_tried[which[i, i]] for i in range(n)]
+        orders = [order_of(i, i) for i in range(n)]
         if len(cands) == 1:
             return [LocalPlan(float(t), "single", o) for t, o in zip(seq, orders, strict=True)]
         par, jp = self.parallel(cands, starts, goals)
@@ -425,10 +411,10 @@ class Verifier:
             if par[i] < seq[i]:
                 out.append(LocalPlan(float(par[i]), "par", tuple(c.id for c in cands),
                                      (float(jp[i, 0]), float(jp[i, 1])), float(seq[i]),
-                                     float(par[i])))
+                                     float(par[i]), exact))
             else:
                 out.append(LocalPlan(float(seq[i]), "seq", orders[i], None, float(seq[i]),
-                                     float(par[i]) if np.isfinite(par[i]) else None))
+                                     float(par[i]) if np.isfinite(par[i]) else None, exact))
         return out
 
 
@@ -454,3 +440,324 @@ def unknown_region_time(verifier: Verifier, models: dict[str, AppearanceModel],
             total += n_bar * t
     extra = max(sum(mean_counts.values()) - 1.0, 0.0) * t_dist
     return float(t_search + area_m2 / total_unknown_m2 * (total + extra))
+
+
+def min_plus_arg(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`min_plus` and the intermediate index that attains each minimum."""
+    s = a[:, :, None] + b[None, :, :]
+    k = np.argmin(s, axis=1)
+    return np.take_along_axis(s, k[:, None, :], axis=1)[:, 0, :], k
+
+
+class HandoverTable:
+    """Eq. 7 for every subset F of a group (bit i = ``cands[i]``) towards fixed goals:
+    ``rest(F, X)`` is the expected time to verify F one after the other from points X and
+    reach each goal; ``expected_rest`` averages it over the failures of a joint
+    observation (eq. 8)."""
+
+    exact: bool
+
+    def rest(self, mask: int, xy: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def order(self, mask: int, xy: np.ndarray, goal: int) -> tuple[str, ...]:
+        raise NotImplementedError
+
+    def expected_rest(self, xy: np.ndarray, p: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+
+class Unverifiable(HandoverTable):
+    """A group with an object no usable viewpoint can see: every time is infinite."""
+
+    exact = True
+
+    def __init__(self, goals: np.ndarray) -> None:
+        self.goals = goals
+
+    def rest(self, mask: int, xy: np.ndarray) -> np.ndarray:
+        return np.full((len(np.atleast_2d(xy)), len(self.goals)), np.inf)
+
+    def order(self, mask: int, xy: np.ndarray, goal: int) -> tuple[str, ...]:
+        return ()
+
+    def expected_rest(self, xy: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return np.full((len(xy), len(self.goals)), np.inf)
+
+
+class HandoverDP(HandoverTable):
+    """Exact eq. 7 over every order and hand-over viewpoint, by dynamic programming over
+    subsets from the goals backwards: ``H[F, p] (V_p, G)`` is the expected time from a
+    viewpoint of object p (just verified, p not in F) to verify F and reach each goal;
+    ``H[{c}, p]`` is t_single(v, X_g, c) and ``H[F, p] = min_c min_v t_single(., v, c) +
+    H[F - c, c](v)``."""
+
+    exact = True
+
+    def __init__(self, verifier: Verifier, cands: Sequence[Candidate], goals: np.ndarray,
+                 ) -> None:
+        self.v, self.cands, self.goals = verifier, list(cands), goals
+        k = len(cands)
+        self.pts = [verifier.viewpoints(c).points for c in cands]
+        self.h: dict[tuple[int, int], np.ndarray] = {}
+        self.arg: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+        pair = {(p, c): verifier.single(cands[c], self.pts[p], self.pts[c])
+                for p in range(k) for c in range(k) if p != c}
+        for mask in sorted(range(1, (1 << k) - 1), key=lambda m: m.bit_count()):
+            members = [c for c in range(k) if mask >> c & 1]
+            for p in range(k):
+                if mask >> p & 1:
+                    continue
+                if len(members) == 1:
+                    self.h[mask, p] = verifier.single(cands[members[0]], self.pts[p], goals)
+                    continue
+                best = np.full((len(self.pts[p]), len(goals)), np.inf)
+                who = np.full(best.shape, -1)
+                port = np.zeros(best.shape, dtype=int)
+                for c in members:
+                    val, via = min_plus_arg(pair[p, c], self.h[mask & ~(1 << c), c])
+                    better = val < best
+                    best = np.where(better, val, best)
+                    who = np.where(better, c, who)
+                    port = np.where(better, via, port)
+                self.h[mask, p] = best
+                self.arg[mask, p] = (who, port)
+
+    def legs(self, xy: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """From points xy: t_single to each object's viewpoints and to the goals."""
+        return ([self.v.single(c, xy, pts) for c, pts in zip(self.cands, self.pts, strict=True)],
+                [self.v.single(c, xy, self.goals) for c in self.cands])
+
+    def _first(self, mask: int, to_v: list[np.ndarray]
+               ) -> list[tuple[int, np.ndarray, np.ndarray]]:
+        """Per member c: min over its viewpoints of reaching it and going on, and where."""
+        return [(c, *min_plus_arg(to_v[c], self.h[mask & ~(1 << c), c]))
+                for c in range(len(self.cands)) if mask >> c & 1]
+
+    def rest(self, mask: int, xy: np.ndarray,
+             legs: tuple[list[np.ndarray], list[np.ndarray]] | None = None) -> np.ndarray:
+        xy = np.atleast_2d(xy)
+        members = [c for c in range(len(self.cands)) if mask >> c & 1]
+        if not members:
+            return np.asarray(cdist(xy, self.goals) / self.v.speed)
+        to_v, to_g = legs if legs is not None else self.legs(xy)
+        if len(members) == 1:
+            return to_g[members[0]]
+        return np.asarray(np.min([val for _, val, _ in self._first(mask, to_v)], axis=0))
+
+    def order(self, mask: int, xy: np.ndarray, goal: int) -> tuple[str, ...]:
+        members = [c for c in range(len(self.cands)) if mask >> c & 1]
+        if len(members) <= 1:
+            return tuple(self.cands[c].id for c in members)
+        first = self._first(mask, self.legs(np.atleast_2d(xy))[0])
+        c, _, via = min(first, key=lambda f: f[1][0, goal])
+        out, v = [c], int(via[0, goal])
+        mask &= ~(1 << c)
+        while mask.bit_count() > 1:
+            who, port = self.arg[mask, c]
+            c, v = int(who[v, goal]), int(port[v, goal])
+            out.append(c)
+            mask &= ~(1 << c)
+        out.append(mask.bit_length() - 1)
+        return tuple(self.cands[i].id for i in out)
+
+    def expected_rest(self, xy: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """``sum_F P(F) rest(F, xy)`` over the 2^k failure sets, ``p (J, k)`` the chance
+        that each object is recognised from each point (independent); outcomes whose
+        probability is 0 at every point are skipped."""
+        k = len(self.cands)
+        out = np.zeros((len(xy), len(self.goals)))
+        q = 1.0 - p
+        legs = self.legs(xy)
+        for mask in range(1 << k):
+            bits = np.array([mask >> i & 1 for i in range(k)], dtype=bool)
+            prob = np.prod(np.where(bits, q, p), axis=1)                  # (J,)
+            if not (prob > 0).any():
+                continue
+            with np.errstate(invalid="ignore"):
+                out += np.where(prob[:, None] > 0,
+                                prob[:, None] * self.rest(mask, xy, legs), 0.0)
+        return out
+
+
+class PortChain(HandoverTable):
+    """Eq. 7 for a large group: the objects are verified in one chain (or its reverse,
+    whichever is quicker for a start and goal), over every hand-over viewpoint along it.
+    The chain is chosen on scalars -- each object handing over at its viewpoint nearest
+    the group's centre, from the centre back to it -- by dynamic programming over
+    subsets up to SCALAR_DP_MAX objects, nearest neighbour and 2-opt beyond. Its time is
+    that of a policy the robot can follow, so it bounds eq. 7's minimum from above;
+    ``exact`` is False. t_par's failures are verified along the same chain with those
+    fixed hand-overs, which gives its expectation in closed form in O(k^2) terms
+    instead of 2^k outcomes."""
+
+    exact = False
+
+    def __init__(self, verifier: Verifier, cands: Sequence[Candidate], goals: np.ndarray,
+                 ) -> None:
+        self.v, self.cands, self.goals = verifier, list(cands), goals
+        k = len(cands)
+        self.pts = [verifier.viewpoints(c).points for c in cands]
+        self._pairs: dict[tuple[int, int], np.ndarray] = {}
+        self._lasts: dict[tuple[int, int], np.ndarray] = {}
+        centre = np.mean([c.xy for c in cands], axis=0)
+        hand = []
+        for c in cands:
+            pts = verifier.viewpoints(c).points
+            hand.append(pts[int(np.argmin(np.hypot(*(pts - centre).T)))])
+        self.hand = np.array(hand)                                          # (k, 2)
+        self.cs = np.array([[verifier.single(cands[c], self.hand[p], self.hand[c])[0, 0]
+                             if p != c else np.inf for c in range(k)] for p in range(k)])
+        self.last = np.array([[verifier.single(cands[c], self.hand[p], goals)[0]
+                               for c in range(k)] for p in range(k)])       # (k, k, G)
+        enter = np.array([verifier.single(cands[c], centre[None], self.hand[c][None])[0, 0]
+                          for c in range(k)])
+        home = np.array([[verifier.single(cands[c], self.hand[p], centre[None])[0, 0]
+                          for c in range(k)] for p in range(k)])
+        if k <= SCALAR_DP_MAX:
+            order = scalar_order_dp(enter, self.cs, home)
+        else:
+            order = two_opt(nearest_order(enter, self.cs), enter, self.cs, home)
+        self.chain_idx = order
+        self.chain = tuple(cands[i].id for i in order)
+
+    def _pair(self, p: int, c: int) -> np.ndarray:
+        """t_single from every viewpoint of object p to every viewpoint of c (cached)."""
+        key = (p, c)
+        if key not in self._pairs:
+            self._pairs[key] = self.v.single(self.cands[c], self.pts[p], self.pts[c])
+        return self._pairs[key]
+
+    def _along(self, order: list[int], xy: np.ndarray) -> np.ndarray:
+        """Eq. 7 along one order, over every hand-over viewpoint (min-plus chain)."""
+        vec = self.v.single(self.cands[order[0]], xy, self.pts[order[0]])
+        for a, b in zip(order[:-2], order[1:-1], strict=True):
+            vec = min_plus(vec, self._pair(a, b))
+        key = (order[-2], order[-1])
+        if key not in self._lasts:
+            self._lasts[key] = self.v.single(self.cands[order[-1]], self.pts[order[-2]],
+                                             self.goals)
+        return min_plus(vec, self._lasts[key])
+
+    def rest(self, mask: int, xy: np.ndarray) -> np.ndarray:
+        xy = np.atleast_2d(xy)
+        order = [i for i in self.chain_idx if mask >> i & 1]
+        if not order:
+            return np.asarray(cdist(xy, self.goals) / self.v.speed)
+        if len(order) == 1:
+            return self.v.single(self.cands[order[0]], xy, self.goals)
+        return np.minimum(self._along(order, xy), self._along(order[::-1], xy))
+
+    def order(self, mask: int, xy: np.ndarray, goal: int) -> tuple[str, ...]:
+        xy = np.atleast_2d(xy)
+        order = [i for i in self.chain_idx if mask >> i & 1]
+        if len(order) > 1 and (self._along(order[::-1], xy)[0, goal]
+                               < self._along(order, xy)[0, goal]):
+            order = order[::-1]
+        return tuple(self.cands[i].id for i in order)
+
+    def expected_rest(self, xy: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """``sum_F P(F) cost(F)`` with F's members verified in the fixed order: the first
+        failure is reached from xy, consecutive failures hand over, the last goes to the
+        goal; each term's probability is a product over the objects between (closed
+        form, O(k^2) terms)."""
+        order = list(self.chain_idx)
+        p = p[:, order]
+        q = 1.0 - p
+        k = len(order)
+        ones = np.ones((len(xy), 1))
+        before = np.hstack([ones, np.cumprod(p, axis=1)])[:, :-1]           # prod_{l<i} p_l
+        after = np.hstack([np.cumprod(p[:, ::-1], axis=1)[:, ::-1][:, 1:], ones])  # l>i
+        none_fail = before[:, -1] * p[:, -1]
+        out = none_fail[:, None] * np.asarray(cdist(xy, self.goals) / self.v.speed)
+        for a, ca in enumerate(order):
+            alone = q[:, a] * before[:, a] * after[:, a]                     # F = {a}
+            lead = q[:, a] * before[:, a] * (1.0 - after[:, a])              # first of >= 2
+            with np.errstate(invalid="ignore"):
+                out += np.where(alone[:, None] > 0, alone[:, None] * self.v.single(
+                    self.cands[ca], xy, self.goals), 0.0)
+                out += np.where(lead[:, None] > 0, lead[:, None] * self.v.single(
+                    self.cands[ca], xy, self.hand[ca][None]), 0.0)
+            between = np.ones(len(xy))
+            for b in range(a + 1, k):
+                cb = order[b]
+                pair = q[:, a] * q[:, b] * between
+                go_on, stop = pair * (1.0 - after[:, b]), pair * after[:, b]
+                with np.errstate(invalid="ignore"):
+                    out += np.where(go_on[:, None] > 0, go_on[:, None] * self.cs[ca, cb], 0.0)
+                    out += np.where(stop[:, None] > 0, stop[:, None]
+                                    * self.last[ca, cb][None, :], 0.0)
+                between = between * p[:, b]
+        return out
+
+
+def scalar_order_dp(enter: np.ndarray, cost: np.ndarray, leave: np.ndarray) -> list[int]:
+    """The order of k items minimising ``enter[o1] + sum cost[o_i, o_i+1] +
+    leave[o_k-1, o_k]`` (the last leg from the second-to-last item's point), by dynamic
+    programming over subsets (Held-Karp, vectorised over each subset layer)."""
+    k = len(enter)
+    if k == 1:
+        return [0]
+    subs = np.arange(1 << k)
+    count = np.zeros(1 << k, dtype=int)
+    for i in range(k):
+        count += (subs >> i) & 1
+    d = np.full((1 << k, k), np.inf)
+    arg = np.full((1 << k, k), -1, dtype=np.int16)
+    d[1 << np.arange(k), np.arange(k)] = enter
+    for size in range(2, k):  # the last item is added with ``leave``
+        layer = subs[count == size]
+        for i in range(k):
+            sel = layer[(layer >> i) & 1 == 1]
+            tot = d[sel ^ (1 << i)] + cost[:, i][None, :]
+            arg[sel, i] = np.argmin(tot, axis=1)
+            d[sel, i] = np.min(tot, axis=1)
+    full = (1 << k) - 1
+    best, last, prev = np.inf, 0, 0
+    for li in range(k):
+        for pi in range(k):
+            if pi != li and d[full ^ (1 << li), pi] + leave[pi, li] < best:
+                best, last, prev = d[full ^ (1 << li), pi] + leave[pi, li], li, pi
+    out, sub, i = [last], full ^ (1 << last), prev
+    while i >= 0:
+        out.append(i)
+        nxt = int(arg[sub, i])
+        sub ^= 1 << i
+        i = nxt
+    return out[::-1]
+
+
+def nearest_order(enter: np.ndarray, cost: np.ndarray) -> list[int]:
+    """Greedy order: the quickest first item, then the quickest next one each time."""
+    left = set(range(len(enter)))
+    at = int(np.argmin(enter))
+    out = [at]
+    left.discard(at)
+    while left:
+        at = min(left, key=lambda j: cost[at, j])
+        out.append(at)
+        left.discard(at)
+    return out
+
+
+def chain_cost(order: Sequence[int], enter: np.ndarray, cost: np.ndarray,
+               leave: np.ndarray) -> float:
+    mid = sum(cost[a, b] for a, b in zip(order[:-2], order[1:-1], strict=True))
+    return float(enter[order[0]] + mid + leave[order[-2], order[-1]])
+
+
+def two_opt(order: list[int], enter: np.ndarray, cost: np.ndarray, leave: np.ndarray,
+            rounds: int = 20) -> list[int]:
+    """Improve an order by reversing segments while that shortens it (2-opt)."""
+    best = chain_cost(order, enter, cost, leave)
+    for _ in range(rounds):
+        improved = False
+        for i in range(len(order) - 1):
+            for j in range(i + 2, len(order) + 1):
+                cand = order[:i] + order[i:j][::-1] + order[j:]
+                c = chain_cost(cand, enter, cost, leave)
+                if c < best - 1e-12:
+                    order, best, improved = cand, c, True
+        if not improved:
+            break
+    return order

@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from numeric.viewpoint.figures import plan_figure, run_figure  # noqa: E402
-from numeric.viewpoint.grid import look_around, scanned_grid  # noqa: E402
+from numeric.viewpoint.grid import look_around, scanned_grid, true_grid  # noqa: E402
 from numeric.viewpoint.online import Summariser, SummaryConfig  # noqa: E402
 from numeric.viewpoint.plan import (  # noqa: E402
     GroupCost,
@@ -181,6 +181,88 @@ def scaling(lines: list[str], quick: bool) -> None:
     lines.append("")
 
 
+def cluster_scene(k: int, seed: int = 0) -> tuple[PlanRequest, Any]:
+    """A 10 m x 10 m room with one cluster of k objects of type A (one group) in its
+    middle, the robot at the door; the true map."""
+    from numeric.world import Wall, WorldDescription, WorldObject
+
+    rng = np.random.default_rng(seed)
+    side = 1.0 + 0.45 * np.sqrt(k)  # ~0.9 m between neighbours: one group
+    xy: list[np.ndarray] = []
+    while len(xy) < k:
+        p = rng.uniform(5.0 - side / 2, 5.0 + side / 2, 2)
+        if all(np.hypot(*(p - q)) > 0.6 for q in xy):
+            xy.append(p)
+    walls = [Wall(a=a, b=b) for a, b in (((0, 0), (10, 0)), ((10, 0), (10, 10)),
+                                         ((10, 10), (0, 10)), ((0, 10), (0, 0)))]
+    w = World(WorldDescription(name="cluster", walls=walls, objects=[
+        WorldObject(id=f"o{i}", type="A", x=float(p[0]), y=float(p[1]),
+                    theta=float(rng.uniform(-np.pi, np.pi))) for i, p in enumerate(xy)]))
+    body = {"robot": [0.5, 0.5, 0.0], "exit": [0.5, 0.5], "time_limit_s": 300, "loss": "L2",
+            "object_types": TYPES, "candidates": [
+                {"id": o.id, "type": o.type, "x": o.x, "y": o.y} for o in w.description.objects]}
+    return PlanRequest.model_validate(body), true_grid(w)
+
+
+def group_size(grouper: Any, lines: list[str], quick: bool) -> None:
+    """Item 1 of the scaling work: planning time against objects per group, 1-16."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from numeric.viewpoint import verification as ver
+
+    lines += ["## Planning time vs objects per group (local plan: t_seq, t_par)", "",
+              "One cluster of k objects of type A (one group) in a 10 m room, the true map; "
+              "the whole request (grouping, local plans, global plan). t_seq and t_par are "
+              f"exact up to {ver.EXACT_GROUP} objects (every order and hand-over viewpoint, "
+              "dynamic programming over subsets); beyond, a bound: the time of one chain over "
+              "every hand-over viewpoint, a policy the robot can follow. The last column "
+              "forces the bound on small groups to show how far it is from the exact value "
+              "(same run).", "",
+              "| objects | groups | first plan (ms) | re-plan (ms) | t_obs (s) | how | exact | "
+              "bound / exact |", "|---|---|---|---|---|---|---|---|"]
+    ks = [1, 2, 3, 4, 6, 8, 12, 16] if quick else list(range(1, 17))
+    first, again = [], []
+    for k in ks:
+        req, grid = cluster_scene(k)
+        planner = ViewpointPlanner(TableCache())
+        t0 = time.perf_counter()
+        rep = planner.plan(req, grid, grouper)
+        first.append(1e3 * (time.perf_counter() - t0))
+        again.append(median_ms(lambda p=planner, r=req, g=grid: p.plan(r, g, grouper), 3))
+        objs = [g for g in rep.groups if g.local is not None]
+        big = max(objs, key=lambda g: len(g.spec.members))
+        gap = ""
+        if 2 <= k <= ver.EXACT_GROUP:
+            keep = ver.EXACT_GROUP
+            try:
+                ver.EXACT_GROUP = 1
+                bound = ViewpointPlanner(TableCache()).plan(req, grid, grouper)
+            finally:
+                ver.EXACT_GROUP = keep
+            bb = max((g for g in bound.groups if g.local is not None),
+                     key=lambda g: len(g.spec.members))
+            gap = f"{bb.t_obs / big.t_obs:.3f}"
+        lines.append(f"| {k} | {len(objs)} | {first[-1]:.0f} | {again[-1]:.0f} | "
+                     f"{big.t_obs:.1f} | {big.local.strategy if big.local else ''} | "
+                     f"{'yes' if big.local and big.local.exact else 'bound'} | {gap} |")
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    ax.plot(ks, first, "o-", label="first plan")
+    ax.plot(ks, again, "s--", label="re-plan (tables warm)")
+    ax.axvline(ver.EXACT_GROUP + 0.5, color="grey", lw=0.8)
+    ax.set_xlabel("objects in the group")
+    ax.set_ylabel("planning time (ms)")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(OUT / "viewpoint_group_size.png", dpi=120)
+    i12 = ks.index(12)
+    lines += ["", f"12 objects: {first[i12]:.0f} ms first plan, {again[i12]:.0f} ms re-plan "
+              "(goal ≤ 200 ms; before: no answer in 300 s). Figure: "
+              "bench-out/viewpoint_group_size.png.", ""]
+
+
 def online(grouper: Any, lines: list[str]) -> None:
     lines += ["## Online summarisation (§7.3), room `summary_room`", "",
               "Two objects (one behind a cabinet) and one false candidate; the robot enters "
@@ -216,6 +298,7 @@ def main() -> None:
         table1(grouper, lines)
         fig11b(grouper, lines, 10 if quick else 30)
         scaling(lines, quick)
+        group_size(grouper, lines, quick)
         online(grouper, lines)
     finally:
         kb.close()
