@@ -87,6 +87,11 @@ def test_plan_structure_and_prolog_groups(rooms: TestClient) -> None:
     # the exhaustive reference agrees
     ex = rooms.post("/worlds/vp_b/viewpoint-plan", json={**body, "solver": "exhaustive"})
     assert ex.json()["plan"]["utility"] == pytest.approx(out["plan"]["utility"])
+    # and so does branch and bound, which proves it
+    bb = rooms.post("/worlds/vp_b/viewpoint-plan", json={**body, "solver": "bnb"}).json()
+    assert bb["plan"]["utility"] == pytest.approx(out["plan"]["utility"])
+    assert bb["optimality"]["optimal"] and bb["optimality"]["gap"] == pytest.approx(0.0)
+    assert out["optimality"]["optimal"] and not out["optimality"]["returned_early"]
 
 
 def _grid_body(data: list[int], w: int = 40, h: int = 40) -> dict[str, Any]:
@@ -137,6 +142,8 @@ def test_empty_candidates_and_no_time_means_leave(rooms: TestClient) -> None:
     ({"loss": "L4"}, 422, "loss"),
     ({"time_limit_s": -1}, 422, "time_limit_s"),
     ({"k_lim": -0.5}, 422, "k_lim"),
+    ({"time_budget_s": 0}, 422, "time_budget_s"),
+    ({"solver": "greedy"}, 422, "solver"),
     ({"speed_m_s": 0}, 422, "speed_m_s"),
     ({"robot": [1, 2]}, 422, "robot[2]"),
     ({"exit": ["x", 0]}, 422, "exit[0]"),

@@ -19,7 +19,14 @@ from numeric.viewpoint.appearance import (
     sigmoid_angle,
 )
 from numeric.viewpoint.grid import from_occupancy_values, true_grid
-from numeric.viewpoint.plan import GroupCost, Loss, Problem, solve, solve_exhaustive
+from numeric.viewpoint.plan import (
+    GroupCost,
+    Loss,
+    Problem,
+    solve,
+    solve_bnb,
+    solve_exhaustive,
+)
 from numeric.viewpoint.recognition import OBJECT_KINDS, fitted_models
 from numeric.viewpoint.verification import (
     PATTERNS,
@@ -340,6 +347,36 @@ def test_dp_and_exhaustive_find_the_same_optimum(n: int, kind: str) -> None:
             ref_sets.append(plan)
     for got, want in zip(best, ref_sets, strict=False):
         assert got.utility == pytest.approx(want.utility)
+
+
+def random_problem(n: int, kind: str, seed: int) -> Problem:
+    rng = np.random.default_rng(seed)
+    groups = [GroupCost(f"g{i}", "objects", float(rng.uniform(5, 100)), float(rng.uniform(1, 15)),
+                        rng.uniform(0, 10, (3, 2))) for i in range(n)]
+    return Problem.build(groups, np.array([0.5, 0.5, 0]), np.array([0.5, 0.5]), 0.4,
+                         Loss(kind=kind, t_limit_s=60, k_lim=0.5))  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("kind", ["L1", "L2", "L3"])
+def test_branch_and_bound_finds_the_dp_optimum(kind: str) -> None:
+    for n, seed in ((6, 1), (9, 2), (11, 3)):
+        p = random_problem(n, kind, seed)
+        dp = solve(p, runner_ups=0)[0]
+        bb = solve_bnb(p, runner_ups=2, budget_s=30.0)
+        assert bb.optimal and not bb.returned_early
+        assert bb.plans[0].utility == pytest.approx(dp.utility, abs=1e-9)
+        assert bb.plans[0].time == pytest.approx(dp.time)  # the set's fastest tour
+        assert bb.upper_bound == pytest.approx(dp.utility, abs=1e-6)
+
+
+def test_branch_and_bound_out_of_time_reports_a_true_gap() -> None:
+    p = random_problem(14, "L2", 5)
+    dp = solve(p, runner_ups=0)[0]
+    early = solve_bnb(p, runner_ups=0, budget_s=1e-4)
+    assert early.returned_early and not early.optimal
+    # the best plan so far is a real plan, and the bound holds the optimum
+    assert early.plans[0].utility <= dp.utility + 1e-9 <= early.upper_bound + 1e-6
+    assert early.gap == pytest.approx(early.upper_bound - early.plans[0].utility)
 
 
 def test_too_many_groups_for_the_exact_solver() -> None:

@@ -20,7 +20,15 @@ from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, model_validator
 from numeric.errors import InvalidInput
 from numeric.viewpoint.appearance import AppearanceModel, AppearanceParams, MeasurementTables
 from numeric.viewpoint.grid import MAX_CELLS, PlanningGrid, from_occupancy_values
-from numeric.viewpoint.plan import GroupCost, Loss, Plan, Problem, solve, solve_exhaustive
+from numeric.viewpoint.plan import (
+    MAX_GROUPS_EXACT,
+    GroupCost,
+    Loss,
+    Plan,
+    Problem,
+    Solution,
+    solve_auto,
+)
 from numeric.viewpoint.recognition import OBJECT_KINDS, fitted_models
 from numeric.viewpoint.verification import (
     Candidate,
@@ -109,7 +117,14 @@ class PlanRequest(BaseModel):
     candidates: Annotated[list[CandidateIn], Field(max_length=MAX_CANDIDATES)] = []
     grid: GridIn | None = None
     use_table: bool = Field(True, description="eq. 6's pattern tables (else exact eq. 5)")
-    solver: Literal["dp", "exhaustive"] = "dp"
+    solver: Literal["auto", "dp", "bnb", "exhaustive"] = Field(
+        "auto", description="global plan: exact DP over subsets (at most 20 groups), branch "
+                            "and bound (exact, or its gap when the time budget runs out), "
+                            "the paper's exhaustive search (at most 9 groups), or auto: DP "
+                            "up to 16 groups, else branch and bound")
+    time_budget_s: float = Field(1.0, gt=0, le=60, allow_inf_nan=False,
+                                 description="branch and bound stops here and reports "
+                                             "its gap")
     runner_ups: int = Field(5, ge=0, le=50)
 
     @model_validator(mode="after")
@@ -164,6 +179,7 @@ class PlanReport:
     groups: list[PlannedGroup]
     plans: list[Plan]
     skipped: list[PlannedGroup] = field(default_factory=list)
+    solution: Solution | None = None
     timings_ms: dict[str, float] = field(default_factory=dict)
     tables_built: int = 0
     tables_reused: int = 0
@@ -279,15 +295,17 @@ class ViewpointPlanner:
             [GroupCost(g.name, g.spec.kind, g.value, g.t_obs, g.entries) for g in planned],
             np.asarray(req.robot, float), np.asarray(req.exit, float), req.speed_m_s,
             req.loss_function())
-        if req.solver == "exhaustive":
-            if problem.n > EXHAUSTIVE_MAX_GROUPS:
-                raise InvalidInput(f"{problem.n} groups: the exhaustive solver is limited to "
-                                   f"{EXHAUSTIVE_MAX_GROUPS}; use solver 'dp'", field="solver")
-            plans = solve_exhaustive(problem)[: req.runner_ups + 1]
-        else:
-            plans = solve(problem, req.runner_ups)
+        if req.solver == "exhaustive" and problem.n > EXHAUSTIVE_MAX_GROUPS:
+            raise InvalidInput(f"{problem.n} groups: the exhaustive solver is limited to "
+                               f"{EXHAUSTIVE_MAX_GROUPS}; use solver 'auto'", field="solver")
+        if req.solver == "dp" and problem.n > MAX_GROUPS_EXACT:
+            raise InvalidInput(f"{problem.n} groups: the DP solver handles at most "
+                               f"{MAX_GROUPS_EXACT}; use solver 'auto' or 'bnb'",
+                               field="solver")
+        solution = solve_auto(problem, req.runner_ups, req.time_budget_s, req.solver)
+        plans = solution.plans
         t4 = time.perf_counter()
-        return PlanReport(planned, plans, skipped,
+        return PlanReport(planned, plans, skipped, solution,
                           {"prepare": 1e3 * (t1 - t0), "grouping": 1e3 * (t2 - t1),
                            "local": 1e3 * (t3 - t2), "global": 1e3 * (t4 - t3),
                            "total": 1e3 * (t4 - t0)},
