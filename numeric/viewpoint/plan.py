@@ -275,7 +275,7 @@ def knapsack_bounds(p: Problem, t0: np.ndarray, rem: np.ndarray, w: np.ndarray) 
     x = np.minimum(w, np.maximum(0.0, r / (2 * loss.k_lim) + loss.t_limit_s - before))
     x = np.where(live, x, 0.0)
     short = live & (x < w)
-    stop = np.cumsum(short, axis=1) - short  # shorts before this one
+    stop: np.ndarray = np.cumsum(short, axis=1) - short  # shorts before this one
     take = live & (stop == 0)
     gain = np.where(take, np.where(w > 0, r * x, v), 0.0)
     t_end = t0 + np.where(take, x, 0.0).sum(axis=1)
