@@ -424,3 +424,35 @@ def test_a_requests_own_appearance_does_not_leak_into_the_next() -> None:
     plain = PlanRequest.model_validate({**base, "object_types": [{"name": "A"}]})
     assert planner.models(custom)["A"].params.a == own["a"]
     assert planner.models(plain)["A"].params == fitted_models()["A"].params
+
+
+def test_replanning_recomputes_only_the_groups_whose_surroundings_changed() -> None:
+    """Local plans are cached by the group and the grid near it: the same scene again
+    reuses all of them, an obstacle next to one group recomputes that one only, and the
+    answer equals a fresh planner's."""
+    from numeric.viewpoint.grid import from_occupancy_values
+    from numeric.viewpoint.planner import GroupSpec, PlanRequest, ViewpointPlanner
+
+    def one_each(cands, regions, min_area):  # type: ignore[no-untyped-def]
+        return [GroupSpec(i, "objects", (c["id"],)) for i, c in enumerate(cands)]
+
+    cells = np.zeros((100, 100), dtype=int)             # 10 m x 10 m at 0.1 m, walls
+    cells[0, :] = cells[-1, :] = cells[:, 0] = cells[:, -1] = 100
+    req = PlanRequest.model_validate({
+        "robot": [0.5, 0.5, 0], "exit": [0.5, 0.5], "time_limit_s": 120,
+        "object_types": [{"name": "A", "value": 50}],
+        "candidates": [{"id": "near", "type": "A", "x": 2.5, "y": 2.5},
+                       {"id": "far", "type": "A", "x": 7.5, "y": 7.5}]})
+    grid = from_occupancy_values(100, 100, 0.1, (0.0, 0.0), cells.ravel().tolist())
+    planner = ViewpointPlanner()
+    first = planner.plan(req, grid, one_each)
+    assert planner.local_plans.misses == 2 and planner.local_plans.hits == 0
+    again = planner.plan(req, grid, one_each)
+    assert planner.local_plans.hits == 2
+    assert [g.t_obs for g in again.groups] == [g.t_obs for g in first.groups]
+    cells[70:73, 60:63] = 100          # a box next to "far": y 7-7.3 m, x 6-6.3 m
+    moved = from_occupancy_values(100, 100, 0.1, (0.0, 0.0), cells.ravel().tolist())
+    changed = planner.plan(req, moved, one_each)
+    assert planner.local_plans.misses == 3 and planner.local_plans.hits == 3
+    fresh = ViewpointPlanner().plan(req, moved, one_each)
+    assert [g.t_obs for g in changed.groups] == pytest.approx([g.t_obs for g in fresh.groups])

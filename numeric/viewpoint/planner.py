@@ -9,6 +9,7 @@ out.
 
 from __future__ import annotations
 
+import hashlib
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -215,11 +216,66 @@ def resolve_models(types: Sequence[ObjectType], seed: int = 0,
     return out
 
 
+class LocalPlanCache:
+    """The object groups' local plans (t_seq / t_par, entry points) across re-plans.
+
+    A group's local plan depends on its members (ids, types, positions, beliefs), their
+    appearance models, the robot's speed, t_verify and clearance, and the grid only near
+    the group: its viewpoints lie within R_max of a member and every test of them (free
+    cells, clearance, lines of sight) stays inside that box. The key holds a digest of
+    that patch of the grid, so a re-plan recomputes only the groups whose surroundings
+    the robot's new scans changed (or whose beliefs an observation updated)."""
+
+    def __init__(self, max_entries: int = 4096) -> None:
+        self.plans: dict[bytes, tuple[np.ndarray, LocalPlan | None]] = {}
+        self.max_entries = max_entries
+        self.hits = 0
+        self.misses = 0
+
+    @staticmethod
+    def key(members: Sequence[Candidate], grid: PlanningGrid, verifier: Verifier) -> bytes:
+        h = hashlib.blake2b(digest_size=20)
+        reach = 0.0
+        for c in sorted(members, key=lambda c: c.id):
+            h.update(c.id.encode())
+            h.update(c.type.encode())
+            h.update(np.asarray(c.xy, float).tobytes())
+            h.update(b"-" if c.belief is None else np.asarray(c.belief, float).tobytes())
+            h.update(c.model.params.model_dump_json().encode())
+            reach = max(reach, c.model.r_max)
+        h.update(np.array([verifier.speed, verifier.t_verify, verifier.clearance,
+                           float(verifier.use_table)]).tobytes())
+        xy = np.array([c.xy for c in members])
+        pad = reach + verifier.clearance + 2 * grid.resolution
+        i0, j0, _ = grid.cells(xy.min(axis=0) - pad)
+        i1, j1, _ = grid.cells(xy.max(axis=0) + pad)
+        lo = np.floor((xy.min(axis=0) - pad - grid.grid.origin) / grid.resolution).astype(int)
+        h.update(np.array([grid.resolution, *grid.grid.origin, *lo, *grid.state.shape])
+                 .tobytes())
+        h.update(np.ascontiguousarray(grid.state[i0:i1 + 1, j0:j1 + 1]).tobytes())
+        return h.digest()
+
+    def get(self, key: bytes) -> tuple[np.ndarray, LocalPlan | None] | None:
+        hit = self.plans.get(key)
+        if hit is None:
+            self.misses += 1
+        else:
+            self.hits += 1
+        return hit
+
+    def put(self, key: bytes, value: tuple[np.ndarray, LocalPlan | None]) -> None:
+        if len(self.plans) >= self.max_entries:
+            self.plans.pop(next(iter(self.plans)))
+        self.plans[key] = value
+
+
 class ViewpointPlanner:
-    """Plans with one grid; keeps the pattern tables across calls (re-planning)."""
+    """Plans with one grid; keeps the pattern tables and the groups' local plans across
+    calls (re-planning)."""
 
     def __init__(self, tables: TableCache | None = None) -> None:
         self.tables = tables if tables is not None else TableCache()
+        self.local_plans = LocalPlanCache()
 
     def models(self, req: PlanRequest) -> dict[str, AppearanceModel]:
         """The request's own models: a type's appearance comes from this request only
@@ -268,15 +324,23 @@ class ViewpointPlanner:
             name = group_name(spec.id)
             if spec.kind == "objects":
                 members = [cands[str(m)] for m in spec.members]
-                entries = np.vstack([verifier.viewpoints(c).entries for c in members])
-                if len(entries) == 0:
+                value = float(sum(types[c.type].value for c in members))
+                key = LocalPlanCache.key(members, grid, verifier)
+                cached = self.local_plans.get(key)
+                if cached is None:
+                    entries = np.vstack([verifier.viewpoints(c).entries for c in members])
+                    best_plan = None
+                    if len(entries):
+                        entries = _thin(entries)
+                        local = verifier.group(members, entries, entries)
+                        best_plan = local[int(np.argmin([lp.time_s for lp in local]))]
+                    cached = (entries, best_plan)
+                    self.local_plans.put(key, cached)
+                entries, best_plan = cached
+                if best_plan is None:
                     skipped.append(PlannedGroup(spec, name, 0.0, np.inf, entries))
                     continue
-                entries = _thin(entries)
-                local = verifier.group(members, entries, entries)
-                best = int(np.argmin([lp.time_s for lp in local]))
-                value = float(sum(types[c.type].value for c in members))
-                g = PlannedGroup(spec, name, value, local[best].time_s, entries, local[best])
+                g = PlannedGroup(spec, name, value, best_plan.time_s, entries, best_plan)
             else:
                 comp = comps[int(spec.members[0])]
                 entries = _thin(comp.entries)
