@@ -130,6 +130,22 @@ def test_a_twelve_object_cluster_plans_with_a_bound(rooms: TestClient) -> None:
     assert g["t_obs_s"] > 12 * 2.0                      # at least the 12 verifications
 
 
+def test_unreachable_places_are_unverifiable_not_errors(rooms: TestClient) -> None:
+    """A robot outside the building, and an unknown block walled in on a posted grid:
+    valid plans that list what cannot be reached (were 500s)."""
+    out = rooms.post("/worlds/vp_a/viewpoint-plan", json={
+        **table1_body("L2"), "robot": [100, 100, 0], "exit": [0, 0]})
+    assert out.status_code == 200, out.text
+    cells = [100] * 4 + [100, -1, -1, 100] * 2 + [100] * 4
+    out = rooms.post("/worlds/vp_a/viewpoint-plan", json={
+        **table1_body("L2"), "robot": [0.75, 0.75, 0], "exit": [0.75, 0.75],
+        "min_area_m2": 0.1, "grid": {"width": 4, "height": 4, "resolution_m": 0.5,
+                                     "data": cells}})
+    assert out.status_code == 200, out.text
+    assert {"kind": "unknown", "reason": "no entry point"}.items() <= next(
+        u for u in out.json()["unverifiable"] if u["kind"] == "unknown").items()
+
+
 def test_empty_candidates_and_no_time_means_leave(rooms: TestClient) -> None:
     body = {**table1_body("L1"), "time_limit_s": 0}
     out = rooms.post("/worlds/vp_a/viewpoint-plan", json=body).json()
@@ -143,6 +159,20 @@ def test_empty_candidates_and_no_time_means_leave(rooms: TestClient) -> None:
     ({"time_limit_s": -1}, 422, "time_limit_s"),
     ({"k_lim": -0.5}, 422, "k_lim"),
     ({"time_budget_s": 0}, 422, "time_budget_s"),
+    ({"grid": {"width": 2, "height": 1, "resolution_m": 0.5,
+               "data": [0, 100000000000000000000]}}, 422, "grid.data"),
+    ({"object_types": [{"name": "A", "appearance": {"a": [100, 100, 100, 100],
+                                                    "b": [0, 0, 0, 0], "k": 5,
+                                                    "theta_half": 0.8}}]},
+     422, "object_types[0].appearance.b[0]"),
+    ({"object_types": [{"name": "A", "appearance": {"a": [100, 100, 100, 100],
+                                                    "b": [1e-9, 1, 1, 1], "k": 5,
+                                                    "theta_half": 0.8}}]},
+     422, "object_types[0].appearance"),
+    ({"object_types": [{"name": "A", "tables": {
+        "distance": [{"face": f, "d_m": d, "matches": 40} for f in range(4) for d in (1, 2)],
+        "angle": [{"theta_rad": t, "ratio": r} for t, r in ((0, 1), (0.8, 0.5), (1.2, 0.1))]}}]},
+     422, "object_types[0].tables.distance"),
     ({"solver": "greedy"}, 422, "solver"),
     ({"speed_m_s": 0}, 422, "speed_m_s"),
     ({"robot": [1, 2]}, 422, "robot[2]"),

@@ -22,10 +22,11 @@ three verification radii of §5.1.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from pydantic import BaseModel, ConfigDict, Field, FiniteFloat
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from scipy.optimize import curve_fit
 
 from numeric.errors import InvalidInput
@@ -76,16 +77,35 @@ def sigmoid_angle(theta: ArrayLike, k: float, theta_half: float) -> FloatArray:
     return np.asarray(np.where(t < np.pi / 2, s, 0.0))
 
 
+MAX_RANGE_M = 50.0
+Matches = Annotated[float, Field(ge=0, le=1e6, allow_inf_nan=False)]
+Decay = Annotated[float, Field(gt=0, le=100, allow_inf_nan=False)]
+
+
 class AppearanceParams(BaseModel):
     """Fitted model of one object type: ``a``, ``b`` per face, the shared sigmoid and the
     match threshold ``th_match`` (matches needed to call the object recognised)."""
 
     model_config = ConfigDict(extra="forbid")
-    a: tuple[FiniteFloat, FiniteFloat, FiniteFloat, FiniteFloat]
-    b: tuple[FiniteFloat, FiniteFloat, FiniteFloat, FiniteFloat]
-    k: FiniteFloat
-    theta_half: FiniteFloat
+    a: tuple[Matches, Matches, Matches, Matches] = Field(
+        description="matches of each face seen face-on at 0 m")
+    b: tuple[Decay, Decay, Decay, Decay] = Field(
+        description="decay of the matches with distance, 1/m (> 0: fewer matches farther)")
+    k: float = Field(ge=0, le=1e3, allow_inf_nan=False, description="sigmoid slope, 1/rad")
+    theta_half: float = Field(gt=0, le=np.pi / 2, allow_inf_nan=False,
+                              description="angle from the normal at half the matches, rad")
     th_match: float = Field(15.0, gt=0, allow_inf_nan=False)
+
+    @model_validator(mode="after")
+    def _finite_range(self) -> AppearanceParams:
+        """A recognition range past MAX_RANGE_M is not a physical camera (and would make
+        the viewpoint circles and joint-point grids unbounded)."""
+        reach = max((np.log(a / self.th_match) / b for a, b in zip(self.a, self.b, strict=True)
+                     if a > self.th_match), default=0.0)
+        if reach > MAX_RANGE_M:
+            raise ValueError(f"b: these parameters recognise the object from {reach:.3g} m; "
+                             f"at most {MAX_RANGE_M:g} m (is b too small?)")
+        return self
 
 
 @dataclass(frozen=True)
@@ -133,8 +153,14 @@ class AppearanceModel:
                                      bounds=([0.1, 0.0], [200.0, np.pi / 2]))
         except (RuntimeError, ValueError) as exc:
             raise InvalidInput(f"the angle fit failed: {exc}", field="tables.angle") from None
-        params = AppearanceParams(a=tuple(a), b=tuple(b), k=float(k), theta_half=float(half),
-                                  th_match=th_match)  # type: ignore[arg-type]
+        try:
+            params = AppearanceParams(a=tuple(a), b=tuple(b), k=float(k),  # type: ignore[arg-type]
+                                      theta_half=float(half), th_match=th_match)
+        except ValidationError as exc:  # e.g. matches that do not fall with distance
+            err = exc.errors()[0]
+            raise InvalidInput(f"the fitted model is not physical: {err['msg']}",
+                               field="tables.distance" if "theta" not in str(err["loc"])
+                               else "tables.angle") from None
         report = FitReport(tuple(rmse),
                            float(np.sqrt(np.mean((sigmoid_angle(th, k, half) - r) ** 2))))
         return cls(params, n_theta), report

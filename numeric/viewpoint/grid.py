@@ -214,7 +214,11 @@ def from_occupancy_values(width: int, height: int, resolution_m: float,
     if width < 1 or height < 1 or width * height > MAX_CELLS:
         raise InvalidInput(f"grid of {width}x{height} cells is empty or too large "
                            f"(at most {MAX_CELLS})", field="grid.width")
-    v = np.asarray(data, dtype=np.int64)
+    try:
+        v = np.asarray(data, dtype=np.int64)
+    except (OverflowError, ValueError, TypeError):
+        raise InvalidInput("grid.data values must be -1 (unknown) or 0..100",
+                           field="grid.data") from None
     if v.shape != (width * height,):
         raise InvalidInput(f"grid.data has {v.size} values, width*height is {width * height}",
                            field="grid.data")

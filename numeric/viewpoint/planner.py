@@ -344,6 +344,10 @@ class ViewpointPlanner:
             else:
                 comp = comps[int(spec.members[0])]
                 entries = _thin(comp.entries)
+                if len(entries) == 0:  # walled in: no free cell to explore it from
+                    skipped.append(PlannedGroup(spec, name, 0.0, np.inf, entries, None,
+                                                comp.area_m2, comp.centroid))
+                    continue
                 e = entries[np.argmin(np.hypot(*(entries - comp.centroid).T))]
                 t_u = unknown_region_time(verifier, models, mean_counts, comp.centroid, e,
                                           comp.area_m2, unknown_total, req.t_search_s,
