@@ -384,3 +384,34 @@ def test_learn_with_strategy_adds_points_and_keeps_the_trace(room: World) -> Non
     b = EigenspaceAnalysis.from_bytes(a.to_bytes())
     assert b.strategy_trace == a.strategy_trace
     assert b.summary(room)["learning_strategy"] == a.strategy_trace
+
+
+def test_probes_from_far_away_reject_a_region_that_admits_them(
+        analysis: EigenspaceAnalysis) -> None:
+    """A turn of known pose that looks like a triplet's own images but is taken far from
+    it is a look-alike place: the triplet goes, unless a candidate-multiple set covers
+    it (state Y), or it is not among the triplets to test."""
+    from numeric.eigenspace.analysis import EntryObservations, far_admissions, probe_validated
+
+    a, cfg = analysis, analysis.config
+    t = 0
+    w = a.triplets.point_idx[t, 0]
+    corners = a.model.points[a.triplets.point_idx[t]]
+    far_xy = a.model.points[np.argmax(np.linalg.norm(a.model.points - corners[0], axis=1))]
+    assert np.linalg.norm(corners - far_xy, axis=1).min() > 2.0
+    # w's own learning turn, as if taken at far_xy
+    probes = EntryObservations(far_xy[None], np.array([a.model.directions[0]]),
+                               a.model.projections[w][None])
+    none = np.full(len(a.triplets), -1)
+    counts = far_admissions(a.model, a.triplets, a.c_a, cfg, probes, none)
+    assert counts[t] >= 1
+    in_set = none.copy()
+    in_set[t] = 0
+    assert far_admissions(a.model, a.triplets, a.c_a, cfg, probes, in_set)[t] == 0
+    kept = probe_validated(a.triplets, a.model, a.c_a, cfg, probes)
+    key = (tuple(a.triplets.point_idx[t]), tuple(a.triplets.dir_idx[t]))
+    keys = {(tuple(p), tuple(d)) for p, d in zip(kept.point_idx, kept.dir_idx, strict=True)}
+    assert key not in keys and len(kept) < len(a.triplets)
+    untested = probe_validated(a.triplets, a.model, a.c_a, cfg, probes,
+                               only=np.zeros(len(a.triplets), dtype=bool))
+    assert len(untested) == len(a.triplets)

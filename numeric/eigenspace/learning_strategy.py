@@ -27,11 +27,14 @@ from numeric.eigenspace.analysis import (
     EigenspaceAnalysis,
     EigenspaceConfig,
     Progress,
+    SimulatedCamera,
     analyse,
     free_grid,
+    probe_validated,
     with_learning_point,
 )
 from numeric.eigenspace.learning import LearningStrategyConfig
+from numeric.eigenspace.localization import RegionModel, candidate_multiple_sets
 from numeric.eigenspace.movement_strategy import (
     RegionLayout,
     initial_samples,
@@ -158,6 +161,12 @@ def learning_strategy(analysis: EigenspaceAnalysis, world: World,
     return result
 
 
+#: the added points' triplets are checked against this many times eq. 7's sample turns,
+#: with their regions grown by PROBE_MARGIN (sparse probes miss a look-alike spot)
+PROBE_DENSITY = 4
+PROBE_MARGIN = 2.0
+
+
 def learn_with_strategy(world: World, config: EigenspaceConfig,
                         progress: Progress | None = None,
                         executor: Executor | None = None) -> EigenspaceAnalysis:
@@ -181,6 +190,22 @@ def learn_with_strategy(world: World, config: EigenspaceConfig,
     trace: list[dict[str, object]] = []
     res = learning_strategy(a, world, strategy, np.random.default_rng(config.seed + 11),
                             executor=executor, progress=step)
-    timings = dict(res.analysis.timings_s, learning_strategy=time.perf_counter() - t0)
+    out = res.analysis
+    if res.additions:
+        # the added points have no twin learning point in a symmetric room: their
+        # triplets against far places, with denser probes and grown regions
+        report("checking the new regions", 0.98)
+        dense = config.model_copy(update={"entry": config.entry.model_copy(update={
+            "samples": PROBE_DENSITY * config.entry.samples})})
+        probes = SimulatedCamera(world, dense, np.random.default_rng(config.seed + 13)
+                                 ).entry_observations(out.model)
+        new = np.asarray((out.triplets.point_idx >= len(a.model.points)).any(axis=1))
+        kept = probe_validated(out.triplets, out.model, out.c_a, config, probes,
+                               PROBE_MARGIN, new)
+        sets = candidate_multiple_sets(RegionModel.of(out.model, kept, out.c_a,
+                                                      config.regions))
+        out = replace(out, triplets=kept, candidate_sets=sets,
+                      rejected_triplets=out.rejected_triplets + len(out.triplets) - len(kept))
+    timings = dict(out.timings_s, learning_strategy=time.perf_counter() - t0)
     report("done", 1.0)
-    return replace(res.analysis, timings_s=timings, strategy_trace=trace)
+    return replace(out, timings_s=timings, strategy_trace=trace)
