@@ -262,10 +262,14 @@ def test_online_summary_verifies_both_objects(grouper: Any) -> None:
     assert run.elapsed_s < 55 + 10
     assert s["explored_fraction"] > 0.8
     assert run.log[-1].action == "leave" and run.plans[-1] == []
+    # L1 is a hard limit: with travel along shortest paths the plan keeps it (straight
+    # lines had promised the mug too and overran to 58 s); with 70 s both fit
     run1 = Summariser(w, types, grouper, SummaryConfig(time_limit_s=55, loss="L1"),
                       np.array(SUMMARY_DOOR)).run()
-    assert run1.summary(w)["verified"] == ["kettle", "mug"]
-    assert run1.elapsed_s < 55 + 10
+    assert run1.summary(w)["verified"] == ["kettle"] and run1.elapsed_s <= 55
+    run2 = Summariser(w, types, grouper, SummaryConfig(time_limit_s=70, loss="L1"),
+                      np.array(SUMMARY_DOOR)).run()
+    assert run2.summary(w)["verified"] == ["kettle", "mug"] and run2.elapsed_s <= 70
     # with no time at all under L1 the robot leaves at once
     run0 = Summariser(w, types, grouper, SummaryConfig(time_limit_s=0, loss="L1"),
                       np.array(SUMMARY_DOOR)).run()
@@ -282,7 +286,7 @@ def test_cli_plan_and_summarise(tmp_path: Path) -> None:
     assert r.returncode == 0, r.stdout + r.stderr
     assert '"groups": [\n      "G_B"\n    ]' in r.stdout or '"G_B"' in r.stdout
     assert (tmp_path / "plan.png").read_bytes()[:4] == b"\x89PNG"
-    r = subprocess.run([*env_cmd, "summarise", "summary_room", "--time-limit", "55",
+    r = subprocess.run([*env_cmd, "summarise", "summary_room", "--time-limit", "70",
                         "--loss", "L1",
                         "--out", str(tmp_path / "run")],
                        cwd=ROOT, capture_output=True, text=True, timeout=300,

@@ -456,3 +456,25 @@ def test_replanning_recomputes_only_the_groups_whose_surroundings_changed() -> N
     assert planner.local_plans.misses == 3 and planner.local_plans.hits == 3
     fresh = ViewpointPlanner().plan(req, moved, one_each)
     assert [g.t_obs for g in changed.groups] == pytest.approx([g.t_obs for g in fresh.groups])
+
+
+def test_travel_goes_around_walls() -> None:
+    """Geodesic travel (eqs. 18-20 along shortest paths): a wall with a door at one end
+    makes the way round the door, not through the wall."""
+    from numeric.viewpoint.grid import TravelMap
+    from numeric.viewpoint.planner import geodesic
+
+    cells = np.zeros((100, 100), dtype=int)              # 10 m x 10 m at 0.1 m, [y, x]
+    cells[0, :] = cells[-1, :] = cells[:, 0] = cells[:, -1] = 100
+    cells[:85, 50] = 100                                 # a wall at x = 5 m, door at y > 8.5
+    grid = from_occupancy_values(100, 100, 0.1, (0.0, 0.0), cells.ravel().tolist())
+    dist = geodesic(TravelMap(grid))
+    a, b = np.array([[2.5, 2.0]]), np.array([[7.5, 2.0]])
+    d = float(dist(a, b)[0])
+    around = 2 * float(np.hypot(2.5, 7.0))               # via the door at (5, 9)
+    assert 0.95 * around < d < 1.2 * around               # not the 5 m through the wall
+    same_side = float(dist(a, np.array([[2.5, 6.0]]))[0])
+    assert same_side == pytest.approx(4.0, rel=0.1)
+    p = Problem.with_travel([GroupCost("g", "objects", 10.0, 1.0, b)], np.array([*a[0], 0]),
+                            a[0], 0.5, Loss(kind="L3"), dist)
+    assert p.t_start[0] == pytest.approx(d / 0.5) and p.t_leave == 0.0

@@ -231,3 +231,71 @@ def from_occupancy_values(width: int, height: int, resolution_m: float,
     grid = OccupancyMap(np.asarray(origin, dtype=float), resolution_m, state,
                         np.full(state.shape, np.nan))
     return PlanningGrid(grid)
+
+
+#: cells closer than this to an obstacle are impassable for the robot's body
+PASSING_CLEARANCE_M = 0.2
+#: geodesic travel times are computed on cells this large (coarsened from the grid)
+TRAVEL_CELL_M = 0.2
+
+
+def travel_cost(grid: PlanningGrid) -> np.ndarray:
+    """Cost per cell of moving through it: 1 on free cells, 2 on unknown ones (the robot
+    may cross space it has not mapped, carefully), impassable (inf) on occupied cells and
+    within PASSING_CLEARANCE_M of one."""
+    cost = np.where(grid.state == FREE, 1.0, 2.0)
+    cost[(grid.state == OCCUPIED) | (grid.clearance < PASSING_CLEARANCE_M)] = np.inf
+    return cost
+
+
+class TravelMap:
+    """Geodesic distances on a planning grid: shortest paths around obstacles (skimage's
+    minimum-cost paths, 8-connected with diagonal steps of sqrt 2) on cells of
+    TRAVEL_CELL_M, a coarse cell taking the dearest of its fine cells. A point on an
+    impassable cell starts from it anyway (the robot stands there); a target no path
+    reaches gets the straight-line distance, as the robot's own route does."""
+
+    def __init__(self, grid: PlanningGrid, cell_m: float = TRAVEL_CELL_M) -> None:
+        from skimage.measure import block_reduce
+
+        self.grid = grid
+        self.factor = max(1, int(round(cell_m / grid.resolution)))
+        fine = travel_cost(grid)
+        self.cost = np.asarray(block_reduce(fine, (self.factor, self.factor), np.max,
+                                            cval=np.inf)) if self.factor > 1 else fine
+        self.cell_m = grid.resolution * self.factor
+
+    def cells(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        i, j, inside = self.grid.cells(np.atleast_2d(xy))
+        return i // self.factor, j // self.factor, inside
+
+    def field(self, sources: np.ndarray) -> np.ndarray:
+        """Distance (m) from the nearest of ``sources (k, 2)`` to every coarse cell."""
+        from skimage.graph import MCP_Geometric
+
+        i, j, inside = self.cells(sources)
+        cost = self.cost.copy()
+        starts = [(int(a), int(b)) for a, b, ok in zip(i, j, inside, strict=True) if ok]
+        if not starts:
+            return np.full(cost.shape, np.inf)
+        for a, b in starts:
+            cost[a, b] = 1.0 if not np.isfinite(cost[a, b]) else cost[a, b]
+        out, _ = MCP_Geometric(cost).find_costs(starts)
+        return np.asarray(out) * self.cell_m
+
+    def distances(self, field: np.ndarray, sources: np.ndarray,
+                  targets: np.ndarray) -> np.ndarray:
+        """``(T,)`` geodesic distance of each target from ``field`` (made from
+        ``sources``), the straight line where no path reaches it."""
+        targets = np.atleast_2d(targets)
+        i, j, inside = self.cells(targets)
+        d = np.where(inside, field[i, j], np.inf)
+        # a target on an impassable cell: from its cheapest neighbour
+        bad = ~np.isfinite(d) & inside
+        for k in np.flatnonzero(bad):
+            a, b = int(i[k]), int(j[k])
+            patch = field[max(a - 1, 0):a + 2, max(b - 1, 0):b + 2]
+            d[k] = float(patch.min()) + self.cell_m
+        straight = np.min(np.linalg.norm(np.atleast_2d(sources)[:, None] - targets[None],
+                                         axis=2), axis=0)
+        return np.asarray(np.where(np.isfinite(d), np.maximum(d, straight), straight))

@@ -27,8 +27,8 @@ from pydantic import BaseModel, ConfigDict, Field
 from skimage.graph import MCP_Geometric
 
 from numeric.geometry import line_of_sight
-from numeric.slam.occupancy import FREE, OCCUPIED
-from numeric.viewpoint.grid import PlanningGrid, look_around, scanned_grid
+from numeric.slam.occupancy import FREE
+from numeric.viewpoint.grid import PlanningGrid, look_around, scanned_grid, travel_cost
 from numeric.viewpoint.planner import (
     CandidateIn,
     Grouper,
@@ -145,10 +145,9 @@ class Summariser:
 
     # -- motion -----------------------------------------------------------------------
     def _route(self, grid: PlanningGrid, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """Shortest path a -> b on the grid (free cells cost 1, unknown 2, occupied and
-        cells closer than 0.2 m to an obstacle impassable); a straight line if none."""
-        cost = np.where(grid.state == FREE, 1.0, 2.0)
-        cost[(grid.state == OCCUPIED) | (grid.clearance < 0.2)] = np.inf
+        """Shortest path a -> b on the grid (the planner's travel costs,
+        :func:`numeric.viewpoint.grid.travel_cost`); a straight line if none."""
+        cost = travel_cost(grid)
         ia, ja, ina = grid.cells(a)
         ib, jb, inb = grid.cells(b)
         if not (ina and inb):

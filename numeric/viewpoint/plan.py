@@ -24,6 +24,7 @@ best plan found with the gap to its upper bound. :func:`solve_auto` picks the so
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
@@ -102,6 +103,38 @@ class Problem:
                    np.array([g.t_obs for g in groups], dtype=float),
                    t_start.reshape(n), t_gg, t_exit.reshape(n),
                    float(np.hypot(*(robot_xy[:2] - exit_xy[:2])) / speed), loss)
+
+    @classmethod
+    def with_travel(cls, groups: list[GroupCost], robot_xy: np.ndarray, exit_xy: np.ndarray,
+                    speed: float, loss: Loss,
+                    distance: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> Problem:
+        """Eqs. 18-20 with travel along ``distance`` (e.g. shortest paths on the grid)."""
+        t_start, t_gg, t_exit, t_leave = travel_times(groups, robot_xy, exit_xy, speed,
+                                                      distance)
+        return cls(np.array([g.value for g in groups], dtype=float),
+                   np.array([g.t_obs for g in groups], dtype=float),
+                   t_start, t_gg, t_exit, t_leave, loss)
+
+
+def travel_times(groups: list[GroupCost], robot_xy: np.ndarray, exit_xy: np.ndarray,
+                 speed: float, distance: Callable[[np.ndarray, np.ndarray], np.ndarray],
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Eqs. 18-20 with a distance of choice: ``distance(sources (k, 2), targets (m, 2))``
+    gives the distance (m) from the nearest source to each target. Returns t_start,
+    t_gg, t_exit (s) and t_leave."""
+    n = len(groups)
+    robot = np.asarray(robot_xy, float)[None, :2]
+    exit_ = np.asarray(exit_xy, float)[None, :2]
+    t_gg = np.zeros((n, n))
+    t_exit = np.zeros(n)
+    for i, g in enumerate(groups):
+        t_exit[i] = distance(g.entries, exit_)[0] / speed
+        for j in range(n):
+            if j != i:
+                t_gg[i, j] = distance(g.entries, groups[j].entries).min() / speed
+    t_gg = np.minimum(t_gg, t_gg.T)  # either way round: the shorter estimate
+    t_start = np.array([distance(robot, g.entries).min() / speed for g in groups])
+    return t_start.reshape(n), t_gg, t_exit, float(distance(robot, exit_)[0] / speed)
 
 
 @dataclass(frozen=True)

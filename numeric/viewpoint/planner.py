@@ -20,7 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, model_validator
 
 from numeric.errors import InvalidInput
 from numeric.viewpoint.appearance import AppearanceModel, AppearanceParams, MeasurementTables
-from numeric.viewpoint.grid import MAX_CELLS, PlanningGrid, from_occupancy_values
+from numeric.viewpoint.grid import MAX_CELLS, PlanningGrid, TravelMap, from_occupancy_values
 from numeric.viewpoint.plan import (
     MAX_GROUPS_EXACT,
     GroupCost,
@@ -118,6 +118,10 @@ class PlanRequest(BaseModel):
     candidates: Annotated[list[CandidateIn], Field(max_length=MAX_CANDIDATES)] = []
     grid: GridIn | None = None
     use_table: bool = Field(True, description="eq. 6's pattern tables (else exact eq. 5)")
+    travel: Literal["geodesic", "straight"] = Field(
+        "geodesic", description="travel between the robot, the groups' entry points and "
+                                "the exit: shortest paths around obstacles on the grid, or "
+                                "straight lines (the paper's eqs. 18-20)")
     solver: Literal["auto", "dp", "bnb", "exhaustive"] = Field(
         "auto", description="global plan: exact DP over subsets (at most 20 groups), branch "
                             "and bound (exact, or its gap when the time budget runs out), "
@@ -359,10 +363,13 @@ class ViewpointPlanner:
                                  comp.centroid)
             (planned if np.isfinite(g.t_obs) and len(g.entries) else skipped).append(g)
         t3 = time.perf_counter()
-        problem = Problem.build(
-            [GroupCost(g.name, g.spec.kind, g.value, g.t_obs, g.entries) for g in planned],
-            np.asarray(req.robot, float), np.asarray(req.exit, float), req.speed_m_s,
-            req.loss_function())
+        costs = [GroupCost(g.name, g.spec.kind, g.value, g.t_obs, g.entries) for g in planned]
+        robot, exit_ = np.asarray(req.robot, float), np.asarray(req.exit, float)
+        if req.travel == "geodesic":
+            problem = Problem.with_travel(costs, robot, exit_, req.speed_m_s,
+                                          req.loss_function(), geodesic(TravelMap(grid)))
+        else:
+            problem = Problem.build(costs, robot, exit_, req.speed_m_s, req.loss_function())
         if req.solver == "exhaustive" and problem.n > EXHAUSTIVE_MAX_GROUPS:
             raise InvalidInput(f"{problem.n} groups: the exhaustive solver is limited to "
                                f"{EXHAUSTIVE_MAX_GROUPS}; use solver 'auto'", field="solver")
@@ -378,6 +385,21 @@ class ViewpointPlanner:
                            "local": 1e3 * (t3 - t2), "global": 1e3 * (t4 - t3),
                            "total": 1e3 * (t4 - t0)},
                           self.tables.builds - builds, self.tables.hits - hits)
+
+
+def geodesic(travel: TravelMap) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """Shortest-path distance from the nearest of some sources to targets, one distance
+    field per source set (a group's entry points, the robot)."""
+    fields: dict[bytes, np.ndarray] = {}
+
+    def distance(sources: np.ndarray, targets: np.ndarray) -> np.ndarray:
+        src = np.ascontiguousarray(np.atleast_2d(sources), dtype=float)
+        key = src.tobytes()
+        if key not in fields:
+            fields[key] = travel.field(src)
+        return travel.distances(fields[key], src, targets)
+
+    return distance
 
 
 def _thin(points: np.ndarray, at_most: int = MAX_ENTRIES) -> np.ndarray:
