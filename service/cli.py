@@ -269,7 +269,7 @@ def plan(scene: str = typer.Argument(..., help="SCENE.json: a viewpoint-plan req
         raise typer.Exit(2) from None
     finally:
         kb.close()
-    out = report_json("scene", report, "posted" if req.grid else "simulated", grid)
+    out = report_json("scene", report, "posted" if req.grid else "simulated", grid, req)
     t = Table(title=f"groups ({req.loss}, t_limit {req.time_limit_s:g} s)")
     for col in ("group", "kind", "members", "value", "t_obs (s)", "strategy"):
         t.add_column(col)

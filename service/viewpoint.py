@@ -66,11 +66,22 @@ def _num(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
-def plan_json(report: PlanReport, plan: Plan) -> dict[str, Any]:
-    return {"groups": report.names(plan), "value": plan.value,
-            "t_move_s": plan.t_move, "t_obs_s": plan.t_obs, "expected_time_s": plan.time,
-            "loss": _num(plan.loss), "utility": _num(plan.utility),
-            "feasible": math.isfinite(plan.utility)}
+def plan_json(report: PlanReport, plan: Plan, req: PlanRequest | None = None
+              ) -> dict[str, Any]:
+    """A plan; an infeasible one (L1 past the time limit: its loss and utility are
+    infinite, shown as null) says so in ``status`` and ``reason``."""
+    ok = math.isfinite(plan.utility)
+    out = {"groups": report.names(plan), "value": plan.value,
+           "t_move_s": plan.t_move, "t_obs_s": plan.t_obs, "expected_time_s": plan.time,
+           "loss": _num(plan.loss), "utility": _num(plan.utility),
+           "feasible": ok, "status": "feasible" if ok else "infeasible", "reason": None}
+    if not ok:
+        limit = f" of {req.time_limit_s:g} s" if req is not None else ""
+        out["reason"] = (f"takes {plan.time:.1f} s, past the hard time limit{limit} (loss "
+                         "L1): even leaving at once does not make it" if not plan.order
+                         else f"takes {plan.time:.1f} s, past the hard time limit{limit} "
+                              "(loss L1)")
+    return out
 
 
 def group_json(g: PlannedGroup) -> dict[str, Any]:
@@ -92,7 +103,7 @@ def group_json(g: PlannedGroup) -> dict[str, Any]:
 
 
 def report_json(world: str, report: PlanReport, grid_source: str,
-                grid: PlanningGrid) -> dict[str, Any]:
+                grid: PlanningGrid, req: PlanRequest | None = None) -> dict[str, Any]:
     best, *rest = report.plans
     return {
         "world": world,
@@ -100,14 +111,14 @@ def report_json(world: str, report: PlanReport, grid_source: str,
         "unverifiable": [{"name": g.name, "kind": g.spec.kind, "members": list(g.spec.members),
                           "reason": "no usable viewpoint recognises it" if g.spec.kind
                           == "objects" else "no entry point"} for g in report.skipped],
-        "plan": plan_json(report, best),
+        "plan": plan_json(report, best, req),
         "leave_now": not best.order,
         "optimality": None if report.solution is None else {
             "optimal": report.solution.optimal, "gap": _num(report.solution.gap),
             "upper_bound": _num(report.solution.upper_bound),
             "returned_early": report.solution.returned_early,
             "nodes": report.solution.nodes},
-        "runner_ups": [plan_json(report, p) for p in rest],
+        "runner_ups": [plan_json(report, p, req) for p in rest],
         "grid": {"source": grid_source, "resolution_m": grid.resolution,
                  "cells": list(grid.state.shape), "unknown_m2": grid.unknown_area()},
         "tables": {"built": report.tables_built, "reused": report.tables_reused},
@@ -158,7 +169,7 @@ class ViewpointService:
                         "world": world, "candidates": [], "regions": []}
                     await self.kb.acall("viewpoint_groups", **old)
                 raise
-        return report_json(world, report, source, grid)
+        return report_json(world, report, source, grid, req)
 
     async def scene(self, world: str) -> Any:
         self.worlds.model(world)

@@ -146,6 +146,18 @@ def test_unreachable_places_are_unverifiable_not_errors(rooms: TestClient) -> No
         u for u in out.json()["unverifiable"] if u["kind"] == "unknown").items()
 
 
+def test_an_infeasible_plan_says_so(rooms: TestClient) -> None:
+    """L1 with the exit out of reach in time: the best plan is to leave, and it says it
+    is infeasible and why, instead of bare nulls."""
+    body = {**table1_body("L1"), "time_limit_s": 1.0, "robot": [5.5, 4.5, 0]}
+    out = rooms.post("/worlds/vp_a/viewpoint-plan", json=body).json()
+    plan = out["plan"]
+    assert plan["status"] == "infeasible" and not plan["feasible"]
+    assert plan["utility"] is None and "time limit of 1 s" in plan["reason"]
+    ok = rooms.post("/worlds/vp_a/viewpoint-plan", json=table1_body("L1")).json()["plan"]
+    assert ok["status"] == "feasible" and ok["reason"] is None
+
+
 def test_empty_candidates_and_no_time_means_leave(rooms: TestClient) -> None:
     body = {**table1_body("L1"), "time_limit_s": 0}
     out = rooms.post("/worlds/vp_a/viewpoint-plan", json=body).json()
