@@ -71,7 +71,9 @@ def plan_json(report: PlanReport, plan: Plan, req: PlanRequest | None = None
     """A plan; an infeasible one (L1 past the time limit: its loss and utility are
     infinite, shown as null) says so in ``status`` and ``reason``."""
     ok = math.isfinite(plan.utility)
-    out = {"groups": report.names(plan), "value": plan.value,
+    out = {"groups": report.names(plan),
+           # the ids of /viewpoint-groups and the Prolog facts (vp_group/3), same order
+           "group_ids": [report.groups[i].spec.id for i in plan.order], "value": plan.value,
            "t_move_s": plan.t_move, "t_obs_s": plan.t_obs, "expected_time_s": plan.time,
            "loss": _num(plan.loss), "utility": _num(plan.utility),
            "feasible": ok, "status": "feasible" if ok else "infeasible", "reason": None}

@@ -81,6 +81,11 @@ def test_plan_structure_and_prolog_groups(rooms: TestClient) -> None:
     # the groups are Prolog facts of the world: the endpoint and the sandboxed query
     groups = rooms.get("/worlds/vp_b/viewpoint-groups").json()["groups"]
     assert [g["members"] for g in groups] == [g["members"] for g in out["groups"]]
+    # the plan's group ids are the facts' ids, in the plan's order
+    by_id = {g["id"]: g["members"] for g in groups}
+    by_name = {g["name"]: g["members"] for g in out["groups"]}
+    assert [by_id[i] for i in out["plan"]["group_ids"]] == [
+        by_name[n] for n in out["plan"]["groups"]]
     q = rooms.post("/worlds/vp_b/query", json={"goal": "same_group(obj1, X)"})
     assert q.status_code == 200, q.text
     assert sorted(s["X"] for s in q.json()["solutions"]) == ["obj1", "obj2"]
