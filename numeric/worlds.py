@@ -10,6 +10,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from numeric.geometry import point_segment_distance
 from numeric.world import Feature, Landmark, Wall, WorldDescription, WorldObject
 
 
@@ -281,6 +282,44 @@ def summary_room(name: str = "summary_room", layout: str = "summary_room") -> Wo
         walls.append(Wall(a=a, b=b, texture="text", reflectivity=0.4))
     objs = [WorldObject(id=i, type=t, x=x, y=y, theta=th, size_m=(0.4, 0.3, 0.5),
                         texture="coffee") for i, t, x, y, th in objects]
+    return WorldDescription(name=name, walls=walls, objects=objs)
+
+
+def random_summary_room(seed: int, name: str = "random_room") -> WorldDescription:
+    """A room nobody tuned the viewpoint planner on: the summary room's outline and door,
+    one to three cabinets (wall segments 1.5-2.5 m) that hide parts of it, and two to four
+    objects of the built-in types in free space away from walls and cabinets."""
+    rng = np.random.default_rng(seed)
+    w, h = SUMMARY_ROOM_M
+    walls = _polygon_walls([(0.0, 0.0), (w, 0.0), (w, h), (0.0, h)], ROOM_TEXTURES, 2.0)
+    segments: list[tuple[np.ndarray, np.ndarray]] = []
+    for _ in range(int(rng.integers(1, 4))):
+        length = rng.uniform(1.5, 2.5)
+        if rng.random() < 0.5:  # from a side wall, horizontal
+            y = rng.uniform(2.0, h - 1.0)
+            x0 = 0.0 if rng.random() < 0.5 else w - length
+            a, b = np.array([x0, y]), np.array([x0 + length, y])
+        else:                   # free-standing, vertical
+            x, y = rng.uniform(1.0, w - 1.0), rng.uniform(1.8, h - 1.0 - length / 2)
+            a, b = np.array([x, y - length / 2]), np.array([x, y + length / 2])
+        segments.append((a, b))
+        walls.append(Wall(a=tuple(a), b=tuple(b), texture="text", reflectivity=0.4))
+    objs: list[WorldObject] = []
+    types = ("A", "B", "C")
+    want = int(rng.integers(2, 5))
+    for _ in range(200):
+        if len(objs) >= want:
+            break
+        p = rng.uniform([0.7, 1.5], [w - 0.7, h - 0.7])
+        near_seg = bool(segments) and float(point_segment_distance(
+            p, np.array([a for a, _ in segments]), np.array([b for _, b in segments])).min()) < 0.7
+        near_obj = any(np.hypot(o.x - p[0], o.y - p[1]) < 1.0 for o in objs)
+        if near_seg or near_obj:
+            continue
+        objs.append(WorldObject(id=f"obj{len(objs) + 1}", type=types[len(objs) % 3],
+                                x=float(p[0]), y=float(p[1]),
+                                theta=float(rng.uniform(-np.pi, np.pi)), size_m=(0.4, 0.3, 0.5),
+                                texture="coffee"))
     return WorldDescription(name=name, walls=walls, objects=objs)
 
 

@@ -478,3 +478,24 @@ def test_travel_goes_around_walls() -> None:
     p = Problem.with_travel([GroupCost("g", "objects", 10.0, 1.0, b)], np.array([*a[0], 0]),
                             a[0], 0.5, Loss(kind="L3"), dist)
     assert p.t_start[0] == pytest.approx(d / 0.5) and p.t_leave == 0.0
+
+
+def test_random_rooms_are_valid_and_repeatable() -> None:
+    from numeric.geometry import point_segment_distance
+    from numeric.worlds import ROOM_TEXTURES, SUMMARY_ROOM_M, _polygon_walls, random_summary_room
+
+    w, h = SUMMARY_ROOM_M
+    outline = len(_polygon_walls([(0.0, 0.0), (w, 0.0), (w, h), (0.0, h)], ROOM_TEXTURES, 2.0))
+    for seed in range(10):
+        d = random_summary_room(seed)
+        assert d == random_summary_room(seed)
+        assert 2 <= len(d.objects) <= 4
+        xy = np.array([[o.x, o.y] for o in d.objects])
+        assert (xy > 0.6).all() and (xy < np.array(SUMMARY_ROOM_M) - 0.6).all()
+        cabinets = d.walls[outline:]
+        assert 1 <= len(cabinets) <= 3
+        a = np.array([c.a for c in cabinets])
+        b = np.array([c.b for c in cabinets])
+        assert point_segment_distance(xy, a, b).min() >= 0.7
+        gaps = np.linalg.norm(xy[:, None] - xy[None], axis=2) + 10 * np.eye(len(xy))
+        assert gaps.min() >= 1.0

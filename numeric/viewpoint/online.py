@@ -61,6 +61,8 @@ class SummaryConfig(BaseModel):
     position_noise: float = Field(0.03, ge=0, description="stereo noise per metre of range")
     false_candidates: int = Field(1, ge=0, le=10)
     max_steps: int = Field(30, ge=1, le=500)
+    travel: str = Field("geodesic", pattern="^(geodesic|straight)$",
+                        description="the planner's travel estimate (PlanRequest.travel)")
     seed: int = 0
 
 
@@ -200,6 +202,7 @@ class Summariser:
                 k_lim=cfg.k_lim, speed_m_s=cfg.speed_m_s, t_verify_s=cfg.t_verify_s,
                 t_search_s=cfg.t_search_s, t_dist_s=cfg.t_dist_s, k_area=cfg.k_area,
                 min_area_m2=cfg.min_area_m2, object_types=self.types,
+                travel=cfg.travel,  # type: ignore[arg-type]
                 candidates=[CandidateIn(id=c, type=cands[c][0], x=float(cands[c][1][0]),
                                         y=float(cands[c][1][1])) for c in open_ids],
                 runner_ups=2)
