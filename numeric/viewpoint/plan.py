@@ -33,6 +33,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy.spatial.distance import cdist
 
 from numeric.errors import InvalidInput
+from numeric.tours import best_order
 
 MAX_GROUPS_EXACT = 20
 #: the branch and bound bounds this many states at a time between looks at the clock
@@ -438,37 +439,13 @@ def seed_plans(p: Problem, size: int = SEED_GROUPS) -> list[Plan]:
 
 
 def fastest_order(p: Problem, mask: int) -> tuple[int, ...]:
-    """The fastest tour of the groups in ``mask``: Held-Karp on the subset up to 15
-    groups, nearest neighbour and 2-opt beyond."""
+    """The fastest tour of the groups in ``mask`` from the robot to the exit: exact up
+    to 15 groups, nearest neighbour and 2-opt beyond (:func:`numeric.tours.best_order`)."""
     members = [j for j in range(p.n) if mask >> j & 1]
     if len(members) <= 1:
         return tuple(members)
-    sub = Problem(p.value[members], p.t_obs[members], p.t_start[members],
-                  p.t_gg[np.ix_(members, members)], p.t_exit[members], p.t_leave, p.loss)
-    if len(members) <= 15:
-        dp = fastest_tours(sub)
-        return tuple(members[i] for i in _order_of(sub, dp, (1 << len(members)) - 1))
-    order = [int(np.argmin(sub.t_start))]
-    left = set(range(len(members))) - set(order)
-    while left:
-        nxt = min(left, key=lambda j: sub.t_gg[order[-1], j])
-        order.append(nxt)
-        left.discard(nxt)
-
-    def tour(o: list[int]) -> float:
-        return float(sub.t_start[o[0]] + sub.t_exit[o[-1]]
-                     + sum(sub.t_gg[a, b] for a, b in itertools.pairwise(o)))
-
-    best = tour(order)
-    improved = True
-    while improved:
-        improved = False
-        for i in range(len(order) - 1):
-            for j in range(i + 2, len(order) + 1):
-                cand = order[:i] + order[i:j][::-1] + order[j:]
-                c = tour(cand)
-                if c < best - 1e-12:
-                    order, best, improved = cand, c, True
+    gg = p.t_gg[np.ix_(members, members)]
+    order = best_order(p.t_start[members], gg, gg + p.t_exit[members][None, :], 15)
     return tuple(members[i] for i in order)
 
 

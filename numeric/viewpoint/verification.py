@@ -46,6 +46,7 @@ from numpy.typing import NDArray
 from scipy.spatial.distance import cdist
 
 from numeric.errors import InvalidInput
+from numeric.tours import best_order
 from numeric.viewpoint.appearance import AppearanceModel
 from numeric.viewpoint.grid import PlanningGrid
 
@@ -457,6 +458,11 @@ class HandoverTable:
 
     exact: bool
 
+    def __init__(self, verifier: Verifier, cands: Sequence[Candidate], goals: np.ndarray,
+                 ) -> None:
+        self.v, self.cands, self.goals = verifier, list(cands), goals
+        self.pts = [verifier.viewpoints(c).points for c in cands]
+
     def rest(self, mask: int, xy: np.ndarray) -> np.ndarray:
         raise NotImplementedError
 
@@ -472,7 +478,7 @@ class Unverifiable(HandoverTable):
 
     exact = True
 
-    def __init__(self, goals: np.ndarray) -> None:
+    def __init__(self, goals: np.ndarray) -> None:  # no viewpoints to look up
         self.goals = goals
 
     def rest(self, mask: int, xy: np.ndarray) -> np.ndarray:
@@ -496,9 +502,8 @@ class HandoverDP(HandoverTable):
 
     def __init__(self, verifier: Verifier, cands: Sequence[Candidate], goals: np.ndarray,
                  ) -> None:
-        self.v, self.cands, self.goals = verifier, list(cands), goals
+        super().__init__(verifier, cands, goals)
         k = len(cands)
-        self.pts = [verifier.viewpoints(c).points for c in cands]
         self.h: dict[tuple[int, int], np.ndarray] = {}
         self.arg: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
         pair = {(p, c): verifier.single(cands[c], self.pts[p], self.pts[c])
@@ -595,9 +600,8 @@ class PortChain(HandoverTable):
 
     def __init__(self, verifier: Verifier, cands: Sequence[Candidate], goals: np.ndarray,
                  ) -> None:
-        self.v, self.cands, self.goals = verifier, list(cands), goals
+        super().__init__(verifier, cands, goals)
         k = len(cands)
-        self.pts = [verifier.viewpoints(c).points for c in cands]
         self._pairs: dict[tuple[int, int], np.ndarray] = {}
         self._lasts: dict[tuple[int, int], np.ndarray] = {}
         centre = np.mean([c.xy for c in cands], axis=0)
@@ -614,10 +618,7 @@ class PortChain(HandoverTable):
                           for c in range(k)])
         home = np.array([[verifier.single(cands[c], self.hand[p], centre[None])[0, 0]
                           for c in range(k)] for p in range(k)])
-        if k <= SCALAR_DP_MAX:
-            order = scalar_order_dp(enter, self.cs, home)
-        else:
-            order = two_opt(nearest_order(enter, self.cs), enter, self.cs, home)
+        order = best_order(enter, self.cs, home, SCALAR_DP_MAX)
         self.chain_idx = order
         self.chain = tuple(cands[i].id for i in order)
 
@@ -689,75 +690,3 @@ class PortChain(HandoverTable):
                                     * self.last[ca, cb][None, :], 0.0)
                 between = between * p[:, b]
         return out
-
-
-def scalar_order_dp(enter: np.ndarray, cost: np.ndarray, leave: np.ndarray) -> list[int]:
-    """The order of k items minimising ``enter[o1] + sum cost[o_i, o_i+1] +
-    leave[o_k-1, o_k]`` (the last leg from the second-to-last item's point), by dynamic
-    programming over subsets (Held-Karp, vectorised over each subset layer)."""
-    k = len(enter)
-    if k == 1:
-        return [0]
-    subs = np.arange(1 << k)
-    count = np.zeros(1 << k, dtype=int)
-    for i in range(k):
-        count += (subs >> i) & 1
-    d = np.full((1 << k, k), np.inf)
-    arg = np.full((1 << k, k), -1, dtype=np.int16)
-    d[1 << np.arange(k), np.arange(k)] = enter
-    for size in range(2, k):  # the last item is added with ``leave``
-        layer = subs[count == size]
-        for i in range(k):
-            sel = layer[(layer >> i) & 1 == 1]
-            tot = d[sel ^ (1 << i)] + cost[:, i][None, :]
-            arg[sel, i] = np.argmin(tot, axis=1)
-            d[sel, i] = np.min(tot, axis=1)
-    full = (1 << k) - 1
-    best, last, prev = np.inf, 0, 0
-    for li in range(k):
-        for pi in range(k):
-            if pi != li and d[full ^ (1 << li), pi] + leave[pi, li] < best:
-                best, last, prev = d[full ^ (1 << li), pi] + leave[pi, li], li, pi
-    out, sub, i = [last], full ^ (1 << last), prev
-    while i >= 0:
-        out.append(i)
-        nxt = int(arg[sub, i])
-        sub ^= 1 << i
-        i = nxt
-    return out[::-1]
-
-
-def nearest_order(enter: np.ndarray, cost: np.ndarray) -> list[int]:
-    """Greedy order: the quickest first item, then the quickest next one each time."""
-    left = set(range(len(enter)))
-    at = int(np.argmin(enter))
-    out = [at]
-    left.discard(at)
-    while left:
-        at = min(left, key=lambda j: cost[at, j])
-        out.append(at)
-        left.discard(at)
-    return out
-
-
-def chain_cost(order: Sequence[int], enter: np.ndarray, cost: np.ndarray,
-               leave: np.ndarray) -> float:
-    mid = sum(cost[a, b] for a, b in zip(order[:-2], order[1:-1], strict=True))
-    return float(enter[order[0]] + mid + leave[order[-2], order[-1]])
-
-
-def two_opt(order: list[int], enter: np.ndarray, cost: np.ndarray, leave: np.ndarray,
-            rounds: int = 20) -> list[int]:
-    """Improve an order by reversing segments while that shortens it (2-opt)."""
-    best = chain_cost(order, enter, cost, leave)
-    for _ in range(rounds):
-        improved = False
-        for i in range(len(order) - 1):
-            for j in range(i + 2, len(order) + 1):
-                cand = order[:i] + order[i:j][::-1] + order[j:]
-                c = chain_cost(cand, enter, cost, leave)
-                if c < best - 1e-12:
-                    order, best, improved = cand, c, True
-        if not improved:
-            break
-    return order
