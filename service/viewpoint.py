@@ -13,6 +13,7 @@ grouping puts the previous scene back.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -113,7 +114,8 @@ def report_json(world: str, report: PlanReport, grid_source: str,
         "unverifiable": [{"name": g.name, "kind": g.spec.kind, "members": list(g.spec.members),
                           "reason": "no usable viewpoint recognises it" if g.spec.kind
                           == "objects" else "no entry point"} for g in report.skipped],
-        "plan": plan_json(report, best, req),
+        "plan": {**plan_json(report, best, req),
+                 "steps": [dataclasses.asdict(st) for st in report.steps(best)]},
         "leave_now": not best.order,
         "optimality": None if report.solution is None else {
             "optimal": report.solution.optimal, "gap": _num(report.solution.gap),

@@ -81,6 +81,18 @@ def test_plan_structure_and_prolog_groups(rooms: TestClient) -> None:
     # the groups are Prolog facts of the world: the endpoint and the sandboxed query
     groups = rooms.get("/worlds/vp_b/viewpoint-groups").json()["groups"]
     assert [g["members"] for g in groups] == [g["members"] for g in out["groups"]]
+    # a plan a robot can execute: per group the pose to go to, the way there, the time
+    steps = out["plan"]["steps"]
+    assert [st["group_id"] for st in steps] == out["plan"]["group_ids"]
+    at = np.array(DOOR)
+    for st in steps:
+        xy = np.array(st["pose"][:2])
+        assert st["travel_m"] >= np.hypot(*(xy - at)) - 1e-6  # never shorter than a line
+        assert st["travel_s"] == pytest.approx(st["travel_m"] / 0.4)
+        assert (st["p_recog"] is None) == (st["kind"] == "unknown")
+        assert st["p_recog"] is None or 0.0 < st["p_recog"] <= 1.0
+        at = xy
+    assert [st["done_at_s"] for st in steps] == sorted(st["done_at_s"] for st in steps)
     # the plan's group ids are the facts' ids, in the plan's order
     by_id = {g["id"]: g["members"] for g in groups}
     by_name = {g["name"]: g["members"] for g in out["groups"]}

@@ -30,7 +30,6 @@ from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
-from scipy.spatial.distance import cdist
 
 from numeric.errors import InvalidInput
 from numeric.tours import best_order
@@ -92,18 +91,9 @@ class Problem:
     @classmethod
     def build(cls, groups: list[GroupCost], robot_xy: np.ndarray, exit_xy: np.ndarray,
               speed: float, loss: Loss) -> Problem:
-        """Travel times between entry/exit point sets (eqs. 18-20, Euclidean as in the
-        paper)."""
-        n = len(groups)
-        t_gg = np.zeros((n, n))
-        for i, j in itertools.combinations(range(n), 2):
-            t_gg[i, j] = t_gg[j, i] = cdist(groups[i].entries, groups[j].entries).min() / speed
-        t_start = np.array([cdist(g.entries, robot_xy[None, :2]).min() / speed for g in groups])
-        t_exit = np.array([cdist(g.entries, exit_xy[None, :2]).min() / speed for g in groups])
-        return cls(np.array([g.value for g in groups], dtype=float),
-                   np.array([g.t_obs for g in groups], dtype=float),
-                   t_start.reshape(n), t_gg, t_exit.reshape(n),
-                   float(np.hypot(*(robot_xy[:2] - exit_xy[:2])) / speed), loss)
+        """Travel times between entry/exit point sets in straight lines (eqs. 18-20 as
+        in the paper)."""
+        return cls.with_travel(groups, robot_xy, exit_xy, speed, loss, straight)
 
     @classmethod
     def with_travel(cls, groups: list[GroupCost], robot_xy: np.ndarray, exit_xy: np.ndarray,
@@ -115,6 +105,13 @@ class Problem:
         return cls(np.array([g.value for g in groups], dtype=float),
                    np.array([g.t_obs for g in groups], dtype=float),
                    t_start, t_gg, t_exit, t_leave, loss)
+
+
+def straight(sources: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """Straight-line distance from the nearest of the sources to each target (eqs.
+    18-20 as the paper writes them)."""
+    return np.asarray(np.min(np.linalg.norm(np.atleast_2d(sources)[:, None]
+                                            - np.atleast_2d(targets)[None], axis=2), axis=0))
 
 
 def travel_times(groups: list[GroupCost], robot_xy: np.ndarray, exit_xy: np.ndarray,

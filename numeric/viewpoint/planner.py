@@ -29,6 +29,7 @@ from numeric.viewpoint.plan import (
     Problem,
     Solution,
     solve_auto,
+    straight,
 )
 from numeric.viewpoint.recognition import OBJECT_KINDS, fitted_models
 from numeric.viewpoint.verification import (
@@ -188,9 +189,36 @@ class PlanReport:
     timings_ms: dict[str, float] = field(default_factory=dict)
     tables_built: int = 0
     tables_reused: int = 0
+    candidates: dict[str, Candidate] = field(default_factory=dict)
+    steps_of: Callable[[Plan], list[PlanStep]] | None = None
 
     def names(self, plan: Plan) -> list[str]:
         return [self.groups[i].name for i in plan.order]
+
+    def steps(self, plan: Plan) -> list[PlanStep]:
+        """What the robot does for each group of ``plan``, in order (:func:`plan_steps`)."""
+        return self.steps_of(plan) if self.steps_of is not None else []
+
+
+@dataclass(frozen=True)
+class PlanStep:
+    """One step of a plan a robot can execute: the group, the pose to go to first (a
+    viewpoint of the first object to verify, the joint viewpoint of an observe-all group,
+    or the entry point of an unknown region), facing the object / group / region; the
+    travel to it from the previous step (along the grid's shortest path, or straight),
+    the expected verification (or search) time of the group, the chance that the first
+    observation there recognises its object (None for unknown regions), and the expected
+    time when the group is done."""
+
+    group_id: int
+    name: str
+    kind: str
+    pose: tuple[float, float, float]
+    travel_m: float
+    travel_s: float
+    observe_s: float
+    p_recog: float | None
+    done_at_s: float
 
 
 def group_name(i: int) -> str:
@@ -365,11 +393,9 @@ class ViewpointPlanner:
         t3 = time.perf_counter()
         costs = [GroupCost(g.name, g.spec.kind, g.value, g.t_obs, g.entries) for g in planned]
         robot, exit_ = np.asarray(req.robot, float), np.asarray(req.exit, float)
-        if req.travel == "geodesic":
-            problem = Problem.with_travel(costs, robot, exit_, req.speed_m_s,
-                                          req.loss_function(), geodesic(TravelMap(grid)))
-        else:
-            problem = Problem.build(costs, robot, exit_, req.speed_m_s, req.loss_function())
+        distance = geodesic(TravelMap(grid)) if req.travel == "geodesic" else straight
+        problem = Problem.with_travel(costs, robot, exit_, req.speed_m_s,
+                                      req.loss_function(), distance)
         if req.solver == "exhaustive" and problem.n > EXHAUSTIVE_MAX_GROUPS:
             raise InvalidInput(f"{problem.n} groups: the exhaustive solver is limited to "
                                f"{EXHAUSTIVE_MAX_GROUPS}; use solver 'auto'", field="solver")
@@ -380,11 +406,54 @@ class ViewpointPlanner:
         solution = solve_auto(problem, req.runner_ups, req.time_budget_s, req.solver)
         plans = solution.plans
         t4 = time.perf_counter()
+        def steps_of(plan: Plan) -> list[PlanStep]:
+            return plan_steps(plan, planned, cands, verifier, robot, exit_, req.speed_m_s,
+                              distance)
+
         return PlanReport(planned, plans, skipped, solution,
                           {"prepare": 1e3 * (t1 - t0), "grouping": 1e3 * (t2 - t1),
                            "local": 1e3 * (t3 - t2), "global": 1e3 * (t4 - t3),
                            "total": 1e3 * (t4 - t0)},
-                          self.tables.builds - builds, self.tables.hits - hits)
+                          self.tables.builds - builds, self.tables.hits - hits, cands,
+                          steps_of)
+
+
+def plan_steps(plan: Plan, groups: list[PlannedGroup], cands: dict[str, Candidate],
+               verifier: Verifier, robot: np.ndarray, exit_xy: np.ndarray, speed: float,
+               distance: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> list[PlanStep]:
+    """The executable steps of ``plan`` (:class:`PlanStep`). The first pose of an object
+    group is where the verification policy of eq. 5 would look first from where the
+    robot stands (re-planning after each observation refines the rest)."""
+    at = np.asarray(robot, float)[:2]
+    clock = 0.0
+    out = []
+    for i in plan.order:
+        g = groups[i]
+        p_first: float | None = None
+        if g.spec.kind == "objects" and g.local is not None:
+            members = [cands[str(m)] for m in (g.local.order or g.spec.members)]
+            if g.local.strategy == "par" and g.local.joint_point is not None:
+                xy = np.asarray(g.local.joint_point, float)
+                target = np.mean([c.xy for c in members], axis=0)
+                p_first = float(np.mean([c.model.p_recog(xy[None], c.xy, c.prior())[0]
+                                         for c in members]))
+            else:
+                first = members[0]
+                vp = verifier.next_viewpoint(first, at, np.asarray(exit_xy, float)[:2])
+                xy = vp if vp is not None else g.entries[0]
+                target = first.xy
+                p_first = float(first.model.p_recog(xy[None], first.xy, first.prior())[0])
+        else:
+            xy = g.entries[int(np.argmin(distance(at, g.entries)))]
+            target = g.centroid if g.centroid is not None else xy
+        d = float(distance(at, xy[None])[0])
+        heading = float(np.arctan2(target[1] - xy[1], target[0] - xy[0]))
+        clock += d / speed + g.t_obs
+        out.append(PlanStep(g.spec.id, g.name, g.spec.kind,
+                            (float(xy[0]), float(xy[1]), heading), d, d / speed, g.t_obs,
+                            p_first, clock))
+        at = xy
+    return out
 
 
 def geodesic(travel: TravelMap) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
