@@ -183,7 +183,8 @@ run(facts, Args, Facts) :-
                               eig_point/3, eig_triplet/4, eig_candidate_set/2,
                               map_pose/5, map_info/5, unknown_region/5,
                               committed_map/1, loop_closure/4,
-                              vp_candidate/5, vp_unknown/4, vp_group/3, vp_min_area/1]),
+                              vp_candidate/5, vp_unknown/4, vp_group/3, vp_min_area/1,
+                              vp_plan_step/9]),
                  functor(H, N, A), M:H,
                  format(string(S), "~k", [H]) ),
             Facts).
@@ -283,7 +284,11 @@ run(viewpoint_groups, Args, Reply) :-
         parameter(M, vp_unknown_min_area_m2, A1),
         MinArea is float(A1)
     ),
-    replace_viewpoint_scene(W, Cs, Rs, MinArea),
+    (   get_dict(steps, Args, Ss0), Ss0 \== null
+    ->  json_list(Ss0, steps), foldl(vp_step_item, Ss0, Ss, 0, _)
+    ;   Ss = []
+    ),
+    replace_viewpoint_scene(W, Cs, Rs, MinArea, Ss),
     viewpoint_scene_reply(W, Reply).
 
 run(viewpoint_scene, Args, Reply) :-
@@ -457,6 +462,18 @@ vp_region_item(D, vp_unknown(Id, X, Y, A), I, I1) :-
     finite_float(FY, Y0, Y),
     nonneg_float(FA, A0, A).
 
+vp_step_item(D, vp_plan_step(I, G, X, Y, Th, T, O, P, Done), I, I1) :-
+    I1 is I + 1,
+    field("steps[~d]", [I], F),
+    (   is_dict(D) -> true ; throw(chizu_error(invalid_step, F)) ),
+    maplist(vp_value(D, "steps", I), [group_id, pose, travel_m, observe_s, p_recog, done_at_s],
+            [FG, FP, FT, FO, FR, FD], [G, Pose, T0, O0, P0, D0]),
+    (   integer(G), G >= 0 -> true ; throw(chizu_error(invalid_group_id(G), FG)) ),
+    (   is_list(Pose), length(Pose, 3) -> true ; throw(chizu_error(invalid_pose, FP)) ),
+    maplist(vp_coordinate(FP), Pose, [X, Y, Th]),
+    nonneg_float(FT, T0, T), nonneg_float(FO, O0, O), nonneg_float(FD, D0, Done),
+    (   P0 == null -> P = none ; probability(P0, FR), P is float(P0) ).
+
 vp_value(D, List, I, Key, F, V) :-
     field("~w[~d].~w", [List, I, Key], F),
     (   get_dict(Key, D, V0) -> V = V0 ; throw(chizu_error(missing(Key), F)) ).
@@ -469,11 +486,17 @@ vp_coordinate(Field, V0, V) :-
 
 %   {groups: [...] ordered by id, min_area_m2: A} from World's stored scene;
 %   a world without one has no groups and the threshold it would use.
-viewpoint_scene_reply(W, _{groups:Groups, min_area_m2:MinArea}) :-
+viewpoint_scene_reply(W, _{groups:Groups, min_area_m2:MinArea, steps:Steps}) :-
     world_module(W, M),
     findall(G-J, ( observation_group(W, G, Kind, Ms), vp_group_json(W, G, Kind, Ms, J) ), Gs0),
     keysort(Gs0, Gs),
     pairs_values(Gs, Groups),
+    findall(K-_{group_id:G, pose:[X, Y, Th], travel_m:T, observe_s:O, p_recog:PJ,
+                done_at_s:Done},
+            ( plan_step(W, K, G, pose(X, Y, Th), times(T, O, P, Done)),
+              ( P == none -> PJ = null ; PJ = P ) ), Ss0),
+    keysort(Ss0, Ss1),
+    pairs_values(Ss1, Steps),
     (   M:vp_min_area(A) -> MinArea = A
     ;   parameter(M, vp_unknown_min_area_m2, A0), MinArea is float(A0)
     ).

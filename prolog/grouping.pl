@@ -30,6 +30,13 @@
                                          list of its candidates; Kind =
                                          unknown: Members = [RegionId]
       vp_min_area(A)                     the area threshold the scene used
+      vp_plan_step(K, G, X, Y, Th, TravelM, ObserveS, PRecog, DoneAtS)
+                                         step K (from 0) of the last plan: go to
+                                         pose (X, Y, Th) for group G (travel
+                                         TravelM m), observe ObserveS s;
+                                         PRecog the chance the first look
+                                         recognises its object (none for an
+                                         unknown region); done at DoneAtS s
 
     Groups are numbered deterministically: object groups first, in the
     standard order of their (sorted) member lists, from 0; then the unknown
@@ -37,6 +44,8 @@
 */
 :- module(grouping,
           [ replace_viewpoint_scene/4, % +World, +Candidates, +Regions, +MinAreaM2
+            replace_viewpoint_scene/5, % +World, +Candidates, +Regions, +MinAreaM2, +Steps
+            plan_step/5,             % +World, ?K, ?G, ?Pose, ?Times
             grouping_fact/1,         % ?Name/Arity
             joinable/3,              % +World, ?A, ?B
             same_group/3,            % +World, ?A, ?B
@@ -62,6 +71,7 @@ grouping_fact(vp_candidate/5).
 grouping_fact(vp_unknown/4).
 grouping_fact(vp_group/3).
 grouping_fact(vp_min_area/1).
+grouping_fact(vp_plan_step/9).
 
 %!  replace_viewpoint_scene(+World, +Candidates, +Regions, +MinAreaM2) is det.
 %
@@ -76,7 +86,15 @@ grouping_fact(vp_min_area/1).
 %   "candidates[I].id") or chizu_error(duplicate_region(Id),
 %   "regions[I].id"), I being the position of the repeat.  On any error
 %   nothing changes.  Numbers are stored as floats.
-replace_viewpoint_scene(World, Candidates, Regions, MinArea0) :-
+replace_viewpoint_scene(World, Candidates, Regions, MinArea) :-
+    replace_viewpoint_scene(World, Candidates, Regions, MinArea, []).
+
+%!  replace_viewpoint_scene(+World, +Candidates, +Regions, +MinAreaM2, +Steps) is det.
+%
+%   As replace_viewpoint_scene/4, and the plan's Steps (vp_plan_step/9
+%   terms) with it; a step naming a group the scene does not have throws
+%   chizu_error(unknown_group(G), "steps[K].group_id").
+replace_viewpoint_scene(World, Candidates, Regions, MinArea0, Steps) :-
     world_module(World, M),
     checked_list(Candidates, candidate, "candidates", Cs),
     checked_list(Regions, region, "regions", Rs),
@@ -87,11 +105,27 @@ replace_viewpoint_scene(World, Candidates, Regions, MinArea0) :-
     maplist(arg(1), Cs, CIds), unique_ids(CIds, duplicate_candidate, candidates),
     maplist(arg(1), Rs, RIds), unique_ids(RIds, duplicate_region, regions),
     scene_groups(Cs, Rs, MinArea, Gs),
+    forall(member(vp_plan_step(K, G, _, _, _, _, _, _, _), Steps),
+           (   memberchk(vp_group(G, _, _), Gs)
+           ->  true
+           ;   format(string(F), "steps[~d].group_id", [K]),
+               throw(chizu_error(unknown_group(G), F))
+           )),
     transaction(( forall(grouping_fact(N/A), ( functor(H, N, A), retractall(M:H) )),
                   forall(member(F, Cs), assertz(M:F)),
                   forall(member(F, Rs), assertz(M:F)),
                   forall(member(F, Gs), assertz(M:F)),
+                  forall(member(F, Steps), assertz(M:F)),
                   assertz(M:vp_min_area(MinArea)) )).
+
+%!  plan_step(+World, ?K, ?G, ?Pose, ?Times) is nondet.
+%
+%   Step K of World's last plan verifies group G from Pose = pose(X, Y, Th)
+%   (m, rad); Times = times(TravelM, ObserveS, PRecog, DoneAtS).  Walk a plan
+%   with ?- forall(plan_step(W, K, G, P, T), writeln(K-G-P-T)).
+plan_step(World, K, G, pose(X, Y, Th), times(TravelM, ObserveS, PRecog, DoneAt)) :-
+    world_module(World, M),
+    M:vp_plan_step(K, G, X, Y, Th, TravelM, ObserveS, PRecog, DoneAt).
 
 checked_list(L, Kind, Field, Normal) :-
     (   is_list(L) -> true ; throw(chizu_error(invalid_list, Field)) ),

@@ -178,8 +178,25 @@ test(stores_floats, [nondet, cleanup(drop_world(g9))]) :-
 test(empty_scene, [nondet, cleanup(drop_world(g10))]) :-
     fixture("g10"),
     call_api(viewpoint_groups, _{world:"g10", candidates:[], regions:[]}, R),
-    R.result =@= _{groups:[], min_area_m2:0.5},
+    R.result =@= _{groups:[], min_area_m2:0.5, steps:[]},
     scene_facts(g10, Fs), Fs == [vp_min_area(0.5)].
+test(plan_steps_walk_the_plan, [nondet, cleanup(drop_world(g30))]) :-
+    create_world(g30),
+    Cs = [vp_candidate(a, "t", 0, 0, 1), vp_candidate(b, "t", 9, 0, 1)],
+    replace_viewpoint_scene(g30, Cs, [], 0.5,
+                            [vp_plan_step(0, 1, 8.0, 0.0, 0.0, 8.0, 5.0, 0.75, 25.0),
+                             vp_plan_step(1, 0, 1.0, 0.0, 3.1, 7.0, 5.0, none, 47.5)]),
+    findall(K-G, plan_step(g30, K, G, _, _), KGs), KGs == [0-1, 1-0],
+    plan_step(g30, 0, _, pose(X, _, _), times(_, _, P, _)), X == 8.0, P == 0.75,
+    %  a step naming a group the scene does not have: refused, nothing changes
+    catch(( replace_viewpoint_scene(g30, Cs, [], 0.5,
+                                    [vp_plan_step(0, 7, 0.0, 0.0, 0.0, 0.0, 0.0, none, 0.0)]),
+            fail ),
+          chizu_error(unknown_group(7), "steps[0].group_id"), true),
+    findall(K, plan_step(g30, K, _, _, _), Ks), Ks == [0, 1],
+    %  a new scene without steps drops the old plan
+    replace_viewpoint_scene(g30, Cs, [], 0.5),
+    \+ plan_step(g30, _, _, _, _).
 
 		 /*******************************
 		 *          REPLACING           *
@@ -228,7 +245,8 @@ test(worlds_do_not_share, [nondet, cleanup((drop_world(g13), drop_world(g14)))])
     fixture("g13"), new_world("g14"),
     \+ observation_group(g14, _, _, _), \+ joinable(g14, _, _),
     observation_group(g13, 0, objects, _).
-test(fact_kinds_registered, [true(Ks == [vp_candidate/5, vp_group/3, vp_min_area/1, vp_unknown/4])]) :-
+test(fact_kinds_registered, [true(Ks == [vp_candidate/5, vp_group/3, vp_min_area/1,
+                                         vp_plan_step/9, vp_unknown/4])]) :-
     findall(K, grouping_fact(K), Ks0), msort(Ks0, Ks),
     forall(member(K, Ks), world_fact(K)).
 
@@ -314,7 +332,7 @@ test(unknown_world, [nondet]) :-
 test(scene_of_empty_world, [nondet, cleanup(drop_world(g20))]) :-
     new_world("g20"),
     call_api(viewpoint_scene, _{world:"g20"}, R),
-    R.ok == true, R.result =@= _{groups:[], min_area_m2:0.5}.
+    R.ok == true, R.result =@= _{groups:[], min_area_m2:0.5, steps:[]}.
 test(scene_reads_stored_groups, [nondet, cleanup(drop_world(g21))]) :-
     fixture("g21", R0),
     scene_args("g21", A0), call_api(viewpoint_groups, A0.put(min_area_m2, 1.5), R1),

@@ -18,7 +18,7 @@
       - the viewpoint-planning scene and its observation groups
         (grouping.pl), world filled in: vp_candidate/5, vp_unknown/4,
         observation_group/3, same_group/2, joinable/2, candidate_group/2,
-        unknown_group_area/2
+        unknown_group_area/2, plan_step/4 (the last plan's steps)
       - comparison: =, \=, ==, \==, and <, >, =<, >=, =:= on numbers or
         variables only (no arithmetic expressions, so no arithmetic bombs)
       - member/2, memberchk/2
@@ -128,6 +128,7 @@ relation_goal(W, same_group(A, B), grouping:same_group(W, A, B)).
 relation_goal(W, joinable(A, B), grouping:joinable(W, A, B)).
 relation_goal(W, candidate_group(C, G), grouping:candidate_group(W, C, G)).
 relation_goal(W, unknown_group_area(G, A), grouping:unknown_group_area(W, G, A)).
+relation_goal(W, plan_step(K, G, P, T), grouping:plan_step(W, K, G, P, T)).
 
 comparison(G) :-
     G =.. [Op, _, _],

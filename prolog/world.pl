@@ -46,6 +46,7 @@ world_fact(vp_candidate/5).         % vp_candidate(Id, Type, X, Y, RMax): object
 world_fact(vp_unknown/4).           % vp_unknown(Id, X, Y, Area): unknown region of the grid
 world_fact(vp_group/3).             % vp_group(G, objects|unknown, Members): derived group
 world_fact(vp_min_area/1).          % vp_min_area(A): region area threshold of the scene
+world_fact(vp_plan_step/9).         % vp_plan_step(K, G, X, Y, Th, TravelM, ObserveS, PRecog, DoneAtS)
 
 %!  valid_id(+Text) is semidet.
 %

@@ -28,6 +28,7 @@ from numeric.viewpoint.planner import (
     PlannedGroup,
     PlanReport,
     PlanRequest,
+    PlanStep,
     ViewpointPlanner,
 )
 from service.kb import KnowledgeBase
@@ -61,6 +62,12 @@ def local_grouper(prolog_dir: Path, world: str = "scene"):  # type: ignore[no-un
     kb = KnowledgeBase(prolog_dir)
     kb.call("create_world", world=world, landmarks=[])
     return kb_grouper(kb, world), kb
+
+
+def step_json(st: PlanStep) -> dict[str, Any]:
+    """A plan step as the Prolog op viewpoint_groups takes it."""
+    return {"group_id": st.group_id, "pose": list(st.pose), "travel_m": st.travel_m,
+            "observe_s": st.observe_s, "p_recog": st.p_recog, "done_at_s": st.done_at_s}
 
 
 def _num(x: float) -> float | None:
@@ -164,6 +171,9 @@ class ViewpointService:
                 grid, source = await asyncio.to_thread(self.grid_for, world, req)
                 report = await asyncio.to_thread(self.planner.plan, req, grid,
                                                  kb_grouper(self.kb, world, scene))
+                # the best plan's steps join the scene's facts (vp_plan_step/9)
+                scene["steps"] = [step_json(st) for st in report.steps(report.plans[0])]
+                await self.kb.acall("viewpoint_groups", **scene)
                 with self.store.transaction() as conn:
                     self.store.put_artifact(conn, world, SCENE_ARTIFACT,
                                             json.dumps(scene).encode())

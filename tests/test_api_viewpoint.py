@@ -93,6 +93,13 @@ def test_plan_structure_and_prolog_groups(rooms: TestClient) -> None:
         assert st["p_recog"] is None or 0.0 < st["p_recog"] <= 1.0
         at = xy
     assert [st["done_at_s"] for st in steps] == sorted(st["done_at_s"] for st in steps)
+    # the same steps are Prolog facts of the world: the REPL and /query walk the plan
+    q = rooms.post("/worlds/vp_b/query", json={"goal": "plan_step(K, G, P, T)"})
+    assert q.status_code == 200, q.text
+    sols = sorted(q.json()["solutions"], key=lambda s: s["K"])
+    assert [s["G"] for s in sols] == out["plan"]["group_ids"]
+    assert rooms.get("/worlds/vp_b/viewpoint-groups").json()["steps"][0]["pose"] == \
+        pytest.approx(steps[0]["pose"])
     # the plan's group ids are the facts' ids, in the plan's order
     by_id = {g["id"]: g["members"] for g in groups}
     by_name = {g["name"]: g["members"] for g in out["groups"]}

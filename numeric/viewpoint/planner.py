@@ -191,13 +191,19 @@ class PlanReport:
     tables_reused: int = 0
     candidates: dict[str, Candidate] = field(default_factory=dict)
     steps_of: Callable[[Plan], list[PlanStep]] | None = None
+    _steps: dict[tuple[int, ...], list[PlanStep]] = field(default_factory=dict)
 
     def names(self, plan: Plan) -> list[str]:
         return [self.groups[i].name for i in plan.order]
 
     def steps(self, plan: Plan) -> list[PlanStep]:
-        """What the robot does for each group of ``plan``, in order (:func:`plan_steps`)."""
-        return self.steps_of(plan) if self.steps_of is not None else []
+        """What the robot does for each group of ``plan``, in order (:func:`plan_steps`;
+        computed once per plan)."""
+        if self.steps_of is None:
+            return []
+        if plan.order not in self._steps:
+            self._steps[plan.order] = self.steps_of(plan)
+        return self._steps[plan.order]
 
 
 @dataclass(frozen=True)
