@@ -26,6 +26,9 @@
             map_path_length/1,      % -L
             loop_closure_count/1,   % -N
             closes_loop/2,          % ?ScanA, ?ScanB
+            observation_group/3,    % ?G, ?Kind, ?Members
+            same_group/2,           % ?A, ?B
+            plan_step/4,            % ?K, ?G, ?Pose, ?Times
             main/0
           ]).
 :- use_module(library(main), [argv_options/3]).
@@ -34,6 +37,7 @@
 :- use_module(drm, []).
 :- use_module(eigenspace, []).
 :- use_module(slam, []).
+:- use_module(grouping, []).
 
 :- dynamic current_world/1.
 
@@ -89,6 +93,12 @@ unknown_region_within(X, Y, R, Id, D) :- w(W), slam:unknown_region_within(W, X, 
 map_path_length(L) :- w(W), slam:map_path_length(W, L).
 loop_closure_count(N) :- w(W), slam:loop_closure_count(W, N).
 closes_loop(A, B) :- w(W), slam:closes_loop(W, A, B).
+
+%   The last viewpoint scene and plan (grouping.pl), e.g.
+%   ?- plan_step(K, G, pose(X, Y, Th), times(TravelM, ObserveS, PRecog, DoneAtS)).
+observation_group(G, Kind, Members) :- w(W), grouping:observation_group(W, G, Kind, Members).
+same_group(A, B) :- w(W), grouping:same_group(W, A, B).
+plan_step(K, G, Pose, Times) :- w(W), grouping:plan_step(W, K, G, Pose, Times).
 
 %!  main is det.
 %
