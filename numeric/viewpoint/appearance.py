@@ -22,6 +22,7 @@ three verification radii of §5.1.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Annotated
 
 import numpy as np
@@ -225,15 +226,23 @@ class AppearanceModel:
             return np.asarray(np.where(s > 0, np.log(np.maximum(s, 1e-300) / p.th_match)
                                        / np.maximum(np.array(p.b), 1e-12), -np.inf))
 
-    @property
+    @cached_property
     def r_max(self) -> float:
         """R_max: the farthest distance at which the object can be recognised (its best
-        face seen face-on)."""
+        face seen face-on); computed once per model (the model is immutable)."""
         return float(max(self.face_range(np.zeros(N_FACES)).max(), 0.0))
+
+    @cached_property
+    def _r_min_720(self) -> float:
+        return self._r_min(720)
 
     def r_min(self, n_dirs: int = 720) -> float:
         """The largest distance at which the object is recognisable whatever direction
-        it is seen from (0 when some direction never recognises it)."""
+        it is seen from (0 when some direction never recognises it); the default
+        resolution is computed once per model (every re-plan asks for it)."""
+        return self._r_min_720 if n_dirs == 720 else self._r_min(n_dirs)
+
+    def _r_min(self, n_dirs: int) -> float:
         phi = np.linspace(-np.pi, np.pi, n_dirs, endpoint=False)
         ang = wrap_angle(phi[:, None] - np.arange(N_FACES) * np.pi / 2)
         reach = self.face_range(ang).max(axis=1)

@@ -314,6 +314,7 @@ class ViewpointPlanner:
     def __init__(self, tables: TableCache | None = None) -> None:
         self.tables = tables if tables is not None else TableCache()
         self.local_plans = LocalPlanCache()
+        self.unknown_times: dict[tuple[object, ...], float] = {}
 
     def models(self, req: PlanRequest) -> dict[str, AppearanceModel]:
         """The request's own models: a type's appearance comes from this request only
@@ -387,9 +388,22 @@ class ViewpointPlanner:
                                                 comp.area_m2, comp.centroid))
                     continue
                 e = entries[np.argmin(np.hypot(*(entries - comp.centroid).T))]
-                t_u = unknown_region_time(verifier, models, mean_counts, comp.centroid, e,
-                                          comp.area_m2, unknown_total, req.t_search_s,
-                                          req.t_dist_s)
+                # eqs. 9-10 do not look at the grid: the same region, entry point and
+                # parameters give the same time (re-plans ask again and again)
+                ukey = (tuple(np.round(comp.centroid, 9)), tuple(np.round(e, 9)),
+                       comp.area_m2, unknown_total, req.t_search_s, req.t_dist_s,
+                       req.speed_m_s, req.t_verify_s, req.clearance_m, req.use_table,
+                       tuple(sorted((k, m.params.model_dump_json())
+                                    for k, m in models.items())),
+                       tuple(sorted(mean_counts.items())))
+                t_u = self.unknown_times.get(ukey)
+                if t_u is None:
+                    t_u = unknown_region_time(verifier, models, mean_counts, comp.centroid,
+                                              e, comp.area_m2, unknown_total,
+                                              req.t_search_s, req.t_dist_s)
+                    if len(self.unknown_times) > 4096:
+                        self.unknown_times.clear()
+                    self.unknown_times[ukey] = t_u
                 share = comp.area_m2 / unknown_total if unknown_total > 0 else 0.0
                 value = req.k_area * comp.area_m2 + share * sum(
                     t.mean_count * t.value for t in req.object_types)  # eq. 17
