@@ -315,6 +315,19 @@ class ViewpointPlanner:
         self.tables = tables if tables is not None else TableCache()
         self.local_plans = LocalPlanCache()
         self.unknown_times: dict[tuple[object, ...], float] = {}
+        self._travel: tuple[bytes, TravelMap, dict[bytes, np.ndarray]] | None = None
+
+    def travel(self, grid: PlanningGrid) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+        """Geodesic distances on ``grid``; the travel map and its distance fields are kept
+        while the grid stays the same (the online loop re-plans on an unchanged map
+        after every observation of an object)."""
+        h = hashlib.blake2b(digest_size=20)
+        h.update(np.array([grid.resolution, *grid.grid.origin, *grid.state.shape]).tobytes())
+        h.update(np.ascontiguousarray(grid.state).tobytes())
+        key = h.digest()
+        if self._travel is None or self._travel[0] != key:
+            self._travel = (key, TravelMap(grid), {})
+        return geodesic(self._travel[1], self._travel[2])
 
     def models(self, req: PlanRequest) -> dict[str, AppearanceModel]:
         """The request's own models: a type's appearance comes from this request only
@@ -413,7 +426,7 @@ class ViewpointPlanner:
         t3 = time.perf_counter()
         costs = [GroupCost(g.name, g.spec.kind, g.value, g.t_obs, g.entries) for g in planned]
         robot, exit_ = np.asarray(req.robot, float), np.asarray(req.exit, float)
-        distance = geodesic(TravelMap(grid)) if req.travel == "geodesic" else straight
+        distance = self.travel(grid) if req.travel == "geodesic" else straight
         problem = Problem.with_travel(costs, robot, exit_, req.speed_m_s,
                                       req.loss_function(), distance)
         if req.solver == "exhaustive" and problem.n > EXHAUSTIVE_MAX_GROUPS:
@@ -476,10 +489,12 @@ def plan_steps(plan: Plan, groups: list[PlannedGroup], cands: dict[str, Candidat
     return out
 
 
-def geodesic(travel: TravelMap) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+def geodesic(travel: TravelMap, fields: dict[bytes, np.ndarray] | None = None
+             ) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
     """Shortest-path distance from the nearest of some sources to targets, one distance
-    field per source set (a group's entry points, the robot)."""
-    fields: dict[bytes, np.ndarray] = {}
+    field per source set (a group's entry points, the robot); ``fields`` may carry them
+    over from earlier calls on the same grid."""
+    fields = {} if fields is None else fields
 
     def distance(sources: np.ndarray, targets: np.ndarray) -> np.ndarray:
         src = np.ascontiguousarray(np.atleast_2d(sources), dtype=float)
