@@ -51,8 +51,9 @@ def test_learning_strategy_adds_points_in_the_job(client: TestClient) -> None:
     assert job["status"] == "done", job
     s = client.get("/worlds/eig_s/eigenspace").json()
     trace = s["learning_strategy"]
-    assert [t["learning_points"] for t in trace] == [25, 26] and s["learning_points"] == 26
+    assert [t["learning_points"] for t in trace] == [25, 26, 26] and s["learning_points"] == 26
     assert trace[0]["added"] is None and len(trace[1]["added"]) == 2
+    assert trace[2]["checked"] and trace[2]["triplets"] == s["triplets"]
     assert all(0.0 <= p <= 1.0 for t in trace for p in t["p_z"])
     assert_problem(client.post("/worlds/eig_s/eigenspace", json={
         "learning_strategy": {"max_additions": -1}}), 422, "max_additions")

@@ -376,9 +376,13 @@ def test_learn_with_strategy_adds_points_and_keeps_the_trace(room: World) -> Non
     a = learn_with_strategy(room, cfg, lambda stage, frac: stages.append(stage))
     grid = len(learning_grid(room, cfg.learning.spacing_m, cfg.learning.margin_m))
     assert len(a.model.points) == grid + 2
-    assert [s["added"] is None for s in a.strategy_trace] == [True, False, False]
-    assert [s["learning_points"] for s in a.strategy_trace] == [grid, grid + 1, grid + 2]
-    added = np.array([s["added"] for s in a.strategy_trace[1:]])
+    steps, checked = a.strategy_trace[:-1], a.strategy_trace[-1]
+    assert [s["added"] is None for s in steps] == [True, False, False]
+    assert [s["learning_points"] for s in steps] == [grid, grid + 1, grid + 2]
+    # the last entry: P(Z) once the added points' triplets have met the probes
+    assert checked["checked"] and checked["triplets"] == len(a.triplets)
+    assert checked["learning_points"] == grid + 2 and len(checked["p_z"]) == 5
+    added = np.array([s["added"] for s in steps[1:]])
     np.testing.assert_allclose(a.model.points[grid:], added)
     assert any(s.startswith("learning strategy") for s in stages)
     b = EigenspaceAnalysis.from_bytes(a.to_bytes())

@@ -172,7 +172,9 @@ def learn_with_strategy(world: World, config: EigenspaceConfig,
                         executor: Executor | None = None) -> EigenspaceAnalysis:
     """§4: learn on the grid and analyse, then, with ``config.learning_strategy``, add
     learning points (§4.2) until P(Z within n observations) reaches the target. The
-    trace of additions and P(Z) is kept on the analysis (``strategy_trace``)."""
+    trace of additions and P(Z) is kept on the analysis (``strategy_trace``); when
+    points were added, its last entry (``"checked": true``) is P(Z) after the added
+    triplets met the probes."""
     strategy = config.learning_strategy
     report = progress or (lambda stage, frac: None)
     if strategy is None:
@@ -206,6 +208,13 @@ def learn_with_strategy(world: World, config: EigenspaceConfig,
                                                       config.regions))
         out = replace(out, triplets=kept, candidate_sets=sets,
                       rejected_triplets=out.rejected_triplets + len(out.triplets) - len(kept))
+        # P(Z) of what is left, as the last entry of the trace
+        samples = initial_samples(world.sample_free, config.strategy.n_samples,
+                                  np.random.default_rng(config.seed + 7))
+        curve, _ = p_z_curve(samples, out.layout(world), config.strategy,
+                             strategy.n_observations, executor)
+        trace.append({"added": None, "learning_points": len(out.model.points),
+                      "triplets": len(kept), "p_z": curve, "checked": True})
     timings = dict(out.timings_s, learning_strategy=time.perf_counter() - t0)
     report("done", 1.0)
     return replace(out, timings_s=timings, strategy_trace=trace)
