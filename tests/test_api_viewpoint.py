@@ -170,6 +170,27 @@ def test_unreachable_places_are_unverifiable_not_errors(rooms: TestClient) -> No
         u for u in out.json()["unverifiable"] if u["kind"] == "unknown").items()
 
 
+def test_a_boxed_in_object_does_not_sink_its_group(rooms: TestClient) -> None:
+    """Two objects close enough to form one group, one walled in so that no viewpoint
+    sees it: that one is unverifiable, the other is still planned."""
+    cells = np.zeros((80, 80), dtype=int)             # 8 m x 8 m at 0.1 m, [y, x]
+    cells[0, :] = cells[-1, :] = cells[:, 0] = cells[:, -1] = 100
+    yy, xx = np.mgrid[0:80, 0:80]
+    ring = np.abs(np.hypot(xx - 30, yy - 30) - 4) < 1   # a ring of 0.4 m round (3, 3)
+    cells[ring] = 100
+    body = {"robot": [6.5, 6.5, 0], "exit": [6.5, 6.5], "time_limit_s": 120, "loss": "L3",
+            "object_types": TYPES, "grid": _grid_body(cells.ravel().tolist(), 80, 80),
+            "candidates": [{"id": "boxed", "type": "A", "x": 3.0, "y": 3.0},
+                           {"id": "free", "type": "A", "x": 5.0, "y": 3.0}]}
+    out = rooms.post("/worlds/demo/viewpoint-plan", json=body)
+    assert out.status_code == 200, out.text
+    planned = [g for g in out.json()["groups"] if g["kind"] == "objects"]
+    assert [g["members"] for g in planned] == [["free"]]
+    lost = [u for u in out.json()["unverifiable"] if u["kind"] == "objects"]
+    assert [u["members"] for u in lost] == [["boxed"]]
+    assert planned[0]["name"] in out.json()["plan"]["groups"]
+
+
 def test_an_infeasible_plan_says_so(rooms: TestClient) -> None:
     """L1 with the exit out of reach in time: the best plan is to leave, and it says it
     is infeasible and why, instead of bare nulls."""

@@ -376,6 +376,18 @@ class ViewpointPlanner:
             name = group_name(spec.id)
             if spec.kind == "objects":
                 members = [cands[str(m)] for m in spec.members]
+                # an object no usable viewpoint recognises (boxed in by walls or by its
+                # neighbours) is unverifiable on its own; the rest of its group is not
+                seen = [bool(np.isfinite(verifier.single(c, c.xy[None], c.xy[None])[0, 0]))
+                        for c in members]
+                if not all(seen):
+                    lost = tuple(c.id for c, ok in zip(members, seen, strict=True) if not ok)
+                    skipped.append(PlannedGroup(GroupSpec(spec.id, "objects", lost), name,
+                                                0.0, np.inf, np.zeros((0, 2))))
+                    members = [c for c, ok in zip(members, seen, strict=True) if ok]
+                    if not members:
+                        continue
+                    spec = GroupSpec(spec.id, spec.kind, tuple(c.id for c in members))
                 value = float(sum(types[c.type].value for c in members))
                 key = LocalPlanCache.key(members, grid, verifier)
                 cached = self.local_plans.get(key)
