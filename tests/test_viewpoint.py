@@ -456,6 +456,15 @@ def test_replanning_recomputes_only_the_groups_whose_surroundings_changed() -> N
     assert planner.local_plans.misses == 3 and planner.local_plans.hits == 3
     fresh = ViewpointPlanner().plan(req, moved, one_each)
     assert [g.t_obs for g in changed.groups] == pytest.approx([g.t_obs for g in fresh.groups])
+    # a group whose box runs past the grid's edge still sees changes inside it
+    edge = req.model_copy(update={"candidates": [req.candidates[0].model_copy(
+        update={"id": "edge", "x": 9.3, "y": 9.3})]})
+    planner.plan(edge, moved, one_each)
+    cells[85:88, 85:88] = 100                            # a box next to it
+    boxed = from_occupancy_values(100, 100, 0.1, (0.0, 0.0), cells.ravel().tolist())
+    misses = planner.local_plans.misses
+    planner.plan(edge, boxed, one_each)
+    assert planner.local_plans.misses == misses + 1
 
 
 def test_travel_goes_around_walls() -> None:

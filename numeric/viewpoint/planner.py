@@ -285,12 +285,14 @@ class LocalPlanCache:
                            float(verifier.use_table)]).tobytes())
         xy = np.array([c.xy for c in members])
         pad = reach + verifier.clearance + 2 * grid.resolution
-        i0, j0, _ = grid.cells(xy.min(axis=0) - pad)
-        i1, j1, _ = grid.cells(xy.max(axis=0) + pad)
+        # the box in cells, clipped to the grid (a box past its edge keeps the part inside)
         lo = np.floor((xy.min(axis=0) - pad - grid.grid.origin) / grid.resolution).astype(int)
-        h.update(np.array([grid.resolution, *grid.grid.origin, *lo, *grid.state.shape])
-                 .tobytes())
-        h.update(np.ascontiguousarray(grid.state[i0:i1 + 1, j0:j1 + 1]).tobytes())
+        hi = np.floor((xy.max(axis=0) + pad - grid.grid.origin) / grid.resolution).astype(int)
+        shape = np.array(grid.state.shape)
+        i0, j0 = np.clip(lo, 0, shape)
+        i1, j1 = np.clip(hi + 1, 0, shape)
+        h.update(np.array([grid.resolution, *grid.grid.origin, *lo, *hi, *shape]).tobytes())
+        h.update(np.ascontiguousarray(grid.state[i0:i1, j0:j1]).tobytes())
         return h.digest()
 
     def get(self, key: bytes) -> tuple[np.ndarray, LocalPlan | None] | None:
