@@ -36,7 +36,7 @@ from numeric.tours import best_order
 
 MAX_GROUPS_EXACT = 20
 #: the branch and bound bounds this many states at a time between looks at the clock
-BOUND_CHUNK = 50_000
+BOUND_CHUNK = 20_000
 #: the branch and bound starts from the DP's best plans over this many groups
 SEED_GROUPS = 14
 
