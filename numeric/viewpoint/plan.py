@@ -123,16 +123,23 @@ def travel_times(groups: list[GroupCost], robot_xy: np.ndarray, exit_xy: np.ndar
     n = len(groups)
     robot = np.asarray(robot_xy, float)[None, :2]
     exit_ = np.asarray(exit_xy, float)[None, :2]
+    # every group's entry points and the exit as one target set: one call per source
+    targets = np.vstack([*(np.atleast_2d(g.entries) for g in groups), exit_])
+    cuts = np.cumsum([0, *(len(np.atleast_2d(g.entries)) for g in groups)])
+
+    def per_group(d: np.ndarray) -> np.ndarray:
+        return np.array([d[cuts[j]:cuts[j + 1]].min() for j in range(n)])
+
     t_gg = np.zeros((n, n))
     t_exit = np.zeros(n)
     for i, g in enumerate(groups):
-        t_exit[i] = distance(g.entries, exit_)[0] / speed
-        for j in range(n):
-            if j != i:
-                t_gg[i, j] = distance(g.entries, groups[j].entries).min() / speed
+        d = distance(g.entries, targets)
+        t_gg[i] = per_group(d) / speed
+        t_exit[i] = d[-1] / speed
+    np.fill_diagonal(t_gg, 0.0)
     t_gg = np.minimum(t_gg, t_gg.T)  # either way round: the shorter estimate
-    t_start = np.array([distance(robot, g.entries).min() / speed for g in groups])
-    return t_start.reshape(n), t_gg, t_exit, float(distance(robot, exit_)[0] / speed)
+    d = distance(robot, targets)
+    return (per_group(d) / speed).reshape(n), t_gg, t_exit, float(d[-1] / speed)
 
 
 @dataclass(frozen=True)

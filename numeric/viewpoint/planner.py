@@ -265,7 +265,7 @@ class LocalPlanCache:
     the robot's new scans changed (or whose beliefs an observation updated)."""
 
     def __init__(self, max_entries: int = 4096) -> None:
-        self.plans: dict[bytes, tuple[np.ndarray, LocalPlan | None]] = {}
+        self.plans: dict[bytes, tuple[np.ndarray, LocalPlan | None, tuple[str, ...]]] = {}
         self.max_entries = max_entries
         self.hits = 0
         self.misses = 0
@@ -295,7 +295,7 @@ class LocalPlanCache:
         h.update(np.ascontiguousarray(grid.state[i0:i1, j0:j1]).tobytes())
         return h.digest()
 
-    def get(self, key: bytes) -> tuple[np.ndarray, LocalPlan | None] | None:
+    def get(self, key: bytes) -> tuple[np.ndarray, LocalPlan | None, tuple[str, ...]] | None:
         hit = self.plans.get(key)
         if hit is None:
             self.misses += 1
@@ -303,7 +303,8 @@ class LocalPlanCache:
             self.hits += 1
         return hit
 
-    def put(self, key: bytes, value: tuple[np.ndarray, LocalPlan | None]) -> None:
+    def put(self, key: bytes, value: tuple[np.ndarray, LocalPlan | None, tuple[str, ...]]
+            ) -> None:
         if len(self.plans) >= self.max_entries:
             self.plans.pop(next(iter(self.plans)))
         self.plans[key] = value
@@ -378,31 +379,20 @@ class ViewpointPlanner:
             name = group_name(spec.id)
             if spec.kind == "objects":
                 members = [cands[str(m)] for m in spec.members]
-                # an object no usable viewpoint recognises (boxed in by walls or by its
-                # neighbours) is unverifiable on its own; the rest of its group is not
-                seen = [bool(np.isfinite(verifier.single(c, c.xy[None], c.xy[None])[0, 0]))
-                        for c in members]
-                if not all(seen):
-                    lost = tuple(c.id for c, ok in zip(members, seen, strict=True) if not ok)
+                key = LocalPlanCache.key(members, grid, verifier)
+                cached = self.local_plans.get(key)
+                if cached is None:
+                    cached = local_plan(verifier, members)
+                    self.local_plans.put(key, cached)
+                entries, best_plan, lost = cached
+                if lost:  # unverifiable on their own; the rest of the group is not
                     skipped.append(PlannedGroup(GroupSpec(spec.id, "objects", lost), name,
                                                 0.0, np.inf, np.zeros((0, 2))))
-                    members = [c for c, ok in zip(members, seen, strict=True) if ok]
+                    members = [c for c in members if c.id not in lost]
                     if not members:
                         continue
                     spec = GroupSpec(spec.id, spec.kind, tuple(c.id for c in members))
                 value = float(sum(types[c.type].value for c in members))
-                key = LocalPlanCache.key(members, grid, verifier)
-                cached = self.local_plans.get(key)
-                if cached is None:
-                    entries = np.vstack([verifier.viewpoints(c).entries for c in members])
-                    best_plan = None
-                    if len(entries):
-                        entries = _thin(entries)
-                        local = verifier.group(members, entries, entries)
-                        best_plan = local[int(np.argmin([lp.time_s for lp in local]))]
-                    cached = (entries, best_plan)
-                    self.local_plans.put(key, cached)
-                entries, best_plan = cached
                 if best_plan is None:
                     skipped.append(PlannedGroup(spec, name, 0.0, np.inf, entries))
                     continue
@@ -463,6 +453,25 @@ class ViewpointPlanner:
                            "total": 1e3 * (t4 - t0)},
                           self.tables.builds - builds, self.tables.hits - hits, cands,
                           steps_of)
+
+
+def local_plan(verifier: Verifier, members: list[Candidate]
+               ) -> tuple[np.ndarray, LocalPlan | None, tuple[str, ...]]:
+    """A group's entry points, its best local plan (§5: t_single, t_seq or t_par) and
+    the members no usable viewpoint recognises (boxed in by walls or by their
+    neighbours): those are unverifiable on their own and the plan is for the rest."""
+    seen = [bool(np.isfinite(verifier.single(c, c.xy[None], c.xy[None])[0, 0]))
+            for c in members]
+    lost = tuple(c.id for c, ok in zip(members, seen, strict=True) if not ok)
+    members = [c for c, ok in zip(members, seen, strict=True) if ok]
+    if not members:
+        return np.zeros((0, 2)), None, lost
+    entries = np.vstack([verifier.viewpoints(c).entries for c in members])
+    if len(entries) == 0:
+        return entries, None, lost
+    entries = _thin(entries)
+    local = verifier.group(members, entries, entries)
+    return entries, local[int(np.argmin([lp.time_s for lp in local]))], lost
 
 
 def plan_steps(plan: Plan, groups: list[PlannedGroup], cands: dict[str, Candidate],
