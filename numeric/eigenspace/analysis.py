@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import io
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -36,6 +36,7 @@ from numeric.eigenspace.localization import (
 )
 from numeric.eigenspace.movement_strategy import RegionLayout, StrategyConfig
 from numeric.eigenspace.regions import (
+    Candidates,
     EntryModel,
     RegionConfig,
     calibration_errors,
@@ -346,20 +347,29 @@ class ImportedImages(ImageSource):
         return EntryModel(*fit_clamped_line(x, y, self.config.entry.max_distance_m))
 
 
+def placed_hits(model: EigenspaceModel, triplets: Triplets, c_a: float,
+                config: EigenspaceConfig, obs: EntryObservations, margin: float = 1.0
+                ) -> Iterator[tuple[int, Candidates, np.ndarray]]:
+    """For each turn of known pose in ``obs``: its region hits (eq. 6, the regions grown
+    by ``margin``) and whether eq. 5 places each within the localization tolerances."""
+    n = len(model.directions)
+    r, loc = config.regions, config.localization
+    plane = None if r.plane_thd_m is None else margin * r.plane_thd_m
+    for i, p in enumerate(obs.xy):
+        c = region_candidates(model, triplets, obs.projections[i], c_a, margin * r.d_thd_m,
+                              plane)
+        truth = np.column_stack([np.broadcast_to(p, (len(c), 2)),
+                                 wrap_angle(obs.theta0[i] + 2.0 * np.pi * c.m / n)])
+        yield i, c, agrees(c.pose, truth, loc.same_position_m, loc.same_heading_rad)
+
+
 def right_entries(model: EigenspaceModel, triplets: Triplets, c_a: float,
                   config: EigenspaceConfig, obs: EntryObservations) -> np.ndarray:
     """``(S, T)``: which regions each observed turn enters *and* is placed right in,
     within the localization tolerances (the paper assumes an entered region is the
     right one; counting only right entries keeps false ones out of P(R|s))."""
-    n = len(model.directions)
-    r, loc = config.regions, config.localization
     entered = np.zeros((len(obs.xy), len(triplets)), dtype=bool)
-    for i, p in enumerate(obs.xy):
-        c = region_candidates(model, triplets, obs.projections[i], c_a, r.d_thd_m,
-                              r.plane_thd_m)
-        truth = np.column_stack([np.broadcast_to(p, (len(c), 2)),
-                                 wrap_angle(obs.theta0[i] + 2.0 * np.pi * c.m / n)])
-        ok = agrees(c.pose, truth, loc.same_position_m, loc.same_heading_rad)
+    for i, c, ok in placed_hits(model, triplets, c_a, config, obs):
         entered[i, c.t[ok]] = True
     return entered
 
@@ -493,20 +503,11 @@ def far_admissions(model: EigenspaceModel, triplets: Triplets, c_a: float,
     state Y, §3.3). With ``margin`` > 1 the region is grown by that factor: a region
     that nearly admits a far place admits it from a spot nearby, and sparse probes miss
     the spot."""
-    n = len(model.directions)
-    r, loc = config.regions, config.localization
+    far_m = 2 * config.localization.same_position_m
     counts = np.zeros(len(triplets), dtype=int)
-    d_thd = margin * r.d_thd_m
-    plane = None if r.plane_thd_m is None else margin * r.plane_thd_m
-    for i, p in enumerate(probes.xy):
-        c = region_candidates(model, triplets, probes.projections[i], c_a, d_thd, plane)
-        if not len(c):
-            continue
-        truth = np.column_stack([np.broadcast_to(p, (len(c), 2)),
-                                 wrap_angle(probes.theta0[i] + 2.0 * np.pi * c.m / n)])
-        ok = agrees(c.pose, truth, loc.same_position_m, loc.same_heading_rad)
+    for i, c, ok in placed_hits(model, triplets, c_a, config, probes, margin):
         corners = model.points[triplets.point_idx[c.t]]                      # (h, 3, 2)
-        far = np.linalg.norm(corners - p, axis=2).min(axis=1) > 2 * loc.same_position_m
+        far = np.linalg.norm(corners - probes.xy[i], axis=2).min(axis=1) > far_m
         bad = ~ok & far & (set_of[c.t] < 0)
         counts += np.bincount(c.t[bad], minlength=len(triplets))
     return counts

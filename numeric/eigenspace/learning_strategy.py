@@ -130,14 +130,20 @@ def far_from(xy: np.ndarray, points: np.ndarray, min_m: float) -> np.ndarray:
     return np.asarray(cKDTree(points).query(xy)[0] >= min_m)
 
 
+def strategy_samples(world: World, config: EigenspaceConfig) -> np.ndarray:
+    """The initial poses over which P(Z within n) is judged (eq. 8's Monte Carlo
+    samples), the same for every step of one learning."""
+    return initial_samples(world.sample_free, config.strategy.n_samples,
+                           np.random.default_rng(config.seed + 7))
+
+
 def learning_strategy(analysis: EigenspaceAnalysis, world: World,
                       config: LearningStrategyConfig, rng: np.random.Generator,
                       random_additions: bool = False, executor: Executor | None = None,
                       progress: Callable[[LearningStep], None] | None = None
                       ) -> LearningResult:
     """Add learning points (§4.2) until P(Z within n observations) >= target."""
-    samples = initial_samples(world.sample_free, analysis.config.strategy.n_samples,
-                              np.random.default_rng(analysis.config.seed + 7))
+    samples = strategy_samples(world, analysis.config)
     result = LearningResult(analysis)
     added: list[float] | None = None
     for _ in range(config.max_additions + 1):
@@ -209,9 +215,8 @@ def learn_with_strategy(world: World, config: EigenspaceConfig,
         out = replace(out, triplets=kept, candidate_sets=sets,
                       rejected_triplets=out.rejected_triplets + len(out.triplets) - len(kept))
         # P(Z) of what is left, as the last entry of the trace
-        samples = initial_samples(world.sample_free, config.strategy.n_samples,
-                                  np.random.default_rng(config.seed + 7))
-        curve, _ = p_z_curve(samples, out.layout(world), config.strategy,
+        curve, _ = p_z_curve(strategy_samples(world, config), out.layout(world),
+                             config.strategy,
                              strategy.n_observations, executor)
         trace.append({"added": None, "learning_points": len(out.model.points),
                       "triplets": len(kept), "p_z": curve, "checked": True})

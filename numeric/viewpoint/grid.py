@@ -12,6 +12,7 @@ a viewpoint to an object clear, which unknown components are there (labelled wit
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Sequence
 from functools import cached_property
 
@@ -59,6 +60,18 @@ class PlanningGrid:
     @property
     def state(self) -> np.ndarray:
         return self.grid.state
+
+    def digest(self, lo: np.ndarray | None = None, hi: np.ndarray | None = None) -> bytes:
+        """A digest of the grid's frame and cells, or of the cells of the box ``lo..hi``
+        (cell indices, inclusive, clipped to the grid): equal digests, equal maps there."""
+        shape = np.array(self.state.shape)
+        lo = np.zeros(2, dtype=int) if lo is None else np.asarray(lo, dtype=int)
+        hi = shape - 1 if hi is None else np.asarray(hi, dtype=int)
+        (i0, j0), (i1, j1) = np.clip(lo, 0, shape), np.clip(hi + 1, 0, shape)
+        h = hashlib.blake2b(digest_size=20)
+        h.update(np.array([self.resolution, *self.grid.origin, *lo, *hi, *shape]).tobytes())
+        h.update(np.ascontiguousarray(self.state[i0:i1, j0:j1]).tobytes())
+        return h.digest()
 
     # -- cells ------------------------------------------------------------------------
     def cells(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

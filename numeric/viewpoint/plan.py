@@ -88,6 +88,12 @@ class Problem:
     def n(self) -> int:
         return len(self.value)
 
+    def way_in(self) -> np.ndarray:
+        """``(n,)``: the cheapest travel into each group, from the robot or from any
+        other group (a lower bound of the leg before it in any plan)."""
+        others = self.t_gg + np.diag(np.full(self.n, np.inf))
+        return np.asarray(np.minimum(self.t_start, others.min(axis=0, initial=np.inf)))
+
     @classmethod
     def build(cls, groups: list[GroupCost], robot_xy: np.ndarray, exit_xy: np.ndarray,
               speed: float, loss: Loss) -> Problem:
@@ -362,9 +368,7 @@ def solve_bnb(p: Problem, runner_ups: int = 5, budget_s: float = 1.0,
         best_sets[sum(1 << i for i in plan.order)] = plan.utility
     best = max(best_sets.values())
     keep = runner_ups + 1
-    incoming = np.vstack([p.t_start[None, :], p.t_gg + np.diag(np.full(n, np.inf))])
-    entry_min = incoming.min(axis=0)
-    t_gg = p.t_gg + np.diag(np.full(n, np.inf))
+    entry_min = p.way_in()
     masks = (1 << np.arange(n)).astype(np.int64)
     last = np.arange(n)
     t = p.t_start + p.t_obs
@@ -399,7 +403,7 @@ def solve_bnb(p: Problem, runner_ups: int = 5, budget_s: float = 1.0,
         # children: every state x every group not done
         bits = (masks[:, None] >> np.arange(n)[None, :]) & 1
         si, gi = np.nonzero(bits == 0)
-        t2 = t[si] + t_gg[last[si], gi] + p.t_obs[gi]
+        t2 = t[si] + p.t_gg[last[si], gi] + p.t_obs[gi]  # gi is never last: not done
         m2 = masks[si] | (np.int64(1) << gi.astype(np.int64))
         key = m2 * n + gi
         order = np.lexsort((t2, key))
@@ -431,8 +435,7 @@ def seed_plans(p: Problem, size: int = SEED_GROUPS) -> list[Plan]:
         out.append(evaluate(p, fastest_order(p, sum(1 << i for i in positive))))
     if p.n <= size:
         return out
-    incoming = np.vstack([p.t_start[None, :], p.t_gg + np.diag(np.full(p.n, np.inf))])
-    per_s = p.value / np.maximum(p.t_obs + incoming.min(axis=0), 1e-9)
+    per_s = p.value / np.maximum(p.t_obs + p.way_in(), 1e-9)
     for rank in (np.argsort(-per_s), np.argsort(p.t_start)):
         members = sorted(int(i) for i in rank[:size])
         sub = Problem(p.value[members], p.t_obs[members], p.t_start[members],

@@ -189,7 +189,6 @@ class PlanReport:
     timings_ms: dict[str, float] = field(default_factory=dict)
     tables_built: int = 0
     tables_reused: int = 0
-    candidates: dict[str, Candidate] = field(default_factory=dict)
     steps_of: Callable[[Plan], list[PlanStep]] | None = None
     _steps: dict[tuple[int, ...], list[PlanStep]] = field(default_factory=dict)
 
@@ -285,14 +284,10 @@ class LocalPlanCache:
                            float(verifier.use_table)]).tobytes())
         xy = np.array([c.xy for c in members])
         pad = reach + verifier.clearance + 2 * grid.resolution
-        # the box in cells, clipped to the grid (a box past its edge keeps the part inside)
+        # the box in cells (a box past the grid's edge keeps the part inside)
         lo = np.floor((xy.min(axis=0) - pad - grid.grid.origin) / grid.resolution).astype(int)
         hi = np.floor((xy.max(axis=0) + pad - grid.grid.origin) / grid.resolution).astype(int)
-        shape = np.array(grid.state.shape)
-        i0, j0 = np.clip(lo, 0, shape)
-        i1, j1 = np.clip(hi + 1, 0, shape)
-        h.update(np.array([grid.resolution, *grid.grid.origin, *lo, *hi, *shape]).tobytes())
-        h.update(np.ascontiguousarray(grid.state[i0:i1, j0:j1]).tobytes())
+        h.update(grid.digest(lo, hi))
         return h.digest()
 
     def get(self, key: bytes) -> tuple[np.ndarray, LocalPlan | None, tuple[str, ...]] | None:
@@ -324,10 +319,7 @@ class ViewpointPlanner:
         """Geodesic distances on ``grid``; the travel map and its distance fields are kept
         while the grid stays the same (the online loop re-plans on an unchanged map
         after every observation of an object)."""
-        h = hashlib.blake2b(digest_size=20)
-        h.update(np.array([grid.resolution, *grid.grid.origin, *grid.state.shape]).tobytes())
-        h.update(np.ascontiguousarray(grid.state).tobytes())
-        key = h.digest()
+        key = grid.digest()
         if self._travel is None or self._travel[0] != key:
             self._travel = (key, TravelMap(grid), {})
         return geodesic(self._travel[1], self._travel[2])
@@ -451,8 +443,7 @@ class ViewpointPlanner:
                           {"prepare": 1e3 * (t1 - t0), "grouping": 1e3 * (t2 - t1),
                            "local": 1e3 * (t3 - t2), "global": 1e3 * (t4 - t3),
                            "total": 1e3 * (t4 - t0)},
-                          self.tables.builds - builds, self.tables.hits - hits, cands,
-                          steps_of)
+                          self.tables.builds - builds, self.tables.hits - hits, steps_of)
 
 
 def local_plan(verifier: Verifier, members: list[Candidate]

@@ -605,11 +605,8 @@ class PortChain(HandoverTable):
         self._pairs: dict[tuple[int, int], np.ndarray] = {}
         self._lasts: dict[tuple[int, int], np.ndarray] = {}
         centre = np.mean([c.xy for c in cands], axis=0)
-        hand = []
-        for c in cands:
-            pts = verifier.viewpoints(c).points
-            hand.append(pts[int(np.argmin(np.hypot(*(pts - centre).T)))])
-        self.hand = np.array(hand)                                          # (k, 2)
+        self.hand = np.array([pts[int(np.argmin(np.hypot(*(pts - centre).T)))]
+                              for pts in self.pts])                          # (k, 2)
         self.cs = np.array([[verifier.single(cands[c], self.hand[p], self.hand[c])[0, 0]
                              if p != c else np.inf for c in range(k)] for p in range(k)])
         self.last = np.array([[verifier.single(cands[c], self.hand[p], goals)[0]
