@@ -128,13 +128,18 @@ def _eq5_by_recursion(points: np.ndarray, recog: np.ndarray, belief: np.ndarray,
     return t(-1, frozenset(range(len(points))), (1 << len(belief)) - 1)
 
 
-def test_single_dp_equals_the_recursion_of_eq5(models: dict[str, AppearanceModel]) -> None:
-    m = models["A"]
-    rng = np.random.default_rng(3)
+@pytest.mark.parametrize("seed", range(6))
+def test_single_dp_equals_the_recursion_of_eq5(models: dict[str, AppearanceModel],
+                                               seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    m = models["ABC"[seed % 3]]
     radii = m.radii(0.5)
     pts = viewpoint_circles(np.zeros(2), radii)[rng.choice(24, 7, replace=False)]
     rec = m.recognisable(pts, np.zeros(2))
     belief = rng.dirichlet(np.ones(m.n_theta))
+    if seed >= 3:  # some orientations already ruled out
+        belief[rng.choice(m.n_theta, seed - 1, replace=False)] = 0.0
+        belief /= belief.sum()
     start, goal = np.array([3.0, -1.0]), np.array([-2.0, 2.5])
     q, ok = single_dp(pts, rec, belief, goal[None], 0.4, 2.0)
     assert ok
@@ -178,6 +183,33 @@ def test_pattern_tables_are_reused_across_objects_of_a_type(models: dict[str, Ap
     for k in range(5):
         v.single(Candidate(f"c{k}", "A", np.array([k, 2.0 * k]), models["A"]), s, s)
     assert v.tables.builds == 1 and v.tables.hits == 4
+
+
+def test_a_turned_pattern_table_is_the_unturned_one_with_the_belief_rolled(
+        models: dict[str, AppearanceModel]) -> None:
+    """Every rotation's table, built from rotation 0 with the belief rolled, equals the
+    DP of eq. 5 run directly on the turned viewpoints with the original belief; a
+    uniform belief builds one table for all eight rotations."""
+    from numeric.viewpoint.verification import TableCache, pattern_indices
+
+    rng = np.random.default_rng(3)
+    m = models["B"]
+    radii = m.radii(0.5)
+    for belief in (m.uniform_prior(), rng.dirichlet(np.ones(m.n_theta)),
+                   np.r_[1.0, np.zeros(m.n_theta - 1)]):
+        cache = TableCache()
+        for pattern in ("wall", "three_quarter"):
+            for rot in range(8):
+                tab = cache.get(m, radii, pattern, rot, belief, 0.4, 2.0)
+                pts = viewpoint_circles(np.zeros(2), radii)[pattern_indices(pattern, rot)]
+                q, ok = single_dp(pts, m.recognisable(pts, np.zeros(2)), belief, pts, 0.4, 2.0)
+                assert tab.feasible == ok
+                assert np.allclose(tab.points, pts)
+                direct = min_plus(q, np.hypot(*(pts[:, None] - pts[None]).T).T / 0.4)
+                if ok:
+                    assert np.allclose(tab.times, direct)
+        if np.allclose(belief, m.uniform_prior()):
+            assert cache.builds == 2 and cache.hits == 14
 
 
 def test_parallel_beats_sequential_for_objects_side_by_side(models: dict[str, AppearanceModel],

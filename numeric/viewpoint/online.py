@@ -12,8 +12,13 @@ position, plus the occasional false candidate. Then, until the plan is to leave:
    entry point and scan it;
 3. update the map and the candidates, and re-plan.
 
-Travel follows the shortest path on the current grid (skimage's minimum-cost path; the
-planner's estimates use straight lines, as the paper does). Every step is logged.
+Travel follows the shortest path on the current grid (skimage's minimum-cost path, the
+same costs as the planner's geodesic estimates). Under L1 the time limit is hard and the
+plan's times are expectations, so the execution is monitored: a look, a joint
+observation or a search is started only if the robot can still reach the door in time
+after it; otherwise that candidate or region is left and the robot re-plans. A search
+that reveals less than ``min_area_m2`` of its region gives the rest up (nothing more is
+visible from where the robot can stand). Every step is logged.
 """
 
 from __future__ import annotations
@@ -27,7 +32,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from skimage.graph import MCP_Geometric
 
 from numeric.geometry import line_of_sight
-from numeric.slam.occupancy import FREE
+from numeric.slam.occupancy import FREE, UNKNOWN
 from numeric.viewpoint.grid import PlanningGrid, look_around, scanned_grid, travel_cost
 from numeric.viewpoint.planner import (
     CandidateIn,
@@ -169,6 +174,8 @@ class Summariser:
         pose = np.array([*self.door, np.pi / 2])
         scans = look_around(self.door)
         grid = scanned_grid(self.world, scans)
+        # unknown cells a search could not see into: not a region to explore again
+        given_up = np.zeros(grid.state.shape, dtype=bool)
         cands: dict[str, tuple[str, np.ndarray]] = {}
         self._detect(pose[:2], cands)
         self._false_candidates(grid, cands)
@@ -193,9 +200,24 @@ class Summariser:
             path.extend(route[1:])
             pose = np.array([*to, pose[2]])
 
+        def length(a: np.ndarray, b: np.ndarray) -> float:
+            route = self._route(grid, a, b)
+            return float(np.sum(np.hypot(*np.diff(route, axis=0).T)))
+
+        def fits(to: np.ndarray, busy_s: float) -> bool:
+            """L1's limit is hard: an action is taken only if the robot can still go
+            there, spend ``busy_s`` and reach the door in time (the plan's times are
+            expectations; this monitors the execution)."""
+            if cfg.loss != "L1":
+                return True
+            need = (length(pose[:2], to) + length(to, self.door)) / cfg.speed_m_s + busy_s
+            return t + need <= cfg.time_limit_s
+
+        out_of_time: set[str] = set()
         record("enter", candidates=sorted(cands), unknown_m2=grid.unknown_area())
         for _ in range(cfg.max_steps):
-            open_ids = [c for c in cands if c not in verified and c not in rejected]
+            open_ids = [c for c in cands
+                        if c not in verified and c not in rejected and c not in out_of_time]
             req = PlanRequest(
                 robot=tuple(pose), exit=tuple(self.door),  # type: ignore[arg-type]
                 time_limit_s=max(cfg.time_limit_s - t, 0.0), loss=cfg.loss,  # type: ignore[arg-type]
@@ -226,17 +248,36 @@ class Summariser:
                 if len(free):
                     fc = grid.centres(free[:, 0], free[:, 1])
                     e = fc[np.argmin(np.hypot(*(fc - e).T))]
+                region = grid.unknown_labels[0] == int(g.spec.members[0])
+                if not fits(e, cfg.t_search_s):
+                    given_up |= region
+                    room = grid.room if grid.room is not None else np.ones_like(given_up)
+                    grid = PlanningGrid(grid.grid, room & ~given_up)
+                    record("skip", group=g.name, reason="time limit")
+                    continue
                 move(e)
                 scans = np.vstack([scans, look_around(e)])
                 t += cfg.t_search_s
                 grid = scanned_grid(self.world, scans)
                 found = self._detect(e, cands)
+                # a search that revealed less than a region worth exploring gives the
+                # rest up: from its reachable entry points nothing more can be seen, and
+                # searching it again would spend t_sea for nothing
+                still = region & (grid.state == UNKNOWN)
+                revealed = float(region.sum() - still.sum()) * grid.resolution**2
+                if revealed < cfg.min_area_m2:
+                    given_up |= still
+                if given_up.any():
+                    room = grid.room if grid.room is not None else np.ones_like(given_up)
+                    grid = PlanningGrid(grid.grid, room & ~given_up)
                 record("explore", group=g.name, at=e.tolist(), found=found,
-                       unknown_m2=grid.unknown_area())
+                       unknown_m2=grid.unknown_area(), revealed_m2=revealed,
+                       given_up=revealed < cfg.min_area_m2)
                 continue
             models = self.planner.models(req)
             members = [str(m) for m in (g.local.order if g.local else g.spec.members)]
-            if g.local is not None and g.local.strategy == "par" and g.local.joint_point:
+            if (g.local is not None and g.local.strategy == "par" and g.local.joint_point
+                    and fits(np.array(g.local.joint_point), cfg.t_verify_s * len(members))):
                 jp = np.array(g.local.joint_point)
                 move(jp)
                 for cid in members:
@@ -252,6 +293,10 @@ class Summariser:
                     if vp is None:
                         rejected[cid] = cands[cid][1]
                         record("reject", candidate=cid)
+                        break
+                    if not fits(vp, cfg.t_verify_s):
+                        out_of_time.add(cid)
+                        record("skip", candidate=cid, reason="time limit")
                         break
                     move(vp)
                     t += cfg.t_verify_s

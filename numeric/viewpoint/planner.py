@@ -461,8 +461,7 @@ def local_plan(verifier: Verifier, members: list[Candidate]
     if len(entries) == 0:
         return entries, None, lost
     entries = _thin(entries)
-    local = verifier.group(members, entries, entries)
-    return entries, local[int(np.argmin([lp.time_s for lp in local]))], lost
+    return entries, verifier.best(members, entries, entries), lost
 
 
 def plan_steps(plan: Plan, groups: list[PlannedGroup], cands: dict[str, Candidate],

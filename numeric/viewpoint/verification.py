@@ -42,6 +42,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 from scipy.spatial.distance import cdist
 
@@ -86,7 +87,36 @@ def pattern_indices(pattern: str, rotation: int) -> np.ndarray:
 def min_plus(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The min-plus matrix product ``out[i, j] = min_k a[i, k] + b[k, j]``: chaining
     expected times through intermediate viewpoints."""
-    return np.asarray(np.min(a[:, :, None] + b[None, :, :], axis=1))
+    return min_plus_arg(a, b)[0]
+
+
+def min_plus_arg(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`min_plus` and the intermediate index that attains each minimum (the first
+    one on ties; 0 where every sum is infinite)."""
+    return _min_plus_arg(np.ascontiguousarray(a, dtype=np.float64),
+                         np.ascontiguousarray(b, dtype=np.float64))
+
+
+@njit(cache=True)
+def _min_plus_arg(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    # a loop instead of numpy's (n, m, p) temporary: the products here are small and
+    # many (one per subset and object in t_seq), and numpy's overhead dominated them
+    n, m = a.shape
+    p = b.shape[1]
+    out = np.empty((n, p))
+    arg = np.zeros((n, p), dtype=np.int64)
+    for i in range(n):
+        for j in range(p):
+            best = np.inf
+            k_best = 0
+            for k in range(m):
+                v = a[i, k] + b[k, j]
+                if v < best:
+                    best = v
+                    k_best = k
+            out[i, j] = best
+            arg[i, j] = k_best
+    return out, arg
 
 
 def single_dp(points: np.ndarray, recog: NDArray[np.bool_], belief: np.ndarray,
@@ -98,46 +128,55 @@ def single_dp(points: np.ndarray, recog: NDArray[np.bool_], belief: np.ndarray,
     expected time from arriving at viewpoint v (about to observe) to the goal, and
     whether any viewpoint can recognise the object at all. Then
     ``t_single(X_s, g) = min_v |X_s - v| / speed + Q[g, v]``.
+
+    The orientation sets still possible are bit masks: the start set (orientations of
+    positive belief) minus the sets of the viewpoints that failed. A set depends only on
+    smaller ones, so the sets of one size are solved together (a handful of array
+    operations per size instead of a Python loop over sets and viewpoints).
     """
-    n_v = len(points)
-    n_g = len(goals)
+    n_v, n_g = len(points), len(goals)
     b = np.asarray(belief, dtype=float)
-    start = sum(1 << i for i in range(len(b)) if b[i] > 1e-12)
-    rbits = [sum(1 << int(i) for i in np.nonzero(row)[0]) for row in recog]
-    rf = recog.astype(float)
-    if n_v == 0 or not any(start & r for r in rbits):
+    if len(b) > 62:
+        raise ValueError("single_dp handles at most 62 orientations")
+    weight = np.left_shift(np.int64(1), np.arange(len(b), dtype=np.int64))
+    start = int(weight[b > 1e-12].sum())
+    rbits = (np.asarray(recog, bool).reshape(n_v, len(b)) * weight).sum(axis=1)
+    if n_v == 0 or not np.any(rbits & start):
         return np.full((n_g, n_v), np.inf), False
-    # reachable orientation sets: start minus the sets of the viewpoints that failed
-    seen = {start}
-    todo = [start]
-    while todo:
-        m = todo.pop()
-        for r in rbits:
-            if m & r:
-                nxt = m & ~r
-                if nxt not in seen:
-                    seen.add(nxt)
-                    todo.append(nxt)
-    order = sorted(seen, key=lambda m: bin(m).count("1"))
-    d_vv = cdist(points, points) / speed          # (V, V)
-    d_vg = cdist(points, goals).T / speed         # (G, V)
-    n_bits = len(b)
-    t_at: dict[int, np.ndarray] = {}              # mask -> (G, V): time from viewpoint a
-    for m in order:
-        bits = np.array([(m >> i) & 1 for i in range(n_bits)], dtype=float)
-        mass = float(bits @ b)
-        p = rf @ (bits * b) / mass if mass > 0 else np.zeros(n_v)
+    # the reachable sets: start minus the sets of the viewpoints that failed
+    masks = frontier = np.array([start], dtype=np.int64)
+    while len(frontier):
+        hit = (frontier[:, None] & rbits[None, :]) != 0
+        nxt = np.unique((frontier[:, None] & ~rbits[None, :])[hit])
+        frontier = np.setdiff1d(nxt, masks, assume_unique=True)
+        masks = np.union1d(masks, frontier)
+    bits = ((masks[:, None] >> np.arange(len(b))) & 1).astype(float)        # (M, N)
+    size = bits.sum(axis=1).astype(int)
+    mass = bits @ b
+    with np.errstate(invalid="ignore", divide="ignore"):
+        p_all = np.where(mass[:, None] > 0, (bits * b) @ recog.T.astype(float)
+                         / mass[:, None], 0.0)                              # (M, V)
+    d_vv = cdist(points, points) / speed                                     # (V, V)
+    d_gv = cdist(goals, points) / speed                                      # (G, V)
+    t_at = np.zeros((len(masks), n_g, n_v))   # T(a, set): time from viewpoint a
+    v_idx = np.arange(n_v)
+    q = np.full((1, n_v, n_g), np.inf)
+    for k in np.unique(size):
+        ids = np.nonzero(size == k)[0]
+        p = p_all[ids]                                                       # (L, V)
         useful = p > 0
-        q = np.full((n_g, n_v), np.inf)
-        if not useful.any():
-            t_at[m] = d_vg.copy()  # nothing left to try: go to the goal
-            continue
-        for v in np.nonzero(useful)[0]:
-            rest = t_at[m & ~rbits[v]][:, v] if p[v] < 1 else 0.0
-            q[:, v] = t_verify + p[v] * d_vg[:, v] + (1 - p[v]) * rest
-        # T(a, m) = min_v d(a, v) + Q(v, m)
-        t_at[m] = min_plus(q, d_vv)
-    return q, True  # the last set in the order is the start set
+        nxt = np.searchsorted(masks, masks[ids, None] & ~rbits[None, :])     # (L, V)
+        rest = t_at[np.where(useful & (p < 1), nxt, 0), :, v_idx[None, :]]   # (L, V, G)
+        with np.errstate(invalid="ignore"):
+            q = np.where(useful[..., None],
+                         t_verify + p[..., None] * d_gv.T[None]
+                         + np.where(p[..., None] < 1, (1 - p[..., None]) * rest, 0.0),
+                         np.inf)                                             # (L, V, G)
+        # T(a, set) = min_v d(a, v) + Q(v, set); nothing left to try: go to the goal
+        t = np.min(q[:, :, :, None] + d_vv[None, :, None, :], axis=1)        # (L, G, V)
+        t[~useful.any(axis=1)] = d_gv
+        t_at[ids] = t
+    return q[0].T, True  # the last size holds the start set alone
 
 
 @dataclass
@@ -161,21 +200,32 @@ class TableCache:
     def get(self, model: AppearanceModel, radii: tuple[float, float, float], pattern: str,
             rotation: int, belief: np.ndarray, speed: float, t_verify: float,
             ) -> VerificationTable:
-        key = (model.params.model_dump_json(), model.n_theta, radii, pattern, rotation,
-               np.round(belief, 9).tobytes(), speed, t_verify)
-        tab = self.tables.get(key)
-        if tab is not None:
-            self.hits += 1
-            return tab
-        self.builds += 1
+        """The table of ``pattern`` turned by ``rotation`` * 45 deg. The appearance model
+        depends only on the angle between the view and the object's orientation, so
+        turning the pattern by 45 deg is turning the orientations back by one eighth of
+        a turn: when ``n_theta`` is a multiple of 8 the times of rotation r are those of
+        rotation 0 with the belief rolled by ``r * n_theta / 8`` (one DP serves all eight
+        rotations of a uniform belief)."""
+        belief = np.asarray(belief, dtype=float)
         pts = viewpoint_circles(np.zeros(2), radii)[pattern_indices(pattern, rotation)]
-        rec = model.recognisable(pts, np.zeros(2))
-        q, ok = single_dp(pts, rec, belief, pts, speed, t_verify)
-        d = cdist(pts, pts) / speed
+        if model.n_theta % DIRECTIONS == 0:
+            base_rot, base_belief = 0, np.roll(belief, -rotation * model.n_theta // DIRECTIONS)
+        else:
+            base_rot, base_belief = rotation, belief
+        key = (model.params.model_dump_json(), model.n_theta, radii, pattern, base_rot,
+               np.round(base_belief, 9).tobytes(), speed, t_verify)
+        hit = self.tables.get(key)
+        if hit is not None:
+            self.hits += 1
+            return VerificationTable(pts, hit.times, hit.feasible)
+        self.builds += 1
+        base = viewpoint_circles(np.zeros(2), radii)[pattern_indices(pattern, base_rot)]
+        rec = model.recognisable(base, np.zeros(2))
+        q, ok = single_dp(base, rec, base_belief, base, speed, t_verify)
+        d = cdist(base, base) / speed
         times = min_plus(q, d) if ok else d.T
-        tab = VerificationTable(pts, times, ok)
-        self.tables[key] = tab
-        return tab
+        self.tables[key] = VerificationTable(base, times, ok)
+        return VerificationTable(pts, times, ok)
 
 
 @dataclass(frozen=True)
@@ -398,25 +448,42 @@ class Verifier:
     def group(self, cands: Sequence[Candidate], starts: np.ndarray, goals: np.ndarray,
               ) -> list[LocalPlan]:
         """The better of t_seq and t_par (§5.2) for paired starts/goals; t_single for one."""
+        seq, par, jp, order_of, exact = self._seq_par(cands, starts, goals)
+        return [self._local(i, seq, par, jp, order_of, exact, cands) for i in range(len(seq))]
+
+    def best(self, cands: Sequence[Candidate], starts: np.ndarray, goals: np.ndarray,
+             ) -> LocalPlan:
+        """The quickest of :meth:`group`'s plans; only its order is traced back (a group's
+        order costs a pass over its viewpoints per start)."""
+        seq, par, jp, order_of, exact = self._seq_par(cands, starts, goals)
+        i = int(np.argmin(np.minimum(seq, par)))
+        return self._local(i, seq, par, jp, order_of, exact, cands)
+
+    def _seq_par(self, cands: Sequence[Candidate], starts: np.ndarray, goals: np.ndarray,
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                            Callable[[int, int], tuple[str, ...]], bool]:
         starts = np.atleast_2d(starts)
         goals = np.atleast_2d(goals)
         n = len(starts)
         seq_m, order_of, exact = self.sequential(cands, starts, goals)
         seq = seq_m[np.arange(n), np.arange(n)]
-        orders = [order_of(i, i) for i in range(n)]
         if len(cands) == 1:
-            return [LocalPlan(float(t), "single", o) for t, o in zip(seq, orders, strict=True)]
+            return seq, np.full(n, np.inf), np.full((n, 2), np.nan), order_of, exact
         par, jp = self.parallel(cands, starts, goals)
-        out = []
-        for i in range(len(starts)):
-            if par[i] < seq[i]:
-                out.append(LocalPlan(float(par[i]), "par", tuple(c.id for c in cands),
-                                     (float(jp[i, 0]), float(jp[i, 1])), float(seq[i]),
-                                     float(par[i]), exact))
-            else:
-                out.append(LocalPlan(float(seq[i]), "seq", orders[i], None, float(seq[i]),
-                                     float(par[i]) if np.isfinite(par[i]) else None, exact))
-        return out
+        return seq, par, jp, order_of, exact
+
+    @staticmethod
+    def _local(i: int, seq: np.ndarray, par: np.ndarray, jp: np.ndarray,
+               order_of: Callable[[int, int], tuple[str, ...]], exact: bool,
+               cands: Sequence[Candidate]) -> LocalPlan:
+        if len(cands) == 1:
+            return LocalPlan(float(seq[i]), "single", order_of(i, i))
+        if par[i] < seq[i]:
+            return LocalPlan(float(par[i]), "par", tuple(c.id for c in cands),
+                             (float(jp[i, 0]), float(jp[i, 1])), float(seq[i]),
+                             float(par[i]), exact)
+        return LocalPlan(float(seq[i]), "seq", order_of(i, i), None, float(seq[i]),
+                         float(par[i]) if np.isfinite(par[i]) else None, exact)
 
 
 def unknown_region_time(verifier: Verifier, models: dict[str, AppearanceModel],
@@ -441,13 +508,6 @@ def unknown_region_time(verifier: Verifier, models: dict[str, AppearanceModel],
             total += n_bar * t
     extra = max(sum(mean_counts.values()) - 1.0, 0.0) * t_dist
     return float(t_search + area_m2 / total_unknown_m2 * (total + extra))
-
-
-def min_plus_arg(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`min_plus` and the intermediate index that attains each minimum."""
-    s = a[:, :, None] + b[None, :, :]
-    k = np.argmin(s, axis=1)
-    return np.take_along_axis(s, k[:, None, :], axis=1)[:, 0, :], k
 
 
 class HandoverTable:
@@ -506,27 +566,31 @@ class HandoverDP(HandoverTable):
         k = len(cands)
         self.h: dict[tuple[int, int], np.ndarray] = {}
         self.arg: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
-        pair = {(p, c): verifier.single(cands[c], self.pts[p], self.pts[c])
-                for p in range(k) for c in range(k) if p != c}
+        # every object's viewpoints stacked: one min-plus product per (set, next object)
+        # serves all the objects the robot may come from (rows of the others are unused)
+        every = np.vstack(self.pts)
+        cut = np.cumsum([0] + [len(p) for p in self.pts])
+        rows = [slice(int(cut[i]), int(cut[i + 1])) for i in range(k)]
+        pair = [verifier.single(cands[c], every, self.pts[c]) for c in range(k)]
         for mask in sorted(range(1, (1 << k) - 1), key=lambda m: m.bit_count()):
             members = [c for c in range(k) if mask >> c & 1]
-            for p in range(k):
-                if mask >> p & 1:
-                    continue
-                if len(members) == 1:
-                    self.h[mask, p] = verifier.single(cands[members[0]], self.pts[p], goals)
-                    continue
-                best = np.full((len(self.pts[p]), len(goals)), np.inf)
+            if len(members) == 1:
+                best = verifier.single(cands[members[0]], every, goals)
+            else:
+                best = np.full((len(every), len(goals)), np.inf)
                 who = np.full(best.shape, -1)
                 port = np.zeros(best.shape, dtype=int)
                 for c in members:
-                    val, via = min_plus_arg(pair[p, c], self.h[mask & ~(1 << c), c])
+                    val, via = min_plus_arg(pair[c], self.h[mask & ~(1 << c), c])
                     better = val < best
                     best = np.where(better, val, best)
                     who = np.where(better, c, who)
                     port = np.where(better, via, port)
-                self.h[mask, p] = best
-                self.arg[mask, p] = (who, port)
+            for p in range(k):
+                if not mask >> p & 1:
+                    self.h[mask, p] = best[rows[p]]
+                    if len(members) > 1:
+                        self.arg[mask, p] = (who[rows[p]], port[rows[p]])
 
     def legs(self, xy: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
         """From points xy: t_single to each object's viewpoints and to the goals."""
