@@ -401,6 +401,31 @@ def test_branch_and_bound_finds_the_dp_optimum(kind: str) -> None:
         assert bb.upper_bound == pytest.approx(dp.utility, abs=1e-6)
 
 
+@pytest.mark.parametrize("kind", ["L1", "L2", "L3"])
+def test_state_bounds_hold_every_plan_through_the_state(kind: str) -> None:
+    """The branch and bound's bound of a partial tour is at least the utility of every
+    plan that starts with it (every order of every set of the other groups, by
+    enumeration)."""
+    from numeric.viewpoint.plan import evaluate, state_bounds
+
+    for seed in range(4):
+        p = random_problem(7, kind, 10 + seed)
+        rng = np.random.default_rng(seed)
+        for _ in range(6):
+            k = int(rng.integers(1, 5))
+            prefix = tuple(int(i) for i in rng.permutation(7)[:k])
+            head = evaluate(p, prefix)
+            t = head.t_move - p.t_exit[prefix[-1]] + head.t_obs   # time at the last group
+            rest = [g for g in range(7) if g not in prefix]
+            best = max(evaluate(p, prefix + tail).utility
+                       for r in range(len(rest) + 1)
+                       for tail in itertools.permutations(rest, r))
+            b = state_bounds(p, np.array([sum(1 << i for i in prefix)]),
+                             np.array([prefix[-1]]), np.array([t]), np.array([head.value]),
+                             p.way_in())[0]
+            assert b >= best - 1e-9
+
+
 def test_branch_and_bound_out_of_time_reports_a_true_gap() -> None:
     p = random_problem(14, "L2", 5)
     dp = solve(p, runner_ups=0)[0]

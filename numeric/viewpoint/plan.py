@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+from numba import njit
 from pydantic import BaseModel, ConfigDict, Field
 
 from numeric.errors import InvalidInput
@@ -285,67 +286,109 @@ class Solution:
         return self.gap <= 1e-9 * max(1.0, abs(self.upper_bound))
 
 
-def knapsack_bounds(p: Problem, t0: np.ndarray, rem: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """For each of S states, the upper bound of ``V(R) - L(t0 + W(R))`` over non-empty
-    sets R of its remaining groups ``rem (S, n)``, each group weighing ``w (S, n)``
-    seconds: a concave knapsack whose fractional optimum takes the groups by value per
-    second, best first, while a second more is worth what it costs (L1: until the
-    limit; L2: until the slope 2 k_lim (T - t_limit) reaches the ratio; L3: every group
-    of positive value). Vectorised over the states."""
-    loss = p.loss
-    v = np.where(rem, p.value[None, :], 0.0)
-    if loss.kind == "L3" or (loss.kind == "L2" and loss.k_lim <= 0):
-        return np.where(rem.any(axis=1), v.sum(axis=1), -np.inf)
-    w = np.where(rem, np.maximum(w, 0.0), np.inf)
-    ratio = np.where(rem, v / np.maximum(w, 1e-12), -1.0)
-    order = np.argsort(-ratio, axis=1, kind="stable")
-    v = np.take_along_axis(v, order, axis=1)
-    w = np.where(np.take_along_axis(rem, order, axis=1),
-                 np.take_along_axis(w, order, axis=1), 0.0)
-    live = np.take_along_axis(rem, order, axis=1)
-    cum = np.cumsum(w, axis=1)
-    before = t0[:, None] + cum - w
-    if loss.kind == "L1":
-        room = loss.t_limit_s - before
-        x = np.clip(room, 0.0, w)
-        part = np.where(w > 0, v * x / np.where(w > 0, w, 1.0), np.where(room >= 0, v, 0.0))
-        # the groups after the first that does not fit whole are out
-        cut = np.cumsum(live & (x < w), axis=1) - (live & (x < w))
-        part = np.where(live & (cut == 0), part, 0.0)
-        val = part.sum(axis=1)
-        feasible = (loss.t_limit_s - t0 > 0) & rem.any(axis=1)
-        return np.where(feasible & (val > 0), val, -np.inf)
-    r = v / np.maximum(w, 1e-12)
-    x = np.minimum(w, np.maximum(0.0, r / (2 * loss.k_lim) + loss.t_limit_s - before))
-    x = np.where(live, x, 0.0)
-    short = live & (x < w)
-    stop: np.ndarray = np.cumsum(short, axis=1) - short  # shorts before this one
-    take = live & (stop == 0)
-    gain = np.where(take, np.where(w > 0, r * x, v), 0.0)
-    t_end = t0 + np.where(take, x, 0.0).sum(axis=1)
-    out = gain.sum(axis=1) - loss(t_end)
-    return np.where(rem.any(axis=1), out, -np.inf)
+_LOSS_KIND = {"L1": 1, "L2": 2, "L3": 3}
 
 
 def state_bounds(p: Problem, masks: np.ndarray, last: np.ndarray, t: np.ndarray,
                  val: np.ndarray, entry_min: np.ndarray) -> np.ndarray:
-    """The best utility of any plan through each state: leave now, or go on with more
-    groups, each costing at least its t_obs plus its cheapest way in (from the state's
-    last group or from any group) and the tour ending with at least the cheapest way
-    out of the remaining groups."""
-    n = p.n
-    bits = (masks[:, None] >> np.arange(n)[None, :]) & 1
-    rem = (bits == 0) & (p.value[None, :] > 0)
-    into = np.minimum(p.t_gg[last], entry_min[None, :])
-    exit_min = np.where(rem, p.t_exit[None, :], np.inf).min(axis=1)
-    more = val + knapsack_bounds(p, t + np.where(np.isfinite(exit_min), exit_min, 0.0), rem,
-                                 p.t_obs[None, :] + into)
-    now = val - p.loss(t + p.t_exit[last])
-    return np.maximum(np.where(np.isfinite(now), now, -np.inf), more)
+    """The best utility of any plan through each state ``(groups done as a bit mask,
+    the last one, time so far, value so far)``: leave now, or go on with more groups.
+
+    Going on is bounded by a concave knapsack over the groups still to do: each weighs
+    its t_obs plus its cheapest way in from any group or the robot (``entry_min``, see
+    :meth:`Problem.way_in`), the tour ends with at least the cheapest way out of them,
+    and the fractional optimum takes them by value per second, best first, while a
+    second more is worth what it costs (L1: until the limit; L2: until the slope
+    2 k_lim (T - t_limit) reaches the ratio; L3: every group of positive value). The
+    weights do not depend on the state, so the order is sorted once and each state
+    is one pass over it (numba)."""
+    w = p.t_obs + entry_min
+    order = np.argsort(-p.value / np.maximum(w, 1e-12), kind="stable")
+    k_lim = p.loss.k_lim
+    kind = _LOSS_KIND[p.loss.kind]
+    if kind == 2 and k_lim <= 0:
+        kind = 3
+    return _state_bounds(np.ascontiguousarray(masks, dtype=np.int64),
+                         np.ascontiguousarray(last, dtype=np.int64),
+                         np.ascontiguousarray(t, dtype=np.float64),
+                         np.ascontiguousarray(val, dtype=np.float64), order.astype(np.int64),
+                         p.value.astype(np.float64), w.astype(np.float64),
+                         p.t_exit.astype(np.float64), kind, float(p.loss.t_limit_s),
+                         float(k_lim))
+
+
+@njit(cache=True)
+def _loss(kind: int, t: float, t_limit: float, k_lim: float) -> float:
+    if t < t_limit or kind == 3:
+        return 0.0
+    if kind == 1:
+        return np.inf
+    return k_lim * (t - t_limit) ** 2
+
+
+@njit(cache=True)
+def _state_bounds(masks: np.ndarray, last: np.ndarray, t: np.ndarray, val: np.ndarray,
+                  order: np.ndarray, value: np.ndarray, w: np.ndarray, t_exit: np.ndarray,
+                  kind: int, t_limit: float, k_lim: float) -> np.ndarray:
+    out = np.empty(len(masks))
+    n = len(order)
+    for s in range(len(masks)):
+        m = masks[s]
+        exit_min = np.inf
+        todo = 0
+        for g in range(n):
+            if (m >> g) & 1 == 0 and value[g] > 0:
+                todo += 1
+                exit_min = min(exit_min, t_exit[g])
+        best = val[s] - _loss(kind, t[s] + t_exit[last[s]], t_limit, k_lim)
+        if not np.isfinite(best):
+            best = -np.inf
+        if todo:
+            t0 = t[s] + (exit_min if np.isfinite(exit_min) else 0.0)
+            more = -np.inf
+            if kind == 3:
+                more = 0.0
+                for g in range(n):
+                    if (m >> g) & 1 == 0 and value[g] > 0:
+                        more += value[g]
+            elif kind == 1:
+                if t_limit - t0 > 0:
+                    before, acc = t0, 0.0
+                    for g in order:
+                        if (m >> g) & 1 or value[g] <= 0:
+                            continue
+                        room = t_limit - before
+                        if w[g] > 0:
+                            x = min(max(room, 0.0), w[g])
+                            acc += value[g] * x / w[g]
+                        else:
+                            x = 0.0
+                            acc += value[g] if room >= 0 else 0.0
+                        if x < w[g]:  # the first group that does not fit whole: the last
+                            break
+                        before += w[g]
+                    if acc > 0:
+                        more = acc
+            else:
+                before, gain, t_end = t0, 0.0, t0
+                for g in order:
+                    if (m >> g) & 1 or value[g] <= 0:
+                        continue
+                    r = value[g] / max(w[g], 1e-12)
+                    x = min(w[g], max(0.0, r / (2 * k_lim) + t_limit - before))
+                    gain += r * x if w[g] > 0 else value[g]
+                    t_end += x
+                    if x < w[g]:
+                        break
+                    before += w[g]
+                more = gain - _loss(kind, t_end, t_limit, k_lim)
+            best = max(best, val[s] + more)
+        out[s] = best
+    return out
 
 
 def solve_bnb(p: Problem, runner_ups: int = 5, budget_s: float = 1.0,
-              max_states: int = 400_000) -> Solution:
+              max_states: int = 100_000) -> Solution:
     """The best plan by branch and bound, one layer of partial tours at a time.
 
     A state is (groups done, the last one, time so far, value so far); layer k holds the
@@ -353,10 +396,12 @@ def solve_bnb(p: Problem, runner_ups: int = 5, budget_s: float = 1.0,
     and bounds every longer plan through it (:func:`state_bounds`); states whose bound
     cannot beat the best plan found are cut, and of the states with the same groups and
     the same last group only the earliest is kept (every loss is non-decreasing in
-    time). A layer is processed in numpy at once. The search starts from the exact DP's
-    plans over a part of the groups (:func:`seed_plans`). It is exact when it runs out
-    of states; past ``budget_s``, or when a layer would exceed ``max_states`` (then the
-    states with the best bounds go on), the largest bound left out makes the gap. The
+    time). Bounds and children are computed layer by layer in numba (a hash table finds
+    the duplicates; a few million states per second). The search starts from the exact
+    DP's plans over a part of the groups (:func:`seed_plans`). It is exact when it runs
+    out of states; past ``budget_s``, or when more than ``max_states`` states of a layer
+    survive their bounds (then those with the best bounds go on, which bounds the memory
+    at ~40 bytes per child), the largest bound left out makes the gap. The
     runner-ups are the next-best other sets met on the way (exact only from the DP).
     Each returned set is toured in its fastest order."""
     import time as _time
@@ -400,29 +445,70 @@ def solve_bnb(p: Problem, runner_ups: int = 5, budget_s: float = 1.0,
         masks, last, t, val, bound = masks[live], last[live], t[live], val[live], bound[live]
         if not len(masks):
             break
-        # children: every state x every group not done
-        bits = (masks[:, None] >> np.arange(n)[None, :]) & 1
-        si, gi = np.nonzero(bits == 0)
-        t2 = t[si] + p.t_gg[last[si], gi] + p.t_obs[gi]  # gi is never last: not done
-        m2 = masks[si] | (np.int64(1) << gi.astype(np.int64))
-        key = m2 * n + gi
-        order = np.lexsort((t2, key))
-        first = np.ones(len(order), dtype=bool)
-        first[1:] = key[order][1:] != key[order][:-1]
-        pick = order[first]
-        masks, last, t = m2[pick], gi[pick], t2[pick]
-        val, parent = val[si[pick]] + p.value[gi[pick]], bound[si[pick]]
-        if len(masks) > max_states:  # keep the most promising, remember what was dropped
-            top = np.argpartition(-parent, max_states)[:max_states]
+        if len(masks) > max_states:  # expand the most promising, remember the rest
+            top = np.argpartition(-bound, max_states)[:max_states]
             drop = np.ones(len(masks), dtype=bool)
             drop[top] = False
-            early, left_out = True, max(left_out, float(parent[drop].max()))
-            masks, last, t, val, parent = (masks[top], last[top], t[top], val[top],
-                                           parent[top])
+            early, left_out = True, max(left_out, float(bound[drop].max()))
+            masks, last, t, val, bound = masks[top], last[top], t[top], val[top], bound[top]
+        # children: every state x every group not done, the earliest per (set, last)
+        masks, last, t, val, parent = _children(masks, last, t, val, bound, p.t_gg,
+                                                p.t_obs.astype(np.float64),
+                                                p.value.astype(np.float64))
     ub = max(best, left_out)
     top_sets = sorted(best_sets, key=lambda m: -best_sets[m])[:keep]
     plans = sorted((evaluate(p, fastest_order(p, m)) for m in top_sets), key=_rank)
     return Solution(plans, max(ub, plans[0].utility), nodes, early)
+
+
+@njit(cache=True)
+def _children(masks: np.ndarray, last: np.ndarray, t: np.ndarray, val: np.ndarray,
+              bound: np.ndarray, t_gg: np.ndarray, t_obs: np.ndarray, value: np.ndarray,
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The next layer: each state extended by each group not done, one child per (set,
+    last group) -- the earliest (every loss is non-decreasing in time) -- found with an
+    open-addressing hash table. Returns the children's masks, last groups, times,
+    values and their parents' bounds."""
+    n = len(value)
+    cap = 0
+    for s in range(len(masks)):
+        m = masks[s]
+        for g in range(n):
+            cap += 1 - ((m >> g) & 1)
+    bits = 1
+    while (1 << bits) < 2 * cap:
+        bits += 1
+    size = 1 << bits
+    slot = np.full(size, -1, dtype=np.int64)
+    out_m = np.empty(cap, dtype=np.int64)
+    out_l = np.empty(cap, dtype=np.int64)
+    out_t = np.empty(cap)
+    out_v = np.empty(cap)
+    out_b = np.empty(cap)
+    k = 0
+    for s in range(len(masks)):
+        m, a = masks[s], last[s]
+        for g in range(n):
+            if (m >> g) & 1:
+                continue
+            m2 = m | (np.int64(1) << g)
+            t2 = t[s] + t_gg[a, g] + t_obs[g]
+            h = (np.uint64(m2 * n + g) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - bits)
+            i = np.int64(h)
+            while True:
+                j = slot[i]
+                if j < 0:
+                    slot[i] = k
+                    out_m[k], out_l[k], out_t[k] = m2, g, t2
+                    out_v[k], out_b[k] = val[s] + value[g], bound[s]
+                    k += 1
+                    break
+                if out_m[j] == m2 and out_l[j] == g:
+                    if t2 < out_t[j]:
+                        out_t[j], out_b[j] = t2, bound[s]
+                    break
+                i = (i + 1) & (size - 1)
+    return out_m[:k], out_l[:k], out_t[:k], out_v[:k], out_b[:k]
 
 
 def seed_plans(p: Problem, size: int = SEED_GROUPS) -> list[Plan]:
