@@ -546,6 +546,32 @@ def test_travel_goes_around_walls() -> None:
     assert p.t_start[0] == pytest.approx(d / 0.5) and p.t_leave == 0.0
 
 
+def test_travel_fields_equal_skimage_minimum_cost_paths() -> None:
+    """The distance fields (one Dijkstra on the map's graph) equal skimage's
+    MCP_Geometric on the same costs, including sources on impassable cells."""
+    from skimage.graph import MCP_Geometric
+
+    from numeric.viewpoint.grid import TravelMap
+
+    rng = np.random.default_rng(4)
+    for _ in range(3):
+        cells = np.where(rng.random((60, 50)) < 0.15, 100, 0)
+        cells[rng.random((60, 50)) < 0.1] = -1
+        grid = from_occupancy_values(50, 60, 0.1, (0.0, 0.0), cells.ravel().tolist())
+        tm = TravelMap(grid)
+        src = rng.uniform(0.2, 4.8, (3, 2))
+        i, j, _ = tm.cells(src)
+        cost = tm.cost.copy()
+        starts = [(int(a), int(b)) for a, b in zip(i, j, strict=True)]
+        for a, b in starts:
+            cost[a, b] = 1.0 if not np.isfinite(cost[a, b]) else cost[a, b]
+        ref, _ = MCP_Geometric(cost).find_costs(starts)
+        out = tm.field(src)
+        reach = np.isfinite(ref)
+        assert np.array_equal(reach, np.isfinite(out))
+        assert np.allclose(out[reach], ref[reach] * tm.cell_m)
+
+
 def test_random_rooms_are_valid_and_repeatable() -> None:
     from numeric.geometry import point_segment_distance
     from numeric.worlds import ROOM_TEXTURES, SUMMARY_ROOM_M, _polygon_walls, random_summary_room

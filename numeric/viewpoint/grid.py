@@ -52,6 +52,7 @@ class PlanningGrid:
             raise InvalidInput("the room mask must have the grid's shape", field="grid")
         self.grid = grid
         self.room = room
+        self._components: dict[tuple[float, int], list[UnknownComponent]] = {}
 
     @property
     def resolution(self) -> float:
@@ -125,8 +126,13 @@ class PlanningGrid:
                            at_most: int = MAX_COMPONENTS) -> list[UnknownComponent]:
         """Unknown components of at least ``min_area_m2`` (the candidates for
         unknown-region groups; whether one becomes a group is decided in Prolog), largest
-        first, at most ``at_most`` of them, with their entry points."""
-        return self.grid.unknown_components(min_area_m2, at_most, self.unknown_labels)
+        first, at most ``at_most`` of them, with their entry points (kept per grid: a
+        grid is not changed in place, and re-plans on the same map ask again)."""
+        key = (min_area_m2, at_most)
+        if key not in self._components:
+            self._components[key] = self.grid.unknown_components(min_area_m2, at_most,
+                                                                 self.unknown_labels)
+        return self._components[key]
 
     def unknown_area(self) -> float:
         lab, _ = self.unknown_labels
@@ -262,13 +268,17 @@ def travel_cost(grid: PlanningGrid) -> np.ndarray:
 
 
 class TravelMap:
-    """Geodesic distances on a planning grid: shortest paths around obstacles (skimage's
-    minimum-cost paths, 8-connected with diagonal steps of sqrt 2) on cells of
-    TRAVEL_CELL_M, a coarse cell taking the dearest of its fine cells. A point on an
-    impassable cell starts from it anyway (the robot stands there); a target no path
-    reaches gets the straight-line distance, as the robot's own route does."""
+    """Geodesic distances on a planning grid: shortest paths around obstacles on cells of
+    TRAVEL_CELL_M, a coarse cell taking the dearest of its fine cells, 8-connected; a
+    step between neighbours costs the mean of their costs times its length (1 or
+    sqrt 2), as skimage's MCP_Geometric counts it. The graph is built once per map
+    (scipy's sparse graphs) and each distance field is one multi-source Dijkstra. A
+    point on an impassable cell starts from it anyway (the robot stands there: steps out
+    of such a cell count it as free); a target no path reaches gets the straight-line
+    distance, as the robot's own route does."""
 
     def __init__(self, grid: PlanningGrid, cell_m: float = TRAVEL_CELL_M) -> None:
+        from scipy.sparse import csr_matrix
         from skimage.measure import block_reduce
 
         self.grid = grid
@@ -277,6 +287,19 @@ class TravelMap:
         self.cost = np.asarray(block_reduce(fine, (self.factor, self.factor), np.max,
                                             cval=np.inf)) if self.factor > 1 else fine
         self.cell_m = grid.resolution * self.factor
+        h, w = self.cost.shape
+        ids = np.arange(h * w).reshape(h, w)
+        leave = np.where(np.isfinite(self.cost), self.cost, 1.0)  # out of a robot's cell
+        rows, cols, vals = [], [], []
+        for di, dj in ((0, 1), (1, 0), (1, 1), (1, -1), (0, -1), (-1, 0), (-1, -1), (-1, 1)):
+            a = (slice(max(-di, 0), h - max(di, 0)), slice(max(-dj, 0), w - max(dj, 0)))
+            b = (slice(max(di, 0), h - max(-di, 0)), slice(max(dj, 0), w - max(-dj, 0)))
+            ok = np.isfinite(self.cost[b])
+            rows.append(ids[a][ok])
+            cols.append(ids[b][ok])
+            vals.append((0.5 * (leave[a] + self.cost[b]) * np.hypot(di, dj))[ok])
+        self.graph = csr_matrix((np.concatenate(vals), (np.concatenate(rows),
+                                                        np.concatenate(cols))), shape=(h * w,) * 2)
 
     def cells(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         i, j, inside = self.grid.cells(np.atleast_2d(xy))
@@ -284,17 +307,14 @@ class TravelMap:
 
     def field(self, sources: np.ndarray) -> np.ndarray:
         """Distance (m) from the nearest of ``sources (k, 2)`` to every coarse cell."""
-        from skimage.graph import MCP_Geometric
+        from scipy.sparse.csgraph import dijkstra
 
         i, j, inside = self.cells(sources)
-        cost = self.cost.copy()
-        starts = [(int(a), int(b)) for a, b, ok in zip(i, j, inside, strict=True) if ok]
-        if not starts:
-            return np.full(cost.shape, np.inf)
-        for a, b in starts:
-            cost[a, b] = 1.0 if not np.isfinite(cost[a, b]) else cost[a, b]
-        out, _ = MCP_Geometric(cost).find_costs(starts)
-        return np.asarray(out) * self.cell_m
+        if not inside.any():
+            return np.full(self.cost.shape, np.inf)
+        start = np.unique(i[inside] * self.cost.shape[1] + j[inside])
+        d = dijkstra(self.graph, directed=True, indices=start, min_only=True)
+        return np.asarray(d).reshape(self.cost.shape) * self.cell_m
 
     def distances(self, field: np.ndarray, sources: np.ndarray,
                   targets: np.ndarray) -> np.ndarray:
@@ -305,10 +325,9 @@ class TravelMap:
         d = np.where(inside, field[i, j], np.inf)
         # a target on an impassable cell: from its cheapest neighbour
         bad = ~np.isfinite(d) & inside
-        for k in np.flatnonzero(bad):
-            a, b = int(i[k]), int(j[k])
-            patch = field[max(a - 1, 0):a + 2, max(b - 1, 0):b + 2]
-            d[k] = float(patch.min()) + self.cell_m
+        if bad.any():
+            near = ndimage.minimum_filter(field, size=3, mode="constant", cval=np.inf)
+            d[bad] = near[i[bad], j[bad]] + self.cell_m
         straight = np.min(np.linalg.norm(np.atleast_2d(sources)[:, None] - targets[None],
                                          axis=2), axis=0)
         return np.asarray(np.where(np.isfinite(d), np.maximum(d, straight), straight))

@@ -37,6 +37,7 @@ from numeric.viewpoint.verification import (
     LocalPlan,
     TableCache,
     Verifier,
+    ViewpointSet,
     unknown_region_time,
 )
 from numeric.world import ID_PATTERN
@@ -312,6 +313,7 @@ class ViewpointPlanner:
     def __init__(self, tables: TableCache | None = None) -> None:
         self.tables = tables if tables is not None else TableCache()
         self.local_plans = LocalPlanCache()
+        self.viewpoint_sets: dict[bytes, ViewpointSet] = {}
         self.unknown_times: dict[tuple[object, ...], float] = {}
         self._travel: tuple[bytes, TravelMap, dict[bytes, np.ndarray]] | None = None
 
@@ -360,7 +362,7 @@ class ViewpointPlanner:
             req.min_area_m2)
         t2 = time.perf_counter()
         verifier = Verifier(grid, req.speed_m_s, req.t_verify_s, req.clearance_m,
-                            req.use_table, self.tables)
+                            req.use_table, self.tables, self.viewpoint_sets)
         builds, hits = self.tables.builds, self.tables.hits
         unknown_total = sum(comps[int(s.members[0])].area_m2 for s in specs
                             if s.kind == "unknown")

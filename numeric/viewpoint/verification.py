@@ -38,6 +38,7 @@ did not finish in 300 s.) Unknown regions: t_u = t_sea + t_obj_hat (eqs. 9-10).
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -82,6 +83,15 @@ def pattern_indices(pattern: str, rotation: int) -> np.ndarray:
     """Viewpoint indices (all three rings) of ``pattern`` rotated by ``rotation * 45 deg``."""
     dirs = (np.array(PATTERNS[pattern]) + rotation) % DIRECTIONS
     return np.asarray((np.arange(RINGS)[:, None] * DIRECTIONS + dirs[None, :]).ravel())
+
+
+#: every (pattern, rotation) in the order they are tried -- most open first, the open
+#: pattern once (it is rotation invariant) -- and which of the 24 viewpoints each needs
+_PATTERN_KEYS = [(name, rot) for name in PATTERNS
+                 for rot in (range(1) if name == "open" else range(DIRECTIONS))]
+_PATTERN_MASKS = np.zeros((len(_PATTERN_KEYS), RINGS * DIRECTIONS), dtype=bool)
+for _k, (_name, _rot) in enumerate(_PATTERN_KEYS):
+    _PATTERN_MASKS[_k, pattern_indices(_name, _rot)] = True
 
 
 def min_plus(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -276,7 +286,8 @@ class Verifier:
 
     def __init__(self, grid: PlanningGrid | None, speed: float, t_verify: float,
                  clearance_m: float = 0.25, use_table: bool = True,
-                 tables: TableCache | None = None) -> None:
+                 tables: TableCache | None = None,
+                 kept: dict[bytes, ViewpointSet] | None = None) -> None:
         if not (speed > 0 and np.isfinite(speed)):
             raise InvalidInput("speed must be > 0", field="speed")
         self.grid = grid
@@ -286,17 +297,48 @@ class Verifier:
         self.use_table = use_table
         self.tables = tables if tables is not None else TableCache()
         self._sets: dict[str, ViewpointSet] = {}
+        #: viewpoint sets kept across plans (by content, see :meth:`viewpoints`)
+        self.kept = kept if kept is not None else {}
 
     # -- viewpoints -------------------------------------------------------------------
     def radii(self, cand: Candidate) -> tuple[float, float, float]:
         return cand.model.radii(min_standoff_m=self.clearance + 0.25)
 
     def viewpoints(self, cand: Candidate) -> ViewpointSet:
-        """The usable viewpoints of ``cand`` (cached per candidate id)."""
+        """The usable viewpoints of ``cand`` (cached per candidate id, and across plans in
+        ``kept`` by what they depend on: the candidate's position, model and belief, the
+        verifier's parameters and the grid within reach of its viewpoints -- a re-plan
+        after the map changed elsewhere reuses them)."""
         vs = self._sets.get(cand.id)
         if vs is not None:
             return vs
         radii = self.radii(cand)
+        key = self._key(cand, radii)
+        vs = self.kept.get(key)
+        if vs is None:
+            vs = self._viewpoints(cand, radii)
+            if len(self.kept) >= 4096:
+                self.kept.pop(next(iter(self.kept)))
+            self.kept[key] = vs
+        self._sets[cand.id] = vs
+        return vs
+
+    def _key(self, cand: Candidate, radii: tuple[float, float, float]) -> bytes:
+        h = hashlib.blake2b(digest_size=20)
+        h.update(np.asarray(cand.xy, float).tobytes())
+        h.update(cand.model.params.model_dump_json().encode())
+        h.update(np.asarray(cand.prior(), float).tobytes())
+        h.update(np.array([*radii, self.speed, self.t_verify, self.clearance,
+                           float(self.use_table), float(self.grid is None)]).tobytes())
+        if self.grid is not None:
+            g = self.grid
+            pad = radii[2] + self.clearance + 2 * g.resolution
+            lo = np.floor((cand.xy - pad - g.grid.origin) / g.resolution).astype(int)
+            hi = np.floor((cand.xy + pad - g.grid.origin) / g.resolution).astype(int)
+            h.update(g.digest(lo, hi))
+        return h.digest()
+
+    def _viewpoints(self, cand: Candidate, radii: tuple[float, float, float]) -> ViewpointSet:
         pts = viewpoint_circles(cand.xy, radii)
         if self.grid is None:
             usable = np.ones(len(pts), dtype=bool)
@@ -307,23 +349,17 @@ class Verifier:
         entries = pts[outer] if outer.any() else pts[usable]
         prior = cand.prior()
         if self.use_table:
-            for name in PATTERNS:
-                for rot in range(DIRECTIONS):
-                    idx = pattern_indices(name, rot)
-                    if usable[idx].all():
-                        tab = self.tables.get(cand.model, radii, name, rot, prior,
-                                              self.speed, self.t_verify)
-                        vs = ViewpointSet(pts[idx], cand.model.recognisable(pts[idx], cand.xy),
-                                          name, rot, entries, pts[usable], tab)
-                        self._sets[cand.id] = vs
-                        return vs
-                    if name == "open":
-                        break  # the open pattern is rotation invariant
+            fits = np.nonzero((usable[None, :] | ~_PATTERN_MASKS).all(axis=1))[0]
+            if len(fits):
+                name, rot = _PATTERN_KEYS[int(fits[0])]
+                idx = pattern_indices(name, rot)
+                tab = self.tables.get(cand.model, radii, name, rot, prior, self.speed,
+                                      self.t_verify)
+                return ViewpointSet(pts[idx], cand.model.recognisable(pts[idx], cand.xy),
+                                    name, rot, entries, pts[usable], tab)
         idx = np.nonzero(usable)[0]
-        vs = ViewpointSet(pts[idx], cand.model.recognisable(pts[idx], cand.xy), None, 0, entries,
-                          pts[usable])
-        self._sets[cand.id] = vs
-        return vs
+        return ViewpointSet(pts[idx], cand.model.recognisable(pts[idx], cand.xy), None, 0,
+                            entries, pts[usable])
 
     # -- t_single (eqs. 5, 6) ---------------------------------------------------------
     def single(self, cand: Candidate, starts: np.ndarray, goals: np.ndarray) -> np.ndarray:
@@ -399,27 +435,39 @@ class Verifier:
         """S_par: free cells from which every candidate of the group has P_recog > 0 (the
         overlap of their observable regions, Fig. 9(b)), at most MAX_PAR_POINTS."""
         xy = np.array([c.xy for c in cands])
-        r = max(self.radii(c)[2] for c in cands)
+        reach = np.array([self.radii(c)[2] for c in cands])
+        r = reach.max()
         lo, hi = xy.min(0) - r, xy.max(0) + r
+        # the discs overlap inside the overlap of their boxes: only the lattice points
+        # (from lo, as over the whole box) there are tried
+        inner_lo = (xy - reach[:, None]).max(0)
+        inner_hi = (xy + reach[:, None]).min(0)
         step = self.grid.resolution if self.grid is not None else 0.1
         while True:
-            gx, gy = np.meshgrid(np.arange(lo[0], hi[0], step), np.arange(lo[1], hi[1], step))
+            first = np.ceil(np.round((inner_lo - lo) / step, 9))
+            n = np.floor((np.minimum(hi, inner_hi) - lo) / step - 1e-9) - first + 1
+            ax = [lo[d] + step * (first[d] + np.arange(max(int(n[d]), 0)))
+                  for d in range(2)]
+            gx, gy = np.meshgrid(ax[0], ax[1])
             pts = np.stack([gx.ravel(), gy.ravel()], 1)
             ok = np.ones(len(pts), dtype=bool)
-            for c in cands:
-                ok &= np.hypot(*(pts - c.xy).T) <= self.radii(c)[2]
+            for c, rc in zip(cands, reach, strict=True):
+                ok &= np.hypot(*(pts - c.xy).T) <= rc
             pts = pts[ok]
             if len(pts) <= MAX_PAR_POINTS * 4:
                 break
             step *= 1.5
+        # the cheap tests first: free cells, then recognition, then lines of sight
         if self.grid is not None and len(pts):
-            keep = self.grid.free(pts, self.clearance)
+            pts = pts[self.grid.free(pts, self.clearance)]
+        for c in cands:
+            if len(pts):
+                pts = pts[c.model.p_recog(pts, c.xy, c.prior()) > 0]
+        if self.grid is not None:
             for c in cands:
-                keep &= self.grid.clear_lines(pts, np.broadcast_to(c.xy, pts.shape), 0.35)
-            pts = pts[keep]
-        if len(pts):
-            p = np.stack([c.model.p_recog(pts, c.xy, c.prior()) for c in cands], 1)
-            pts = pts[(p > 0).all(axis=1)]
+                if len(pts):
+                    pts = pts[self.grid.clear_lines(pts, np.broadcast_to(c.xy, pts.shape),
+                                                    0.35)]
         if len(pts) > MAX_PAR_POINTS:
             pts = pts[np.linspace(0, len(pts) - 1, MAX_PAR_POINTS).astype(int)]
         return np.asarray(pts)
