@@ -11,13 +11,21 @@ from collections.abc import Sequence
 import numpy as np
 
 
+#: 2-opt's rounds cost O(n^3) in Python; past this many items the nearest-neighbour
+#: order is kept as it is (a scene of 2 000 one-cell unknown regions hung in 2-opt)
+TWO_OPT_MAX_ITEMS = 40
+
+
 def best_order(enter: np.ndarray, cost: np.ndarray, leave: np.ndarray,
                exact_up_to: int = 12) -> list[int]:
     """:func:`order_dp` up to ``exact_up_to`` items, else :func:`nearest_order` improved
-    by :func:`two_opt`."""
+    by :func:`two_opt` (up to ``TWO_OPT_MAX_ITEMS`` items)."""
     if len(enter) <= exact_up_to:
         return order_dp(enter, cost, leave)
-    return two_opt(nearest_order(enter, cost), enter, cost, leave)
+    order = nearest_order(enter, cost)
+    if len(order) > TWO_OPT_MAX_ITEMS:
+        return order
+    return two_opt(order, enter, cost, leave)
 
 
 def order_dp(enter: np.ndarray, cost: np.ndarray, leave: np.ndarray) -> list[int]:
