@@ -10,7 +10,6 @@ from collections.abc import Sequence
 
 import numpy as np
 
-
 #: 2-opt's rounds cost O(n^3) in Python; past this many items the nearest-neighbour
 #: order is kept as it is (a scene of 2 000 one-cell unknown regions hung in 2-opt)
 TWO_OPT_MAX_ITEMS = 40
