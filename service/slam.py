@@ -70,7 +70,7 @@ class Run:
     last_t: float = -np.inf
     replayed: bool = True
     lock: asyncio.Lock = field(default_factory=asyncio.Lock)
-    _map: tuple[int, OccupancyMap] | None = None
+    _map: tuple[tuple[int, bool], OccupancyMap] | None = None
 
     def status(self) -> dict[str, Any]:
         pose = self.slam.pose
@@ -174,15 +174,20 @@ class SlamService:
         async with run.lock:
             if run.scans == 0:
                 raise InvalidInput("the run has no scans yet", field="run")
-            if run._map is None or run._map[0] != run.scans:
+            key = (run.scans, bool(getattr(run.slam, "aligned", False)))
+            if run._map is None or run._map[0] != key:
                 g = await asyncio.to_thread(build_occupancy, run.slam.keyframes,
                                             run.slam.map_poses(), run.options.map_resolution_m)
-                run._map = (run.scans, g)
+                run._map = (key, g)
             return run._map[1]
 
     async def commit(self, world: str, rid: str) -> dict[str, Any]:
         """Make the run's map the world's map: facts into the knowledge base, grid stored."""
         run = await self._run(world, rid)
+        finish = getattr(run.slam, "finish", None)
+        if finish is not None and run.scans:  # graph SLAM: global scan alignment first
+            async with run.lock:
+                await asyncio.to_thread(finish)
         g = await self.grid(world, rid)
         poses = run.slam.map_poses()
         summary = g.summary()

@@ -35,6 +35,11 @@ whole trajectory moves. Submaps keep their grids in the local-SLAM frame; a subm
 place in the world is its anchor node's optimised pose. The final map is rebuilt from
 the optimised node poses (:func:`numeric.slam.occupancy.build_occupancy`).
 
+The end of a run (:meth:`GraphSlam.finish`, beyond Hess et al.): global scan alignment
+(:mod:`numeric.slam.scan_alignment`, after Lu & Milios 1997) refines every scan's pose
+by point-to-line ICP between overlapping scans and one batch optimisation, starting
+from the online estimate; the trajectory and the map are then the aligned ones.
+
 The intensity channel of the paper (eq. 1) enters as an optional extra term: with
 ``alpha > 0`` the local match is followed by Intensity-ICP against the previous node's
 scan, initialised at the grid match and accepted only inside eq. 5's box around it.
@@ -63,6 +68,7 @@ from numeric.slam.keyframes import Keyframes, MapConfig, moved, voxel_downsample
 from numeric.slam.pose_graph import GraphConfig, PoseGraph
 from numeric.slam.probability_grid import GridConfig, ProbabilityGrid
 from numeric.slam.scan import Scan
+from numeric.slam.scan_alignment import AlignmentConfig, align_scans
 from numeric.threads import default_threads, thread_map
 
 
@@ -171,6 +177,9 @@ class GraphSlamConfig(BaseModel):
                                                                eps_theta_ratio=0))
     graph: GraphConfig = Field(default_factory=GraphConfig)
     map: MapConfig = Field(default_factory=lambda: MapConfig(max_points_m=30.0))
+    alignment: AlignmentConfig | None = Field(
+        default_factory=AlignmentConfig, description="global scan alignment when the run "
+        "is finished (GraphSlam.finish; None: the online estimate is final)")
 
 
 @dataclass
@@ -248,6 +257,12 @@ class GraphSlam:
         self._scan_node: list[int] = []
         self._scan_delta: list[np.ndarray] = []
         self.times: list[float] = []
+        # every scan's points (down-sampled), intensities and odometry, for finish()
+        self._scan_xy: list[np.ndarray] = []
+        self._scan_inten: list[np.ndarray | None] = []
+        self._scan_odom: list[np.ndarray] = []
+        self._aligned: np.ndarray | None = None  # finish()'s poses of every scan
+        self.alignment_matches = 0
         self._global = np.zeros((0, 3))
         self._loop_maps: dict[tuple[int, tuple[int, ...]], LoopMap] = {}
         self._last_closed: dict[int, int] = {}  # submap -> last node closed against it
@@ -542,6 +557,12 @@ class GraphSlam:
         xy, inten = scan.points()
         self.times.append(scan.t)
         cfg = self.config
+        self._aligned = None  # a new scan: the online estimate is current again
+        if cfg.alignment is not None:
+            pts, pin = voxel_downsample(xy, inten, self.config.match_voxel_m)
+            self._scan_xy.append(pts)
+            self._scan_inten.append(pin)
+            self._scan_odom.append(scan.odom.copy())
         if not self.local:
             self._add_node(scan, scan.odom.copy(), scan.odom.copy(), xy, inten)
             return
@@ -595,11 +616,38 @@ class GraphSlam:
             self._prev = (place(xy, local), inten)
         return node
 
+    # -- the end of a run ------------------------------------------------------------
+    def finish(self) -> int:
+        """Global scan alignment (:mod:`numeric.slam.scan_alignment`) of every scan so
+        far, from the online estimate; until the next scan arrives, the trajectory,
+        the pose and the map's poses are the aligned ones. Returns how many pairwise
+        matches held (0 when alignment is off)."""
+        cfg = self.config.alignment
+        if cfg is None or len(self.times) < 2:
+            return 0
+        if self._aligned is not None:
+            return self.alignment_matches
+        _, poses = self._online_trajectory()
+        closures = [(self._node_scan[c.anchor], self._node_scan[c.node], c.delta)
+                    for c in self.closures]
+        if self.config.alpha > 0 and cfg.alpha == 0:
+            cfg = cfg.model_copy(update={"alpha": self.config.alpha})
+        self._aligned, self.alignment_matches = align_scans(
+            self._scan_xy, self._scan_inten, poses, np.array(self._scan_odom), closures, cfg)
+        return self.alignment_matches
+
+    @property
+    def aligned(self) -> bool:
+        """Whether the outputs are finish()'s aligned poses."""
+        return self._aligned is not None
+
     # -- outputs ------------------------------------------------------------------------
     @property
     def pose(self) -> np.ndarray:
         """The latest scan's pose on iSAM2's current estimate of its node: the pose the
         trajectory ends with."""
+        if self._aligned is not None:
+            return self._aligned[-1].copy()
         if not self._scan_node:
             return np.zeros(3)
         return compose(self.graph.pose_of(self._scan_node[-1]), self._scan_delta[-1])
@@ -611,12 +659,20 @@ class GraphSlam:
         return self.graph.poses_now()
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._aligned is not None:
+            return np.array(self.times), self._aligned.copy()
+        return self._online_trajectory()
+
+    def _online_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         g = self.optimise()
         poses = compose(g[np.array(self._scan_node)], np.array(self._scan_delta))
         return np.array(self.times), np.asarray(poses).reshape(-1, 3)
 
     def map_poses(self) -> np.ndarray:
-        """Optimised poses ``(K, 3)`` of the nodes (the keyframes of the map)."""
+        """Optimised poses ``(K, 3)`` of the nodes (the keyframes of the map); after
+        :meth:`finish`, their scans' aligned poses."""
+        if self._aligned is not None:
+            return self._aligned[np.array(self._node_scan)]
         return self.optimise().copy()
 
     def loop_closures(self) -> list[tuple[int, int, float]]:

@@ -81,6 +81,9 @@ def run_log(log: LaserLog, options: SlamOptions,
         slam.process(scan)
         if progress is not None:
             progress(i + 1)
+    finish = getattr(slam, "finish", None)
+    if finish is not None:  # graph SLAM's global scan alignment, once the log is over
+        finish()
     seconds = time.perf_counter() - t0
     times, poses = slam.trajectory()
     return slam, SlamResult(times, poses, whole_map(slam, options.map_resolution_m), seconds)
