@@ -88,6 +88,28 @@ def test_improved_updates_only_after_its_own_thresholds(loop_log: LaserLog) -> N
     assert np.allclose(p[s.keyframes.frames[k].scan_index], s.map_poses()[k], atol=1e-4)
 
 
+def test_scans_between_updates_are_matched_not_taken_from_odometry(loop_log: LaserLog) -> None:
+    """With updates every 0.5 m, most scans lie between updates. Matched against the best
+    particle's map (track_scans) their poses follow the scans; taken from the odometry
+    (8 % short, drifting) they carry its error from the last update. Compared on the
+    increments from each scan's update, where the particles are the same either way."""
+    truth = loop_log.truth
+    assert truth is not None
+    errs = {}
+    for track in (False, True):
+        s = _run(loop_log, RbpfConfig(particles=8, seed=0, update_linear_m=0.5,
+                                      update_angular_rad=0.25, track_scans=track))
+        _, p = s.trajectory()
+        step = np.array(s._scan_step)
+        first = np.searchsorted(step, step)  # the update scan each scan hangs from
+        between = first != np.arange(len(step))
+        assert between.mean() > 0.5
+        est = relative(p[first[between]], p[between])
+        ref = relative(truth[first[between]], truth[between])
+        errs[track] = float(np.mean(np.hypot(*(est - ref)[:, :2].T)))
+    assert errs[True] < 0.75 * errs[False]  # measured 0.016 vs 0.025 m
+
+
 # -- (b) the fitted Gaussian on a known single peak -------------------------------------------
 def _two_scans(room: World, seed: int) -> tuple[Scan, Scan, np.ndarray, np.ndarray]:
     """A keyframe scan at p0 (its odometry = p0) and a scan at p1 = p0 (+) (0.4, 0.05, 0.1)

@@ -22,7 +22,9 @@ Rao-Blackwellized Particle Filters" (IEEE T-RO 2007, the GMapping method; see
 pose drawn from a Gaussian fitted to ``p(z|m,x) p(x|x_{t-1},u)`` around the match
 (eqs. 14-15) and its weight multiplied by η (eq. 16); the filter then updates only after
 ``update_linear_m`` / ``update_angular_rad`` of odometry, and the ``beams`` are picked
-among the returns within ``map.max_points_m`` (the reach of the keyframes).
+among the returns within ``map.max_points_m`` (the reach of the keyframes). The scans in
+between refine the odometry but do not touch the particles: each is matched against
+the best particle's map for its own pose (:meth:`RbpfSlam.track`, ``track_scans``).
 ``proposal="odometry"`` is the paper's method unchanged (bit for bit).
 
 Maps are never copied: the keyframe scans are shared and each particle's map is its
@@ -99,6 +101,9 @@ class RbpfConfig(BaseModel):
     #: fr-clinic hardly change. 0.2 m / 0.05 rad is at most ~4 updates/s on these logs,
     #: which 512 particles still process faster than real time. The odometry and
     #: gated-icp proposals keep ``map.update_*`` (the paper's 0.1 m / 0.1 rad).
+    track_scans: bool = Field(True, description="improved: a scan between two updates is "
+                              "matched against the best particle's map for its own pose "
+                              "(the particles are untouched); else it takes the odometry")
     update_linear_m: float = Field(0.2, ge=0, description="improved: update after this travel")
     update_angular_rad: float = Field(0.05, ge=0, description="improved: ... or this turn")
     icp: IcpConfig = Field(default_factory=IcpConfig)
@@ -235,9 +240,7 @@ class RbpfSlam:
         cfg, imp = self.config, self.config.improved
         p = len(self.x)
         best = self.best
-        chosen = self.keyframes.select(compose(self.x[best], u), self._kf_poses_of(best)[:, :2])
-        alpha = cfg.alpha if inten is not None else 0.0
-        fp = FieldPack.of([self.fields.get(int(k)) for k in chosen], alpha > 0)
+        chosen, fp, alpha = self._best_map(u, inten)
         lineage = self._lineage[chosen]  # (K, P)
         kf_pose = self._kf_pose[chosen[:, None], lineage]  # (K, P, 3): each particle's map
         li = np.zeros(len(xy)) if inten is None else np.asarray(inten, dtype=float)
@@ -290,6 +293,35 @@ class RbpfSlam:
         self.improved_failures += int(fb.sum())
         return np.asarray(imp.weight_gain * inc)
 
+    def _best_map(self, u: np.ndarray, inten: np.ndarray | None,
+                  ) -> tuple[np.ndarray, FieldPack, float]:
+        """The keyframes the best particle's reference is made of at ``x_best (+) u``
+        (:meth:`Keyframes.select`), their likelihood fields, and the intensity weight."""
+        cfg = self.config
+        best = self.best
+        chosen = self.keyframes.select(compose(self.x[best], u), self._kf_poses_of(best)[:, :2])
+        alpha = cfg.alpha if inten is not None else 0.0
+        return chosen, FieldPack.of([self.fields.get(int(k)) for k in chosen], alpha > 0), alpha
+
+    def track(self, u: np.ndarray, xy: np.ndarray, inten: np.ndarray | None) -> np.ndarray:
+        """A scan between two updates: its increment from the last update, found as each
+        update finds its start (:func:`robust_increment`: the best particle's map, the
+        odometry prediction turned and shifted). Only the scan's own pose uses it --
+        Grisetti et al.'s updates stay every ``update_linear_m``, and the particles
+        are not touched (the issue's "scans in between refine odometry")."""
+        cfg, imp = self.config, self.config.improved
+        best = self.best
+        chosen, fp, alpha = self._best_map(u, inten)
+        kf_pose = self._kf_pose[chosen, self._lineage[chosen, best]][:, None, :]
+        li = np.zeros(len(xy)) if inten is None else np.asarray(inten, dtype=float)
+        cut = min(imp.cutoff_m, cfg.field.cutoff_m)
+        return np.asarray(robust_increment(
+            self.x[best], u, cfg.motion.sigmas(u), xy, li, alpha, fp.grid, fp.inten, fp.meta,
+            fp.origins, fp.inv_res, np.ascontiguousarray(kf_pose), cut * cut,
+            1.0 / (2.0 * imp.sigma_m**2), imp.max_iterations,
+            np.asarray(imp.start_headings_rad, dtype=float), imp.start_margin,
+            imp.match_prior, np.asarray(imp.start_shifts_m, dtype=float)))
+
     def resample_if_needed(self) -> np.ndarray | None:
         w = np.exp(self.logw - self.logw.max())
         w /= w.sum()
@@ -332,10 +364,6 @@ class RbpfSlam:
         improved = cfg.proposal == "improved"
         lin, ang = ((cfg.update_linear_m, cfg.update_angular_rad) if improved
                     else (cfg.map.update_linear_m, cfg.map.update_angular_rad))
-        if not moved(self._anchor_odom, scan.odom, lin, ang) or len(xy) < 8:
-            self._scan_step.append(len(self._hist_pose) - 1)
-            self._scan_delta.append(relative(self._anchor_odom, scan.odom))
-            return
         u = relative(self._anchor_odom, scan.odom)
         cand = np.arange(len(xy))
         if improved:
@@ -345,6 +373,12 @@ class RbpfSlam:
             if len(near) >= 8:
                 cand = near
         pick = cand[np.linspace(0, len(cand) - 1, min(cfg.beams, len(cand))).astype(int)]
+        if not moved(self._anchor_odom, scan.odom, lin, ang) or len(xy) < 8:
+            self._scan_step.append(len(self._hist_pose) - 1)
+            if improved and cfg.track_scans and len(xy) >= 8:
+                u = self.track(u, xy[pick], None if inten is None else inten[pick])
+            self._scan_delta.append(u)
+            return
         if improved:
             ll = self.improved_step(u, xy[pick], None if inten is None else inten[pick])
         else:
