@@ -450,3 +450,20 @@ def test_two_closures_agree_when_they_move_the_node_alike_far_from_the_origin() 
     assert s._consistent(closure(1, 0.02), closure(2, 0.05))
     assert not s._consistent(closure(1, 0.02), closure(2, 0.02, dx=0.5))
     assert not s._consistent(closure(1, 0.0), closure(2, 0.08))
+
+
+def test_the_loop_map_cache_keeps_to_its_memory_budget_and_changes_nothing() -> None:
+    """Precomputed loop-closure grids are memoised: a budget that evicts them (1 MiB
+    here) costs recomputation, never a different run."""
+    log = simulated_log("loop", seed=1, speed_m_s=0.8).head(400)
+    roomy, tight = GraphSlam(GraphSlamConfig()), GraphSlam(GraphSlamConfig(loop_cache_mb=1.0))
+    peak = 0
+    for scan in log.scans:
+        roomy.process(scan)
+        tight.process(scan)
+        sizes = [m.nbytes for m in tight._loop_maps.values()]
+        assert len(sizes) <= 1 or sum(sizes) <= 2**20
+        peak = max(peak, sum(m.nbytes for m in roomy._loop_maps.values()))
+    assert peak > 2**20  # the budget did evict
+    assert len(roomy.closures) > 0 and len(tight.closures) == len(roomy.closures)
+    assert np.array_equal(roomy.trajectory()[1], tight.trajectory()[1])

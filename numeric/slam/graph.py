@@ -166,7 +166,10 @@ class GraphSlamConfig(BaseModel):
     loop_neighbours: int = Field(2, ge=0, description="loop closure matches against a "
                                  "submap stitched with this many finished neighbours "
                                  "in time on each side (GraphSlam.loop_map)")
-    loop_cache: int = Field(48, ge=1, description="precomputed submaps kept in memory")
+    loop_cache: int = Field(48, ge=1, description="precomputed submaps kept in memory ...")
+    loop_cache_mb: float = Field(256.0, gt=0, description="... and at most this many MiB "
+                                 "of them (a hospital hall's stitched grids and their "
+                                 "branch-and-bound stacks run to tens of MiB each)")
     loop_threads: int = Field(default_factory=default_threads, ge=1, le=64,
                               description="threads running one node's branch-and-bound "
                               "searches side by side (the results do not depend on it)")
@@ -211,6 +214,12 @@ class LoopMap:
 
     grid: ProbabilityGrid
     search: PrecomputedGrid
+
+    @property
+    def nbytes(self) -> int:
+        """Memory held by the grids and the branch-and-bound stack."""
+        return int(sum(v.nbytes for obj in (self.grid, self.search, self.search.grid)
+                       for v in vars(obj).values() if isinstance(v, np.ndarray)))
 
 
 def rotate_xy(v: np.ndarray, angle: float) -> np.ndarray:
@@ -414,7 +423,10 @@ class GraphSlam:
             lm = LoopMap(grid, PrecomputedGrid(grid.coarsened(self.config.loop_coarsen),
                                                self.config.loop_depth))
         self._loop_maps[key] = lm  # most recently used last
-        while len(self._loop_maps) > self.config.loop_cache:
+        budget = self.config.loop_cache_mb * 2**20
+        while len(self._loop_maps) > 1 and (
+                len(self._loop_maps) > self.config.loop_cache
+                or sum(m.nbytes for m in self._loop_maps.values()) > budget):
             self._loop_maps.pop(next(iter(self._loop_maps)))
         return lm
 
