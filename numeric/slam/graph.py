@@ -219,7 +219,8 @@ class LoopMap:
     def nbytes(self) -> int:
         """Memory held by the grids and the branch-and-bound stack."""
         return int(sum(v.nbytes for obj in (self.grid, self.search, self.search.grid)
-                       for v in vars(obj).values() if isinstance(v, np.ndarray)))
+                       for v in vars(obj).values()
+                       if isinstance(v, np.ndarray) and v.flags.owndata))
 
 
 def rotate_xy(v: np.ndarray, angle: float) -> np.ndarray:
@@ -403,7 +404,7 @@ class GraphSlam:
         for s in self.active():
             if len(s.nodes) >= cfg.scans_per_submap:
                 s.finished = True
-                s.grid = s.grid.cropped()
+                s.grid = s.grid.cropped().frozen()
 
     # -- loop closure -------------------------------------------------------------------
     def loop_map(self, k: int, node: int) -> LoopMap:

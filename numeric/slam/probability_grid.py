@@ -117,6 +117,12 @@ def logit(p: float) -> float:
     return float(np.log(p / (1.0 - p)))
 
 
+def no_stamps(shape: tuple[int, ...]) -> np.ndarray:
+    """Scan stamps for a grid nobody inserts into any more: a read-only view of one
+    zero (no memory); an insert would fail loudly on it."""
+    return np.broadcast_to(np.zeros(1, dtype=np.int32), shape)
+
+
 @dataclass
 class ProbabilityGrid:
     """A growable probability grid (see the module docstring)."""
@@ -203,6 +209,12 @@ class ProbabilityGrid:
                                np.ascontiguousarray(self.prob[i0:i1, j0:j1]),
                                np.ascontiguousarray(self.stamp[i0:i1, j0:j1]), self.scans)
 
+    def frozen(self) -> ProbabilityGrid:
+        """This grid, read-only from now on: the per-cell scan stamps that keep a cell to
+        one update per scan are dropped (half the memory of a finished submap)."""
+        return ProbabilityGrid(self.config, self.origin, self.prob, no_stamps(self.shape),
+                               self.scans)
+
     @staticmethod
     def stitched(grids: list[ProbabilityGrid]) -> ProbabilityGrid:
         """One grid covering ``grids`` (same frame and resolution), each cell the
@@ -217,8 +229,7 @@ class ProbabilityGrid:
             o = np.round(g.origin / res).astype(int) - lo
             sl = prob[o[0]:o[0] + g.shape[0], o[1]:o[1] + g.shape[1]]
             np.maximum(sl, g.prob, out=sl)
-        return ProbabilityGrid(grids[0].config, lo * res, prob,
-                               np.zeros(prob.shape, dtype=np.int32),
+        return ProbabilityGrid(grids[0].config, lo * res, prob, no_stamps(prob.shape),
                                sum(g.scans for g in grids))
 
     def coarsened(self, factor: int) -> ProbabilityGrid:
@@ -233,5 +244,5 @@ class ProbabilityGrid:
         p = p.reshape(p.shape[0] // factor, factor, p.shape[1] // factor, factor).max(axis=(1, 3))
         cfg = self.config.model_copy(update={"resolution_m": self.resolution_m * factor})
         return ProbabilityGrid(cfg, self.origin.copy(), np.ascontiguousarray(p),
-                               np.zeros(p.shape, dtype=np.int32), self.scans)
+                               no_stamps(p.shape), self.scans)
 
