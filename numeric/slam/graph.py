@@ -646,7 +646,8 @@ class GraphSlam:
         if self.config.alpha > 0 and cfg.alpha == 0:
             cfg = cfg.model_copy(update={"alpha": self.config.alpha})
         self._aligned, self.alignment_matches = align_scans(
-            self._scan_xy, self._scan_inten, poses, np.array(self._scan_odom), closures, cfg)
+            self._scan_xy, self._scan_inten, poses, np.array(self._scan_odom), closures, cfg,
+            self.config.graph)
         return self.alignment_matches
 
     @property

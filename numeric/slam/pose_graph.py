@@ -31,8 +31,25 @@ class GraphConfig(BaseModel):
     relinearize_threshold: float = Field(0.01, gt=0)
     extra_updates: int = Field(3, ge=0, description="iSAM2 sweeps after a loop closure")
 
+    def odometry_sigmas(self, delta: np.ndarray) -> np.ndarray:
+        """Sigmas (x, y, theta) of odometry increments ``delta`` ``(..., 3)``."""
+        d = np.asarray(delta, dtype=float)
+        s = self.odom_sigma_m + self.odom_sigma_per_m * np.hypot(d[..., 0], d[..., 1])
+        return np.stack([s, s, self.odom_sigma_rad
+                         + self.odom_sigma_rad_per_rad * np.abs(d[..., 2])], axis=-1)
 
-def _pose(p: np.ndarray) -> gtsam.Pose2:
+    def loop_noise(self, weight: float = 1.0) -> gtsam.noiseModel.Base:
+        """A loop closure's noise: its sigmas over ``weight``, Huber-robust."""
+        sigmas = np.array([self.loop_sigma_m, self.loop_sigma_m, self.loop_sigma_rad]) / weight
+        return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(
+            self.huber_k), gtsam.noiseModel.Diagonal.Sigmas(sigmas))
+
+
+#: the first node's prior: it fixes the frame
+ANCHOR_SIGMAS = np.array([1e-3, 1e-3, 1e-4])
+
+
+def as_pose2(p: np.ndarray) -> gtsam.Pose2:
     return gtsam.Pose2(float(p[0]), float(p[1]), float(p[2]))
 
 
@@ -59,22 +76,17 @@ class PoseGraph:
     def add_node(self, initial: np.ndarray, prior: bool = False) -> int:
         """A new node with its initial estimate (world frame); the first is anchored."""
         k = len(self._poses)
-        self._values.insert(k, _pose(initial))
+        self._values.insert(k, as_pose2(initial))
         self._poses = np.vstack([self._poses, initial[None, :]])
         if prior or k == 0:
-            noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, 1e-4]))
-            self._graph.add(gtsam.PriorFactorPose2(k, _pose(initial), noise))
+            noise = gtsam.noiseModel.Diagonal.Sigmas(ANCHOR_SIGMAS)
+            self._graph.add(gtsam.PriorFactorPose2(k, as_pose2(initial), noise))
         return k
 
-    def add_between(self, a: int, b: int, delta: np.ndarray, sigmas: np.ndarray,
-                    robust: bool = False) -> None:
+    def add_between(self, a: int, b: int, delta: np.ndarray, sigmas: np.ndarray) -> None:
         """An edge saying node ``b`` is at ``delta`` in node ``a``'s frame."""
-        noise: gtsam.noiseModel.Base = gtsam.noiseModel.Diagonal.Sigmas(
-            np.asarray(sigmas, dtype=float))
-        if robust:
-            noise = gtsam.noiseModel.Robust.Create(
-                gtsam.noiseModel.mEstimator.Huber.Create(self.config.huber_k), noise)
-        self._graph.add(gtsam.BetweenFactorPose2(a, b, _pose(delta), noise))
+        noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, dtype=float))
+        self._graph.add(gtsam.BetweenFactorPose2(a, b, as_pose2(delta), noise))
 
     def add_local(self, a: int, b: int, delta: np.ndarray,
                   weak: np.ndarray | None = None) -> None:
@@ -91,21 +103,18 @@ class PoseGraph:
                        + s**2 * np.outer(lateral, lateral))
         cov[2, 2] = c.local_sigma_rad**2
         noise = gtsam.noiseModel.Gaussian.Covariance(cov)
-        self._graph.add(gtsam.BetweenFactorPose2(a, b, _pose(delta), noise))
+        self._graph.add(gtsam.BetweenFactorPose2(a, b, as_pose2(delta), noise))
 
     def odometry_sigmas(self, delta: np.ndarray) -> np.ndarray:
         """Sigmas (x, y, theta) of an odometry increment ``delta``."""
-        c = self.config
-        s = c.odom_sigma_m + c.odom_sigma_per_m * float(np.hypot(delta[0], delta[1]))
-        return np.array([s, s, c.odom_sigma_rad + c.odom_sigma_rad_per_rad * abs(delta[2])])
+        return self.config.odometry_sigmas(delta)
 
     def add_odometry(self, a: int, b: int, delta: np.ndarray) -> None:
         self.add_between(a, b, delta, self.odometry_sigmas(delta))
 
     def add_loop(self, a: int, b: int, delta: np.ndarray, weight: float = 1.0) -> None:
-        c = self.config
-        self.add_between(a, b, delta, np.array([c.loop_sigma_m, c.loop_sigma_m,
-                                                c.loop_sigma_rad]) / weight, robust=True)
+        self._graph.add(gtsam.BetweenFactorPose2(a, b, as_pose2(delta),
+                                                 self.config.loop_noise(weight)))
         self.closures += 1
         self._dirty = True
 

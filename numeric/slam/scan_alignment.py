@@ -23,7 +23,8 @@ estimate and refines it:
    plus a floor, moved into the matched scan's frame (GTSAM's between-factor error);
 3. one batch optimisation (GTSAM Levenberg-Marquardt) of all scan poses over the
    matches (Huber-robust), the odometry between consecutive scans, and the online
-   run's loop closures (as in :mod:`numeric.slam.pose_graph`).
+   run's loop closures, those two with the online pose graph's noise
+   (:class:`numeric.slam.pose_graph.GraphConfig`).
 
 Measured on the full Freiburg logs (README, ``tests/bench/slam.py``): the relation
 error of graph SLAM falls by 10-35 % (fr079 0.061 -> 0.040 m), for 10-40 s of work
@@ -42,6 +43,7 @@ from scipy.spatial import cKDTree
 
 from numeric.geometry import place, relative, wrap_angle
 from numeric.slam.intensity_icp import IcpConfig, Reference, intensity_icp
+from numeric.slam.pose_graph import ANCHOR_SIGMAS, GraphConfig, as_pose2
 from numeric.threads import default_threads, thread_map
 
 
@@ -76,13 +78,6 @@ class AlignmentConfig(BaseModel):
     floor_sigma_rad: float = Field(0.001, gt=0)
     huber_k: float = Field(1.345, gt=0, description="Huber threshold of the matches "
                            "(whitened units)")
-    odom_sigma_m: float = Field(0.02, gt=0, description="odometry between scans")
-    odom_sigma_per_m: float = Field(0.1, ge=0)
-    odom_sigma_rad: float = Field(0.01, gt=0)
-    odom_sigma_rad_per_rad: float = Field(0.1, ge=0)
-    loop_sigma_m: float = Field(0.05, gt=0, description="the online run's closures")
-    loop_sigma_rad: float = Field(0.01, gt=0)
-    loop_huber_k: float = Field(0.1, gt=0)
     lm_iterations: int = Field(50, ge=1)
     alpha: float = Field(0.0, ge=0, description="intensity weight of eq. 1 in ICP")
 
@@ -141,7 +136,7 @@ def match_pair(ref: Reference, xy: np.ndarray, intensity: np.ndarray | None,
     cov = np.linalg.inv(info) + np.diag([cfg.floor_sigma_m**2] * 2 + [cfg.floor_sigma_rad**2])
     # the Jacobian perturbs the pose on the left, in the reference's frame; GTSAM's
     # between-factor error is on the right, in the matched scan's frame
-    adj = _pose(res.pose).inverse().AdjointMap()
+    adj = as_pose2(res.pose).inverse().AdjointMap()
     return res.pose, adj @ cov @ adj.T
 
 
@@ -172,42 +167,36 @@ def pairwise_matches(points: Sequence[np.ndarray], intensities: Sequence[np.ndar
     return [m for batch in done for m in batch if m is not None]
 
 
-def _pose(p: np.ndarray) -> gtsam.Pose2:
-    return gtsam.Pose2(float(p[0]), float(p[1]), float(p[2]))
-
-
 def align_globally(poses: np.ndarray, odometry: np.ndarray, matches: Sequence[PairwiseMatch],
                    closures: Sequence[tuple[int, int, np.ndarray]],
-                   cfg: AlignmentConfig) -> np.ndarray:
+                   cfg: AlignmentConfig, noise: GraphConfig | None = None) -> np.ndarray:
     """Step 3: every scan's pose ``(N, 3)`` after one batch optimisation, from the
     online estimate ``poses``; ``odometry`` ``(N, 3)`` the scans' odometry readings,
-    ``closures`` ``(a, b, delta)`` the online run's loop closures between scans."""
+    ``closures`` ``(a, b, delta)`` the online run's loop closures between scans, both
+    with the online pose graph's noise (``noise``, :class:`GraphConfig`)."""
+    noise = GraphConfig() if noise is None else noise
     n = len(poses)
     if n < 2:
         return poses.copy()
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     for k in range(n):
-        values.insert(k, _pose(poses[k]))
-    anchor = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, 1e-4]))
-    graph.add(gtsam.PriorFactorPose2(0, _pose(poses[0]), anchor))
+        values.insert(k, as_pose2(poses[k]))
+    graph.add(gtsam.PriorFactorPose2(0, as_pose2(poses[0]),
+                                     gtsam.noiseModel.Diagonal.Sigmas(ANCHOR_SIGMAS)))
     u = relative(odometry[:-1], odometry[1:])
-    s = cfg.odom_sigma_m + cfg.odom_sigma_per_m * np.hypot(u[:, 0], u[:, 1])
-    s_rad = cfg.odom_sigma_rad + cfg.odom_sigma_rad_per_rad * np.abs(u[:, 2])
+    sig = noise.odometry_sigmas(u)
     for k in range(1, n):
-        graph.add(gtsam.BetweenFactorPose2(k - 1, k, _pose(u[k - 1]), gtsam.noiseModel.Diagonal
-                                           .Sigmas(np.array([s[k - 1], s[k - 1], s_rad[k - 1]]))))
+        graph.add(gtsam.BetweenFactorPose2(k - 1, k, as_pose2(u[k - 1]),
+                                           gtsam.noiseModel.Diagonal.Sigmas(sig[k - 1])))
     huber = gtsam.noiseModel.mEstimator.Huber.Create(cfg.huber_k)
     for m in matches:
-        noise = gtsam.noiseModel.Robust.Create(
+        robust = gtsam.noiseModel.Robust.Create(
             huber, gtsam.noiseModel.Gaussian.Covariance(m.covariance))
-        graph.add(gtsam.BetweenFactorPose2(m.a, m.b, _pose(m.delta), noise))
-    loop = gtsam.noiseModel.Robust.Create(
-        gtsam.noiseModel.mEstimator.Huber.Create(cfg.loop_huber_k),
-        gtsam.noiseModel.Diagonal.Sigmas(np.array([cfg.loop_sigma_m, cfg.loop_sigma_m,
-                                                   cfg.loop_sigma_rad])))
+        graph.add(gtsam.BetweenFactorPose2(m.a, m.b, as_pose2(m.delta), robust))
+    loop = noise.loop_noise()
     for a, b, delta in closures:
-        graph.add(gtsam.BetweenFactorPose2(int(a), int(b), _pose(delta), loop))
+        graph.add(gtsam.BetweenFactorPose2(int(a), int(b), as_pose2(delta), loop))
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(cfg.lm_iterations)
     out = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
@@ -217,7 +206,8 @@ def align_globally(poses: np.ndarray, odometry: np.ndarray, matches: Sequence[Pa
 def align_scans(points: Sequence[np.ndarray], intensities: Sequence[np.ndarray | None],
                 poses: np.ndarray, odometry: np.ndarray,
                 closures: Sequence[tuple[int, int, np.ndarray]],
-                cfg: AlignmentConfig) -> tuple[np.ndarray, int]:
+                cfg: AlignmentConfig, noise: GraphConfig | None = None,
+                ) -> tuple[np.ndarray, int]:
     """Steps 1-3: the aligned poses of all scans and how many pairwise matches held."""
     matches = pairwise_matches(points, intensities, poses, cfg)
-    return align_globally(poses, odometry, matches, closures, cfg), len(matches)
+    return align_globally(poses, odometry, matches, closures, cfg, noise), len(matches)
