@@ -55,6 +55,11 @@ from numeric.slam.proposal import (
 from numeric.slam.scan import Scan
 from numeric.threads import default_threads, thread_map
 
+#: the scan and the chosen fields as the proposal kernels take them: points, intensities,
+#: alpha, then FieldPack's grid, inten, meta, origins and inv_res
+ScanMaps = tuple[np.ndarray, np.ndarray, float, np.ndarray, np.ndarray, np.ndarray,
+                 np.ndarray, float]
+
 
 class MotionNoise(BaseModel):
     """Σ_w of eq. 7, one sigma per component, growing with the increment."""
@@ -253,15 +258,10 @@ class RbpfSlam:
         inv = inv.reshape(-1)
         min_in = max(imp.min_inliers, int(np.ceil(imp.min_match_fraction * len(xy))))
         delta = np.array([imp.sample_min_xy_m, imp.sample_min_xy_m, imp.sample_min_theta_rad])
-        maps = (xy, li, alpha, fp.grid, fp.inten, fp.meta, fp.origins, fp.inv_res)
+        maps: ScanMaps = (xy, li, alpha, fp.grid, fp.inten, fp.meta, fp.origins, fp.inv_res)
         u_start = u
         if len(imp.start_headings_rad) > 1:
-            u_start = robust_increment(self.x[best], u, sig, *maps,
-                                       np.ascontiguousarray(kf_pose[:, best:best + 1]),
-                                       cut * cut, inv_2s2, imp.max_iterations,
-                                       np.asarray(imp.start_headings_rad, dtype=float),
-                                       imp.start_margin, imp.match_prior,
-                                       np.asarray(imp.start_shifts_m, dtype=float))
+            u_start = self._robust_start(u, maps, kf_pose[:, best:best + 1])
         xs, kfs = self.x[first], kf_pose[:, first]
 
         def propose(ix: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -309,16 +309,22 @@ class RbpfSlam:
         odometry prediction turned and shifted). Only the scan's own pose uses it --
         Grisetti et al.'s updates stay every ``update_linear_m``, and the particles
         are not touched (the issue's "scans in between refine odometry")."""
-        cfg, imp = self.config, self.config.improved
         best = self.best
         chosen, fp, alpha = self._best_map(u, inten)
         kf_pose = self._kf_pose[chosen, self._lineage[chosen, best]][:, None, :]
         li = np.zeros(len(xy)) if inten is None else np.asarray(inten, dtype=float)
+        maps: ScanMaps = (xy, li, alpha, fp.grid, fp.inten, fp.meta, fp.origins, fp.inv_res)
+        return self._robust_start(u, maps, kf_pose)
+
+    def _robust_start(self, u: np.ndarray, maps: ScanMaps,
+                      kf_best: np.ndarray) -> np.ndarray:
+        """:func:`robust_increment` of the best particle (its map ``kf_best`` (K, 1, 3))
+        from ``x_best (+) u``, with the scan and fields ``maps`` as the kernels take them."""
+        cfg, imp = self.config, self.config.improved
         cut = min(imp.cutoff_m, cfg.field.cutoff_m)
         return np.asarray(robust_increment(
-            self.x[best], u, cfg.motion.sigmas(u), xy, li, alpha, fp.grid, fp.inten, fp.meta,
-            fp.origins, fp.inv_res, np.ascontiguousarray(kf_pose), cut * cut,
-            1.0 / (2.0 * imp.sigma_m**2), imp.max_iterations,
+            self.x[self.best], u, cfg.motion.sigmas(u), *maps, np.ascontiguousarray(kf_best),
+            cut * cut, 1.0 / (2.0 * imp.sigma_m**2), imp.max_iterations,
             np.asarray(imp.start_headings_rad, dtype=float), imp.start_margin,
             imp.match_prior, np.asarray(imp.start_shifts_m, dtype=float)))
 
@@ -365,20 +371,14 @@ class RbpfSlam:
         lin, ang = ((cfg.update_linear_m, cfg.update_angular_rad) if improved
                     else (cfg.map.update_linear_m, cfg.map.update_angular_rad))
         u = relative(self._anchor_odom, scan.odom)
-        cand = np.arange(len(xy))
-        if improved:
-            # beams beyond the keyframes' max_points_m can never find a map point: the
-            # beams are picked among the others (in halls most returns are that far)
-            near = np.flatnonzero(np.hypot(xy[:, 0], xy[:, 1]) <= cfg.map.max_points_m)
-            if len(near) >= 8:
-                cand = near
-        pick = cand[np.linspace(0, len(cand) - 1, min(cfg.beams, len(cand))).astype(int)]
         if not moved(self._anchor_odom, scan.odom, lin, ang) or len(xy) < 8:
             self._scan_step.append(len(self._hist_pose) - 1)
             if improved and cfg.track_scans and len(xy) >= 8:
+                pick = self._beams(xy, improved)
                 u = self.track(u, xy[pick], None if inten is None else inten[pick])
             self._scan_delta.append(u)
             return
+        pick = self._beams(xy, improved)
         if improved:
             ll = self.improved_step(u, xy[pick], None if inten is None else inten[pick])
         else:
@@ -400,6 +400,18 @@ class RbpfSlam:
                  cfg.map.keyframe_angular_rad):
             self.add_keyframe(len(self.times) - 1, xy, inten)
             self._last_kf_odom = scan.odom.copy()
+
+    def _beams(self, xy: np.ndarray, improved: bool) -> np.ndarray:
+        """The ``beams`` a match uses, evenly picked; with the improved proposal among
+        the returns within the keyframes' ``max_points_m`` only (beyond it they never
+        find a map point; in halls most returns are that far)."""
+        cfg = self.config
+        cand = np.arange(len(xy))
+        if improved:
+            near = np.flatnonzero(np.hypot(xy[:, 0], xy[:, 1]) <= cfg.map.max_points_m)
+            if len(near) >= 8:
+                cand = near
+        return cand[np.linspace(0, len(cand) - 1, min(cfg.beams, len(cand))).astype(int)]
 
     def _store_step(self, idx: np.ndarray | None) -> None:
         p = len(self.x)
