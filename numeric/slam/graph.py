@@ -425,10 +425,10 @@ class GraphSlam:
                                                self.config.loop_depth))
         self._loop_maps[key] = lm  # most recently used last
         budget = self.config.loop_cache_mb * 2**20
-        while len(self._loop_maps) > 1 and (
-                len(self._loop_maps) > self.config.loop_cache
-                or sum(m.nbytes for m in self._loop_maps.values()) > budget):
-            self._loop_maps.pop(next(iter(self._loop_maps)))
+        held = sum(m.nbytes for m in self._loop_maps.values())
+        while len(self._loop_maps) > 1 and (len(self._loop_maps) > self.config.loop_cache
+                                            or held > budget):
+            held -= self._loop_maps.pop(next(iter(self._loop_maps))).nbytes
         return lm
 
     def search_loops(self, node: int) -> int:
@@ -571,13 +571,13 @@ class GraphSlam:
         self.times.append(scan.t)
         cfg = self.config
         self._aligned = None  # a new scan: the online estimate is current again
+        pts, pin = voxel_downsample(xy, inten, cfg.match_voxel_m)  # a node's, and finish()'s
         if cfg.alignment is not None:
-            pts, pin = voxel_downsample(xy, inten, self.config.match_voxel_m)
             self._scan_xy.append(pts)
             self._scan_inten.append(pin)
             self._scan_odom.append(scan.odom.copy())
         if not self.local:
-            self._add_node(scan, scan.odom.copy(), scan.odom.copy(), xy, inten)
+            self._add_node(scan, scan.odom.copy(), scan.odom.copy(), xy, inten, pts)
             return
         last = len(self.local) - 1
         u = relative(self.node_odom[last], scan.odom)
@@ -596,7 +596,7 @@ class GraphSlam:
         elif cfg.alpha > 0:
             pose = self.intensity_step(pose, xy, inten)
         delta = relative(self.local[last], pose)
-        node = self._add_node(scan, pose, compose(self._global[last], delta), xy, inten)
+        node = self._add_node(scan, pose, compose(self._global[last], delta), xy, inten, pts)
         if score >= cfg.local_min_score:  # else odometry alone links the nodes
             self.graph.add_local(last, node, delta, None if weak is None
                                  else rotate_xy(weak, -self.local[last][2]))
@@ -609,14 +609,15 @@ class GraphSlam:
             self.graph.update()
 
     def _add_node(self, scan: Scan, local: np.ndarray, world: np.ndarray, xy: np.ndarray,
-                  inten: np.ndarray | None) -> int:
+                  inten: np.ndarray | None, pts: np.ndarray) -> int:
+        """A new node at ``local`` / ``world``; ``pts`` its scan down-sampled for matching."""
         node = len(self.local)
         self._travel.append(0.0 if not self.local else self._travel[-1] + float(
             np.hypot(*(local[:2] - self.local[-1][:2]))))
         self.local.append(local)
         self.node_odom.append(scan.odom.copy())
         self.node_time.append(scan.t)
-        self.node_xy.append(voxel_downsample(xy, None, self.config.match_voxel_m)[0])
+        self.node_xy.append(pts)
         self._node_scan.append(len(self.times) - 1)
         self._scan_node.append(node)
         self._scan_delta.append(np.zeros(3))
