@@ -189,6 +189,20 @@ run(facts, Args, Facts) :-
                  format(string(S), "~k", [H]) ),
             Facts).
 
+%   {world, domain: "slam" | "eigenspace" | "viewpoint"}: removes every fact
+%   of that domain from the world, in a transaction.  The service's rollback
+%   when a world's first artifact of a kind fails to be stored: nothing was
+%   stored, so nothing may stay asserted.
+run(clear_facts, Args, _{world:W, domain:D}) :-
+    existing_world(Args, W),
+    arg_(domain, Args, DT),
+    (   string(DT), atom_string(D, DT), domain_fact(D, _)
+    ->  true
+    ;   throw(chizu_error(unknown_domain(DT), domain))
+    ),
+    world_module(W, M),
+    transaction(forall(domain_fact(D, N/A), ( functor(H, N, A), retractall(M:H) ))).
+
 run(eigenspace_facts, Args, _{world:W, points:NP, triplets:NT, candidate_sets:NS}) :-
     existing_world(Args, W),
     arg_(points, Args, Ps0), json_list(Ps0, points),
@@ -294,6 +308,11 @@ run(viewpoint_groups, Args, Reply) :-
 run(viewpoint_scene, Args, Reply) :-
     existing_world(Args, W),
     viewpoint_scene_reply(W, Reply).
+
+%   The facts of each domain an artifact writes (clear_facts).
+domain_fact(slam, PI) :- slam:slam_fact(PI).
+domain_fact(eigenspace, PI) :- eigenspace:eigenspace_fact(PI).
+domain_fact(viewpoint, PI) :- grouping:grouping_fact(PI).
 
 dict_pairs_or_empty(Args, Key, Pairs) :-
     (   get_dict(Key, Args, D), is_dict(D) -> dict_pairs(D, _, Pairs) ; Pairs = [] ).

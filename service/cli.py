@@ -34,22 +34,13 @@ def serve(host: str = typer.Option(None, help="default: CHIZU_HOST or 127.0.0.1"
     uvicorn.run(create_app(s), host=host or s.host, port=port or s.port, workers=1)
 
 
-def _open_worlds():  # type: ignore[no-untyped-def]
-    """A WorldService on the configured data directory (no HTTP), restored."""
-    from service.kb import KnowledgeBase
-    from service.store import Store
-    from service.worlds import WorldService
+def _open_services():  # type: ignore[no-untyped-def]
+    """The service's own wiring on the configured data directory (no HTTP): every
+    world restored with its events and artifacts, as the app starts
+    (:func:`service.container.open_services`)."""
+    from service.container import open_services
 
-    s = get_settings()
-    store = Store(s.db_path)
-    kb = KnowledgeBase(s.prolog_dir, s.kb_time_limit_s, s.kb_inference_limit)
-    service = WorldService(store, kb)
-    service.restore()
-    if s.demo_world and store.world(s.demo_world) is None:
-        from service.app import create_demo
-
-        asyncio.run(create_demo(service, s.demo_world))
-    return service
+    return open_services(get_settings())
 
 
 @app.command()
@@ -58,12 +49,14 @@ def path(world: str, source: str = typer.Argument(..., metavar="FROM"),
     """Print the most probable DRM path FROM -> TO in WORLD."""
     from service.worlds import NotFound
 
-    service = _open_worlds()
+    services = _open_services()
     try:
-        p = asyncio.run(service.path(world, source, target))
+        p = asyncio.run(services.worlds.path(world, source, target))
     except NotFound as e:
         console.print(f"[red]{e}[/red]")
         raise typer.Exit(2) from None
+    finally:
+        services.close()
     if p is None:
         console.print(f"no path from {source} to {target} in the DRM of {world}")
         raise typer.Exit(1)
@@ -84,18 +77,19 @@ def repl(world: str) -> None:
     if swipl is None:
         console.print("[red]swipl is not installed (make run / make test install it)[/red]")
         raise typer.Exit(2)
-    service = _open_worlds()
+    services = _open_services()
     try:
-        facts = asyncio.run(service.facts(world))
+        facts = asyncio.run(services.worlds.facts(world))
     except NotFound as e:
         console.print(f"[red]{e}[/red]")
         raise typer.Exit(2) from None
+    finally:
+        services.close()
     s = get_settings()
     fd, name = tempfile.mkstemp(prefix=f"chizu-{world}-", suffix=".pl")
     with os.fdopen(fd, "w", encoding="utf-8") as f:
         for fact in facts:  # written by Prolog itself (format ~k), read back as data
             f.write(fact + ".\n")
-    service.kb.close()
     load = str(Path(s.prolog_dir) / "load.pl")
     argv = [swipl, "-g", "repl:main", load, "--", f"--world={world}", f"--facts={name}"]
     sys.stdout.flush()
@@ -381,15 +375,6 @@ def _eigen_config(path: Path | None):  # type: ignore[no-untyped-def]
         raise typer.Exit(2) from None
 
 
-def _open_eigenspace():  # type: ignore[no-untyped-def]
-    from service.eigenspace import EigenspaceService
-
-    worlds = _open_worlds()
-    eig = EigenspaceService(worlds.store, worlds.kb, worlds)
-    eig.restore()  # the stored analyses' facts, which localization's rules query
-    return eig
-
-
 @eigen.command("export")
 def eigen_export(world: Annotated[str, typer.Argument(help="stored world or template")],
                  out: Annotated[Path, typer.Argument(help="folder to write")],
@@ -431,7 +416,8 @@ def eigen_learn(world: Annotated[str, typer.Argument(help="stored world")],
     cfg = _eigen_config(config)
     if not strategy:
         cfg = cfg.model_copy(update={"learning_strategy": None})
-    eig = _open_eigenspace()
+    services = _open_services()
+    eig = services.eigenspace
     try:
         if eig.store.world(world) is None and world in TEMPLATES:
             asyncio.run(eig.worlds.create(WorldDescription(name=world, template=world)))
@@ -450,7 +436,7 @@ def eigen_learn(world: Annotated[str, typer.Argument(help="stored world")],
         console.print(f"[red]{e.field}: {e}[/red]")
         raise typer.Exit(2) from None
     finally:
-        eig.kb.close()
+        services.close()
 
 
 @eigen.command("localize")
@@ -469,7 +455,8 @@ def eigen_localize(world: Annotated[str, typer.Argument(help="stored world with 
     from numeric.errors import InvalidInput
     from service.worlds import NotFound
 
-    eig = _open_eigenspace()
+    services = _open_services()
+    eig = services.eigenspace
     try:
         wh = parse_size(size)
         turn = np.stack([decode_image(f.name, f.read_bytes(), wh) for f in files])
@@ -479,7 +466,7 @@ def eigen_localize(world: Annotated[str, typer.Argument(help="stored world with 
         console.print(f"[red]{getattr(e, 'field', '')}: {e}[/red]")
         raise typer.Exit(2) from None
     finally:
-        eig.kb.close()
+        services.close()
 
 
 if __name__ == "__main__":

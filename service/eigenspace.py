@@ -44,7 +44,7 @@ from numeric.eigenspace.movement_strategy import (
 from numeric.errors import InvalidInput
 from service.kb import KnowledgeBase
 from service.store import Store
-from service.worlds import Conflict, NotFound, WorldService
+from service.worlds import ArtifactKind, Conflict, NotFound, WorldService
 
 log = logging.getLogger(__name__)
 ARTIFACT = "eigenspace"
@@ -111,22 +111,12 @@ class EigenspaceService:
         self._tasks: set[asyncio.Task[None]] = set()
         self._session_lock = asyncio.Lock()
         worlds.on_delete.append(self._forget)
+        worlds.register(ArtifactKind(
+            ARTIFACT, "eigenspace_facts", "eigenspace",
+            lambda world, blob: facts_call(world, EigenspaceAnalysis.from_bytes(blob))))
 
     def _forget(self, world: str) -> None:
         self._analyses.pop(world, None)
-
-    def restore(self) -> int:
-        """Load stored analyses and assert their facts (start-up)."""
-        n = 0
-        for name in self.worlds.names():
-            blob = self.store.artifact(name, ARTIFACT)
-            if blob is None:
-                continue
-            a = EigenspaceAnalysis.from_bytes(blob)
-            self.kb.call("eigenspace_facts", **facts_call(name, a))
-            self._analyses[name] = a
-            n += 1
-        return n
 
     def analysis(self, world: str) -> EigenspaceAnalysis:
         self.worlds.model(world)
@@ -173,18 +163,8 @@ class EigenspaceService:
             a = await asyncio.to_thread(learn_with_strategy, w, config, progress, self.executor)
         else:
             a = await asyncio.to_thread(analyse_images, w, images, config, progress)
-        async with self.worlds._write:  # same writer lock as every other mutation
-            self.worlds.model(world)  # deleted meanwhile -> NotFound
-            await self.kb.acall("eigenspace_facts", **facts_call(world, a))
-            try:
-                with self.store.transaction() as conn:
-                    self.store.put_artifact(conn, world, ARTIFACT, a.to_bytes())
-            except BaseException:  # keep the knowledge base in step with the store
-                old = self._analyses.get(world)
-                await self.kb.acall("eigenspace_facts", **(
-                    facts_call(world, old) if old is not None else
-                    {"world": world, "points": [], "triplets": [], "candidate_sets": []}))
-                raise
+        async with self.worlds.write_artifact(world, ARTIFACT) as write:
+            await write.commit(a.to_bytes(), call=facts_call(world, a))
             self._analyses[world] = a
         return a
 

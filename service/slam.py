@@ -32,7 +32,7 @@ from numeric.slam.scan import Scan, beam_angles
 from service.kb import KnowledgeBase
 from service.schemas import ScanIn
 from service.store import Store
-from service.worlds import NotFound, WorldService
+from service.worlds import ArtifactKind, NotFound, WorldService
 
 log = logging.getLogger(__name__)
 MAP_ARTIFACT = "slam_map"
@@ -86,17 +86,20 @@ class SlamService:
         self.store, self.kb, self.worlds = store, kb, worlds
         self.runs: dict[str, Run] = {}
         worlds.on_delete.append(self._forget)
+        worlds.register(ArtifactKind(FACTS_ARTIFACT, "slam_facts", "slam",
+                                     lambda _world, blob: dict(json.loads(blob))))
 
     def _forget(self, world: str) -> None:
         for rid in [r.id for r in self.runs.values() if r.world == world]:
             del self.runs[rid]
 
-    def restore(self) -> int:
-        """Reload runs (replayed lazily) and re-assert committed maps' facts."""
+    def restore_runs(self) -> int:
+        """Reload the stored runs (each replayed lazily, on first use); the committed
+        maps' facts come back with the worlds (:meth:`WorldService.restore_all`)."""
         for rid, world, opts in self.store.slam_runs():
             o = SlamOptions.model_validate(opts)
             self.runs[rid] = Run(rid, world, o, create(o), replayed=False)
-        return self.worlds.reassert(FACTS_ARTIFACT, "slam_facts")
+        return len(self.runs)
 
     async def _run(self, world: str, rid: str) -> Run:
         self.worlds.model(world)  # 404 for an unknown world
@@ -199,18 +202,8 @@ class SlamService:
                 "info": {k: summary[k] for k in ("resolution_m", "free_m2", "occupied_m2",
                                                  "unknown_m2")},
                 "regions": regions, "closures": closures}
-        async with self.worlds._write:
-            previous = self.store.artifact(world, FACTS_ARTIFACT)
-            reply = await self.kb.acall("slam_facts", **call)
-            try:
-                with self.store.transaction() as conn:
-                    self.store.put_artifact(conn, world, MAP_ARTIFACT, g.to_npz())
-                    self.store.put_artifact(conn, world, FACTS_ARTIFACT,
-                                            json.dumps(call).encode())
-            except Exception:
-                if previous is not None:  # keep the knowledge base in step with the store
-                    await self.kb.acall("slam_facts", **json.loads(previous))
-                raise
+        async with self.worlds.write_artifact(world, FACTS_ARTIFACT) as w:
+            reply = await w.commit(json.dumps(call).encode(), {MAP_ARTIFACT: g.to_npz()}, call)
         return {"world": world, "run": rid, "facts": reply, "map": summary,
                 "unknown_regions": regions, "loop_closures": len(closures)}
 

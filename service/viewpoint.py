@@ -34,7 +34,7 @@ from numeric.viewpoint.planner import (
 from service.kb import KnowledgeBase
 from service.slam import MAP_ARTIFACT
 from service.store import Store
-from service.worlds import WorldService
+from service.worlds import ArtifactKind, WorldService
 
 SCENE_ARTIFACT = "viewpoint_scene"
 
@@ -142,10 +142,8 @@ class ViewpointService:
         self.store, self.kb, self.worlds = store, kb, worlds
         self.planner = ViewpointPlanner()
         self._lock = asyncio.Lock()  # the planner's pattern tables are not thread-safe
-
-    def restore(self) -> int:
-        """Re-assert every world's last viewpoint scene."""
-        return self.worlds.reassert(SCENE_ARTIFACT, "viewpoint_groups")
+        worlds.register(ArtifactKind(SCENE_ARTIFACT, "viewpoint_groups", "viewpoint",
+                                     lambda _world, blob: dict(json.loads(blob))))
 
     def grid_for(self, world: str, req: PlanRequest) -> tuple[PlanningGrid, str]:
         if req.grid is not None:
@@ -164,25 +162,15 @@ class ViewpointService:
 
     async def plan(self, world: str, req: PlanRequest) -> dict[str, Any]:
         self.worlds.model(world)  # 404 for an unknown world
-        async with self.worlds._write, self._lock:
-            previous = self.store.artifact(world, SCENE_ARTIFACT)
+        # grouping asserts the scene as it plans: a failure anywhere puts the stored one back
+        async with self.worlds.write_artifact(world, SCENE_ARTIFACT) as w, self._lock:
             scene: dict[str, Any] = {}
-            try:
-                grid, source = await asyncio.to_thread(self.grid_for, world, req)
-                report = await asyncio.to_thread(self.planner.plan, req, grid,
-                                                 kb_grouper(self.kb, world, scene))
-                # the best plan's steps join the scene's facts (vp_plan_step/9)
-                scene["steps"] = [step_json(st) for st in report.steps(report.plans[0])]
-                await self.kb.acall("viewpoint_groups", **scene)
-                with self.store.transaction() as conn:
-                    self.store.put_artifact(conn, world, SCENE_ARTIFACT,
-                                            json.dumps(scene).encode())
-            except BaseException:
-                if scene:  # grouping asserted a scene: put the previous one back
-                    old = json.loads(previous) if previous else {
-                        "world": world, "candidates": [], "regions": []}
-                    await self.kb.acall("viewpoint_groups", **old)
-                raise
+            grid, source = await asyncio.to_thread(self.grid_for, world, req)
+            report = await asyncio.to_thread(self.planner.plan, req, grid,
+                                             kb_grouper(self.kb, world, scene))
+            # the best plan's steps join the scene's facts (vp_plan_step/9)
+            scene["steps"] = [step_json(st) for st in report.steps(report.plans[0])]
+            await w.commit(json.dumps(scene).encode(), call=scene)
         return report_json(world, report, source, grid, req)
 
     async def scene(self, world: str) -> Any:

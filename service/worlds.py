@@ -9,9 +9,10 @@ rebuilt in the knowledge base from the store, so the two never disagree.
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
-from collections.abc import Callable
+from collections.abc import AsyncIterator, Callable
+from contextlib import asynccontextmanager
+from dataclasses import dataclass
 from typing import Any
 
 import networkx as nx
@@ -61,6 +62,45 @@ def resolve_description(desc: WorldDescription) -> WorldDescription:
     })
 
 
+@dataclass(frozen=True)
+class ArtifactKind:
+    """A kind of stored artifact whose facts live in the knowledge base (a committed
+    SLAM map, an eigenspace analysis, a viewpoint scene): ``name`` is its key in the
+    store, ``op`` the knowledge-base operation that replaces the world's facts of
+    ``domain`` with the ones ``call(world, blob)`` gives from the stored blob. The one
+    registry of these (:meth:`WorldService.register`) is what start-up restores and
+    what a failed write puts back."""
+
+    name: str
+    op: str
+    domain: str
+    call: Callable[[str, bytes], dict[str, Any]]
+
+
+class ArtifactWrite:
+    """One artifact write inside :meth:`WorldService.write_artifact` (the world's lock
+    is held): :meth:`commit` asserts the facts and stores the blobs, both or neither."""
+
+    def __init__(self, worlds: WorldService, world: str, kind: ArtifactKind) -> None:
+        self.worlds, self.world, self.kind = worlds, world, kind
+        self.reply: Any = None
+
+    async def commit(self, blob: bytes, extra: dict[str, bytes] | None = None,
+                     call: dict[str, Any] | None = None) -> Any:
+        """Replace the world's facts of this kind (``call``, or the kind's call made
+        from ``blob``), then store ``blob`` under the kind's name and every ``extra``
+        blob under its own name, in one store transaction. Raises if either fails; the
+        enclosing :meth:`WorldService.write_artifact` puts the previous facts back."""
+        args = self.kind.call(self.world, blob) if call is None else call
+        self.reply = await self.worlds._kb(self.kind.op, args)
+        store = self.worlds.store
+        with store.transaction() as conn:
+            store.put_artifact(conn, self.world, self.kind.name, blob)
+            for name, b in (extra or {}).items():
+                store.put_artifact(conn, self.world, name, b)
+        return self.reply
+
+
 _READ_ONLY = frozenset({"worlds", "landmarks", "relations", "drm", "facts", "params",
                         "engine", "query", "eigenspace_transition",
                         "eigenspace_covering", "slam_summary", "slam_regions_near",
@@ -77,34 +117,69 @@ class WorldService:
         self._versions: dict[str, int] = {}
         #: called with the world's name after it is deleted (caches elsewhere drop it)
         self.on_delete: list[Callable[[str], None]] = []
+        #: the artifact kinds whose facts a world's knowledge base holds (register)
+        self.artifacts: dict[str, ArtifactKind] = {}
+
+    def register(self, kind: ArtifactKind) -> None:
+        """Declare an artifact kind: :meth:`restore_all` re-asserts it and
+        :meth:`write_artifact` writes it."""
+        self.artifacts[kind.name] = kind
 
     # -- start-up ----------------------------------------------------------------------
-    def restore(self) -> int:
-        """Rebuild every stored world in the knowledge base; returns how many."""
-        n = 0
+    def restore_all(self) -> dict[str, int]:
+        """Rebuild every stored world in the knowledge base: its description, its
+        events in order, then every registered artifact it has. Returns how many worlds
+        and how many of each artifact kind were restored. The app's start-up and every
+        CLI command that opens worlds call this (:func:`service.container.open_services`),
+        so ``chizu repl`` sees what the service sees."""
+        counts = {"worlds": 0, **dict.fromkeys(self.artifacts, 0)}
         for row in self.store.worlds():
-            self._load_into_kb(WorldDescription.model_validate(row.description))
-            n += 1
-        return n
+            for kind in self._load_into_kb(WorldDescription.model_validate(row.description)):
+                counts[kind] += 1
+            counts["worlds"] += 1
+        return counts
 
-    def reassert(self, artifact: str, op: str) -> int:
-        """Start-up: send every world's stored ``artifact`` (the JSON arguments of a
-        knowledge-base call) to ``op`` again; returns how many worlds had one."""
-        n = 0
-        for name in self.names():
-            blob = self.store.artifact(name, artifact)
-            if blob is not None:
-                self.kb.call(op, **json.loads(blob))
-                n += 1
-        return n
-
-    def _load_into_kb(self, desc: WorldDescription) -> None:
+    def _load_into_kb(self, desc: WorldDescription) -> list[str]:
+        """(Re)build one world from the store; returns the artifact kinds it had."""
         self._changed(desc.name)
         self.kb.call("create_world", **self.create_call(desc))
         for ev in self.store.events(desc.name):
             op, args = self.event_call(desc.name, ev.kind, ev.payload)
             self.kb.call(op, **args)
+        restored = []
+        for kind in self.artifacts.values():
+            blob = self.store.artifact(desc.name, kind.name)
+            if blob is not None:
+                self.kb.call(kind.op, **kind.call(desc.name, blob))
+                restored.append(kind.name)
         self._models[desc.name] = World(desc)
+        return restored
+
+    # -- the one artifact write path -------------------------------------------------------
+    @asynccontextmanager
+    async def write_artifact(self, world: str, kind: str) -> AsyncIterator[ArtifactWrite]:
+        """A unit of work on one of ``world``'s artifacts: holds the world writers' lock
+        (so no other mutation interleaves), 404s for an unknown world, and yields an
+        :class:`ArtifactWrite` whose ``commit`` asserts the facts and stores the blobs.
+        If anything in the block fails -- the work before the commit (which may itself
+        have asserted facts, as viewpoint grouping does), the assert or the store
+        write -- the world's facts of that kind are put back to the stored ones (none
+        if there are none), and the error propagates."""
+        art = self.artifacts[kind]
+        async with self._write:
+            self.model(world)
+            previous = self.store.artifact(world, art.name)
+            try:
+                yield ArtifactWrite(self, world, art)
+            except BaseException:
+                try:
+                    if previous is not None:
+                        await self._kb(art.op, art.call(world, previous))
+                    else:
+                        await self._kb("clear_facts", {"world": world, "domain": art.domain})
+                except Exception:  # the original error is the one to report
+                    log.exception("putting back %s facts of %s", art.name, world)
+                raise
 
     @staticmethod
     def create_call(desc: WorldDescription) -> dict[str, Any]:

@@ -1,0 +1,85 @@
+"""The one wiring of chizu's services, shared by the app's lifespan and the CLI.
+
+:func:`open_services` opens the store and the Prolog engine, builds the world service
+and the three domain services (each registers the artifact kinds it writes), restores
+every world with its events and artifacts (:meth:`WorldService.restore_all`) and the
+stored SLAM runs, and creates the demo world if it is configured and missing. So a
+``chizu repl WORLD`` or ``chizu eigenspace localize`` sees exactly the knowledge base
+the service would start with.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from concurrent.futures import Executor
+from dataclasses import dataclass
+
+from numeric.qualitative.survey import survey
+from numeric.simulator import ObserverConfig
+from numeric.world import WorldDescription
+from service.eigenspace import EigenspaceService
+from service.kb import KnowledgeBase
+from service.settings import Settings, get_settings
+from service.slam import SlamService
+from service.store import Store
+from service.viewpoint import ViewpointService
+from service.worlds import WorldService
+
+log = logging.getLogger("chizu")
+
+
+@dataclass
+class Services:
+    """Everything a request or a CLI command needs; :meth:`close` releases it."""
+
+    settings: Settings
+    store: Store
+    kb: KnowledgeBase
+    worlds: WorldService
+    eigenspace: EigenspaceService
+    slam: SlamService
+    viewpoint: ViewpointService
+
+    def close(self) -> None:
+        self.kb.close()
+        self.store.close()
+
+
+async def create_demo(service: WorldService, name: str) -> None:
+    """The built-in demo office, surveyed once in the simulator so paths work at once."""
+    await service.create(WorldDescription(name=name, template="demo"))
+    cfg = ObserverConfig(bearing_noise_rad=0.01, distance_noise_m=0.02)
+    for obs in survey(service.model(name), cfg, seed=0):
+        await service.observe(name, obs)
+
+
+def open_services(settings: Settings | None = None,
+                  executor: Executor | None = None) -> Services:
+    """Open and restore everything (blocking; the app runs it in a worker thread, as it
+    runs an event loop of its own for the demo world). ``executor`` runs the eigenspace
+    learning strategy's Monte Carlo evaluation (None: in-process)."""
+    settings = settings or get_settings()
+    store = Store(settings.db_path)
+    try:
+        kb = KnowledgeBase(settings.prolog_dir, settings.kb_time_limit_s,
+                           settings.kb_inference_limit)
+    except BaseException:
+        store.close()
+        raise
+    try:
+        worlds = WorldService(store, kb)
+        services = Services(settings, store, kb, worlds,
+                            EigenspaceService(store, kb, worlds, executor),
+                            SlamService(store, kb, worlds), ViewpointService(store, kb, worlds))
+        counts = worlds.restore_all()
+        runs = services.slam.restore_runs()
+        log.info("restored from %s: %s, %d SLAM run(s)", settings.db_path,
+                 ", ".join(f"{n} {k}" for k, n in counts.items()), runs)
+        if settings.demo_world and store.world(settings.demo_world) is None:
+            asyncio.run(create_demo(worlds, settings.demo_world))
+    except BaseException:
+        kb.close()
+        store.close()
+        raise
+    return services
