@@ -13,7 +13,7 @@ import numpy as np
 from pydantic import BaseModel, Field
 
 from numeric.geometry import ray_cast
-from numeric.slam.scan import LaserLog, Scan, beam_angles
+from numeric.scan import LaserLog, Scan, beam_angles
 from numeric.world import World
 
 

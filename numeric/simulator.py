@@ -13,7 +13,7 @@ import numpy as np
 from pydantic import BaseModel, Field
 
 from numeric.geometry import compose, line_of_sight, relative, segments_cross, wrap_angle
-from numeric.qualitative.observation import Observation, SeenLandmark
+from numeric.observation import Observation, SeenLandmark
 from numeric.world import World
 
 

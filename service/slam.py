@@ -26,9 +26,9 @@ from typing import Any
 import numpy as np
 
 from numeric.errors import InvalidInput
-from numeric.slam.occupancy import OccupancyMap, build_occupancy
+from numeric.occupancy import OccupancyMap, build_occupancy
+from numeric.scan import Scan, beam_angles
 from numeric.slam.runner import Slam, SlamOptions, create
-from numeric.slam.scan import Scan, beam_angles
 from service.kb import KnowledgeBase
 from service.schemas import ScanIn
 from service.store import Store
@@ -179,7 +179,7 @@ class SlamService:
                 raise InvalidInput("the run has no scans yet", field="run")
             key = (run.scans, bool(getattr(run.slam, "aligned", False)))
             if run._map is None or run._map[0] != key:
-                g = await asyncio.to_thread(build_occupancy, run.slam.keyframes,
+                g = await asyncio.to_thread(build_occupancy, run.slam.keyframes.frames,
                                             run.slam.map_poses(), run.options.map_resolution_m)
                 run._map = (key, g)
             return run._map[1]

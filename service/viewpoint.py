@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from numeric.errors import InvalidInput
-from numeric.slam.occupancy import OccupancyMap
+from numeric.occupancy import OccupancyMap
 from numeric.viewpoint.grid import PlanningGrid, look_around, scanned_grid
 from numeric.viewpoint.plan import Plan
 from numeric.viewpoint.planner import (

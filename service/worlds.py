@@ -17,13 +17,13 @@ from typing import Any
 
 import networkx as nx
 
+from numeric.observation import Observation, observation_quantities
 from numeric.qualitative.drm import (
     DrmPath,
     build_drm,
     edges_from_records,
     max_probability_path,
 )
-from numeric.qualitative.observation import Observation, observation_quantities
 from numeric.world import World, WorldDescription
 from numeric.worlds import TEMPLATES, from_template
 from service.kb import KbError, KnowledgeBase

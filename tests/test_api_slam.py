@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from numeric.slam.scan import LaserLog
+from numeric.scan import LaserLog
 from numeric.slam.simulate import simulated_log
 from service.app import create_app
 from service.kb import KbError

@@ -15,6 +15,7 @@ from numeric.geometry import (
     segments_cross,
     wrap_angle,
 )
+from numeric.observation import Observation, observation_quantities
 from numeric.qualitative.drm import DrmEdge, build_drm, max_probability_path
 from numeric.qualitative.navigation import (
     NavConfig,
@@ -23,7 +24,6 @@ from numeric.qualitative.navigation import (
     home_on,
     pass_between,
 )
-from numeric.qualitative.observation import Observation, observation_quantities
 from numeric.qualitative.survey import survey
 from numeric.simulator import LandmarkObserver, ObserverConfig, OdometryConfig, Robot
 from numeric.world import Landmark, Wall, World, WorldDescription

@@ -12,11 +12,11 @@ import pytest
 import numeric.slam.rbpf as rbpf_module
 from numeric.geometry import compose, relative
 from numeric.laser import Laser, LaserConfig, record_log
+from numeric.scan import LaserLog, Scan
 from numeric.simulator import OdometryConfig, follow_path, odometry_along
 from numeric.slam.keyframes import moved
 from numeric.slam.proposal import gaussian_fit
 from numeric.slam.rbpf import MotionNoise, RbpfConfig, RbpfSlam
-from numeric.slam.scan import LaserLog, Scan
 from numeric.world import World
 from numeric.worlds import from_template
 

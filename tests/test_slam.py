@@ -14,6 +14,8 @@ from typer.testing import CliRunner
 from numeric.errors import InvalidInput
 from numeric.geometry import compose, place, relative
 from numeric.laser import Laser, LaserConfig
+from numeric.occupancy import FREE, OCCUPIED, UNKNOWN, OccupancyMap, build_occupancy
+from numeric.scan import Scan
 from numeric.slam.datasets import slam_data_dir
 from numeric.slam.evaluation import relation_errors
 from numeric.slam.gated import GateConfig, SingleHypothesisSlam, inside_gate
@@ -26,9 +28,7 @@ from numeric.slam.logs import (
     write_carmen,
     write_tum,
 )
-from numeric.slam.occupancy import FREE, OCCUPIED, UNKNOWN, OccupancyMap, build_occupancy
 from numeric.slam.rbpf import RbpfConfig, RbpfSlam, systematic_resample
-from numeric.slam.scan import Scan
 from numeric.slam.simulate import simulated_log
 from numeric.world import World, WorldDescription
 from numeric.worlds import from_template
@@ -232,7 +232,7 @@ def test_occupancy_map_exports(room_log) -> None:  # type: ignore[no-untyped-def
     s = SingleHypothesisSlam(method="odom")
     for scan in room_log.scans[:120]:
         s.process(scan)
-    g = build_occupancy(s.keyframes, s.map_poses(), 0.05)
+    g = build_occupancy(s.keyframes.frames, s.map_poses(), 0.05)
     summ = g.summary()
     assert summ["free_m2"] > 5 and summ["occupied_m2"] > 0.5
     pgm = g.to_pgm()

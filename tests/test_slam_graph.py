@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from numeric.geometry import compose, place, ray_cast, relative
+from numeric.probability_grid import GridConfig, ProbabilityGrid
 from numeric.slam.correlative import (
     PrecomputedGrid,
     branch_and_bound,
@@ -16,7 +17,6 @@ from numeric.slam.correlative import (
 )
 from numeric.slam.graph import GraphSlam, GraphSlamConfig, Submap
 from numeric.slam.pose_graph import PoseGraph
-from numeric.slam.probability_grid import GridConfig, ProbabilityGrid
 from numeric.slam.simulate import simulated_log
 
 ANGLES = np.linspace(-np.pi, np.pi, 360, endpoint=False)
@@ -240,8 +240,8 @@ def test_graph_slam_closes_a_simulated_loop() -> None:
     assert before > 0.25 and after < 0.1 and after < before / 4
     assert err.mean() < odom / 3
     # the map of the optimised poses: walls where the world has them
-    from numeric.slam.occupancy import OCCUPIED, build_occupancy
-    grid = build_occupancy(s.keyframes, s.map_poses(), 0.05)
+    from numeric.occupancy import OCCUPIED, build_occupancy
+    grid = build_occupancy(s.keyframes.frames, s.map_poses(), 0.05)
     occ = grid.centres(*np.nonzero(grid.state == OCCUPIED))
     assert len(occ) > 500
 

@@ -27,8 +27,8 @@ from pydantic import BaseModel, Field
 from scipy.optimize import least_squares
 
 from numeric.geometry import circular_mean, wrap_angle
+from numeric.observation import Observation
 from numeric.qualitative.drm import DrmEdge
-from numeric.qualitative.observation import Observation
 from numeric.simulator import LandmarkObserver, Robot
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from numeric.qualitative.observation import Observation
+from numeric.observation import Observation
 from numeric.simulator import LandmarkObserver, ObserverConfig
 from numeric.world import World
 

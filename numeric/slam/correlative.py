@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from numeric.slam.probability_grid import ProbabilityGrid, bilinear
+from numeric.probability_grid import ProbabilityGrid, bilinear
 
 
 def angular_step(points: np.ndarray, resolution_m: float) -> float:

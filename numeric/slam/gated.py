@@ -21,9 +21,9 @@ import numpy as np
 from pydantic import BaseModel, Field
 
 from numeric.geometry import compose, place, relative, wrap_angle
+from numeric.scan import Scan
 from numeric.slam.intensity_icp import IcpConfig, IcpResult, Reference, intensity_icp
 from numeric.slam.keyframes import Keyframes, MapConfig, moved
-from numeric.slam.scan import Scan
 
 SingleMethod = Literal["odom", "icp", "gated"]
 

@@ -33,7 +33,7 @@ Optimisation: the nodes and edges (local matches, odometry, closures) form a pos
 optimised incrementally by iSAM2 (:mod:`numeric.slam.pose_graph`); after a closure the
 whole trajectory moves. Submaps keep their grids in the local-SLAM frame; a submap's
 place in the world is its anchor node's optimised pose. The final map is rebuilt from
-the optimised node poses (:func:`numeric.slam.occupancy.build_occupancy`).
+the optimised node poses (:func:`numeric.occupancy.build_occupancy`).
 
 The end of a run (:meth:`GraphSlam.finish`, beyond Hess et al.): global scan alignment
 (:mod:`numeric.slam.scan_alignment`, after Lu & Milios 1997) refines every scan's pose
@@ -55,6 +55,8 @@ import numpy as np
 from pydantic import BaseModel, Field
 
 from numeric.geometry import compose, place, relative
+from numeric.probability_grid import GridConfig, ProbabilityGrid
+from numeric.scan import Scan
 from numeric.slam.correlative import (
     Match,
     PrecomputedGrid,
@@ -66,8 +68,6 @@ from numeric.slam.gated import GateConfig, inside_gate
 from numeric.slam.intensity_icp import IcpConfig, Reference, intensity_icp
 from numeric.slam.keyframes import Keyframes, MapConfig, moved, voxel_downsample
 from numeric.slam.pose_graph import GraphConfig, PoseGraph
-from numeric.slam.probability_grid import GridConfig, ProbabilityGrid
-from numeric.slam.scan import Scan
 from numeric.slam.scan_alignment import AlignmentConfig, align_scans
 from numeric.threads import default_threads, thread_map
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from numeric.errors import InvalidInput
 from numeric.geometry import compose, relative, wrap_angle
-from numeric.slam.scan import LaserLog, Scan, beam_angles
+from numeric.scan import LaserLog, Scan, beam_angles
 
 #: Usable range cap for the benchmark logs: their no-return codes are 50-82 m and the
 #: SICK LMS beams beyond ~40 m are mostly spurious.

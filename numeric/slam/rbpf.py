@@ -42,6 +42,7 @@ import numpy as np
 from pydantic import BaseModel, Field, model_validator
 
 from numeric.geometry import compose, relative, wrap_angle
+from numeric.scan import Scan
 from numeric.slam.gated import GateConfig, inside_gate
 from numeric.slam.intensity_icp import IcpConfig, Reference, intensity_icp
 from numeric.slam.keyframes import FieldCache, FieldConfig, Keyframes, MapConfig, moved
@@ -52,7 +53,6 @@ from numeric.slam.proposal import (
     propose_all,
     robust_increment,
 )
-from numeric.slam.scan import Scan
 from numeric.threads import default_threads, thread_map
 
 #: the scan and the chosen fields as the proposal kernels take them: points, intensities,

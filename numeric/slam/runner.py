@@ -12,13 +12,13 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from numeric.errors import InvalidInput
+from numeric.occupancy import OccupancyMap, build_occupancy
+from numeric.scan import LaserLog, Scan
 from numeric.slam.gated import SingleHypothesisSlam
 from numeric.slam.graph import GraphSlam, GraphSlamConfig
 from numeric.slam.intensity_icp import IcpConfig
 from numeric.slam.keyframes import Keyframes
-from numeric.slam.occupancy import OccupancyMap, build_occupancy
 from numeric.slam.rbpf import RbpfConfig, RbpfSlam
-from numeric.slam.scan import LaserLog, Scan
 
 Method = Literal["odom", "icp", "gated", "rbpf", "graph"]
 
@@ -96,9 +96,9 @@ def whole_map(slam: Slam, resolution_m: float) -> OccupancyMap:
     poses = slam.map_poses()
     for _ in range(6):
         try:
-            return build_occupancy(slam.keyframes, poses, resolution_m)
+            return build_occupancy(slam.keyframes.frames, poses, resolution_m)
         except InvalidInput as e:
             if e.field != "resolution_m":
                 raise
             resolution_m *= 2
-    return build_occupancy(slam.keyframes, poses, resolution_m)
+    return build_occupancy(slam.keyframes.frames, poses, resolution_m)

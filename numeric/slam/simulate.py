@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from numeric.laser import Laser, LaserConfig, record_log
+from numeric.scan import LaserLog
 from numeric.simulator import OdometryConfig, follow_path, odometry_along
-from numeric.slam.scan import LaserLog
 from numeric.world import World
 from numeric.worlds import from_template
 

@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from numeric.slam.occupancy import FREE, OCCUPIED
+from numeric.occupancy import FREE, OCCUPIED
 from numeric.viewpoint.grid import PlanningGrid
 from numeric.viewpoint.online import SummaryRun
 from numeric.viewpoint.planner import PlanReport, PlanRequest

@@ -1,6 +1,6 @@
 """The planner's view of a free / occupied / unknown grid (paper §4.1).
 
-The grid itself is :class:`numeric.slam.occupancy.OccupancyMap` -- the same type a SLAM
+The grid itself is :class:`numeric.occupancy.OccupancyMap` -- the same type a SLAM
 run commits to a world -- built here from the simulator (the world's true geometry, or
 laser scans from known poses as in the paper, which trusts odometry inside one room) or
 from a ROS ``nav_msgs/OccupancyGrid``-style array a client posts. :class:`PlanningGrid`
@@ -22,11 +22,11 @@ from scipy import ndimage
 from numeric.errors import InvalidInput
 from numeric.geometry import point_segment_distance, ray_crossings
 from numeric.laser import Laser
-from numeric.slam.keyframes import Keyframes, MapConfig
-from numeric.slam.occupancy import (
+from numeric.occupancy import (
     FREE,
     OCCUPIED,
     UNKNOWN,
+    Frame,
     OccupancyMap,
     UnknownComponent,
     build_occupancy,
@@ -199,17 +199,15 @@ def scanned_grid(world: World, poses: Sequence[np.ndarray] | np.ndarray,
     frame, with the room mask of the known walls."""
     laser = laser or Laser(world)
     poses = np.atleast_2d(np.asarray(poses, dtype=float))
-    kf = Keyframes(MapConfig(voxel_m=resolution_m / 2, max_points_m=laser.config.max_range_m))
-    misses = []
+    frames = []
     ang = laser.config.angles
     ray = np.stack([np.cos(ang), np.sin(ang)], axis=1)
-    for k, p in enumerate(poses):
+    for p in poses:
         r, i = laser.measure(p)
         ok = r < laser.config.max_range_m
-        kf.add(k, r[ok, None] * ray[ok], i[ok])
-        misses.append(laser.config.max_range_m * ray[~ok])
+        frames.append(Frame(r[ok, None] * ray[ok], i[ok], laser.config.max_range_m * ray[~ok]))
     lo, shape = _world_frame(world, resolution_m)
-    built = build_occupancy(kf, poses, resolution_m=resolution_m, misses=misses,
+    built = build_occupancy(frames, poses, resolution_m=resolution_m,
                             miss_cap_m=laser.config.max_range_m)
     # re-sample onto the world's frame so every grid of a world lines up
     state = np.full(shape, UNKNOWN, dtype=np.int8)

@@ -32,7 +32,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from skimage.graph import MCP_Geometric
 
 from numeric.geometry import line_of_sight
-from numeric.slam.occupancy import FREE, UNKNOWN
+from numeric.occupancy import FREE, UNKNOWN
 from numeric.viewpoint.grid import PlanningGrid, look_around, scanned_grid, travel_cost
 from numeric.viewpoint.planner import (
     CandidateIn,

@@ -49,9 +49,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
+from numeric.scan import Scan  # noqa: E402
 from numeric.slam.datasets import slam_data_dir  # noqa: E402
 from numeric.slam.logs import read_log  # noqa: E402
-from numeric.slam.scan import Scan  # noqa: E402
 from tests.conftest import LiveServer  # noqa: E402
 
 WORLD = "stream"

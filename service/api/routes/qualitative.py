@@ -5,7 +5,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Query, status
 
 from numeric.errors import InvalidInput
-from numeric.qualitative.observation import Observation
+from numeric.observation import Observation
 from numeric.world import ID_PATTERN
 from service.api.routes.worlds import WorldName
 from service.deps import WorldsDep

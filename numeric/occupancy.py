@@ -6,15 +6,16 @@ and the enclosed unknown regions the planners look at)."""
 from __future__ import annotations
 
 import io
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from scipy import ndimage
 
 from numeric.errors import InvalidInput
 from numeric.geometry import place
-from numeric.slam.keyframes import Keyframes
-from numeric.slam.probability_grid import GridConfig, ProbabilityGrid
+from numeric.probability_grid import GridConfig, ProbabilityGrid
 
 UNKNOWN, FREE, OCCUPIED = -1, 0, 100
 #: probability from which a cell is occupied (map_server's default occupied_thresh)
@@ -162,24 +163,47 @@ class OccupancyMap:
         return cls(z["origin"], float(z["resolution_m"]), z["state"], z["intensity"])
 
 
-def build_occupancy(keyframes: Keyframes, poses: np.ndarray, resolution_m: float = 0.05,
+class ScanFrame(Protocol):
+    """One scan as the occupancy builder reads it: its returns ``xy (n, 2)``, their
+    ``intensity (n,)`` (or None) and the ends of its no-return beams ``misses (m, 2)``
+    (or None), in the robot frame (a SLAM keyframe, or a simulated look around)."""
+
+    @property
+    def xy(self) -> np.ndarray: ...
+
+    @property
+    def intensity(self) -> np.ndarray | None: ...
+
+    @property
+    def misses(self) -> np.ndarray | None: ...
+
+
+@dataclass(frozen=True)
+class Frame:
+    """A plain :class:`ScanFrame`."""
+
+    xy: np.ndarray
+    intensity: np.ndarray | None = None
+    misses: np.ndarray | None = None
+
+
+def build_occupancy(frames: Sequence[ScanFrame], poses: np.ndarray, resolution_m: float = 0.05,
                     margin_m: float = 1.0, max_cells: int = 16_000_000,
-                    misses: list[np.ndarray] | None = None, miss_cap_m: float = 5.0,
+                    miss_cap_m: float = 5.0,
                     grid: GridConfig | None = None) -> OccupancyMap:
-    """The occupancy grid of the keyframes placed at ``poses (K, 3)``: every keyframe
-    is ray-cast into one :class:`~numeric.slam.probability_grid.ProbabilityGrid` (hits
+    """The occupancy grid of the scans ``frames`` placed at ``poses (K, 3)``: every scan
+    is ray-cast into one :class:`~numeric.probability_grid.ProbabilityGrid` (hits
     raise a cell's odds, cells a beam passes through lower them, once per scan with hits
     winning, clamped), then thresholded the way ``map_server`` reads a map: occupied at
     ``p >= 0.65``, free below 0.5, unknown where never observed or undecided.
-    ``misses[k]`` (robot frame; default: the keyframe's own) are the ends of keyframe
-    k's no-return beams: free up to ``miss_cap_m``, nothing occupied."""
-    if len(keyframes) == 0:
+    A scan's ``misses`` (the ends of its no-return beams) clear free space up to
+    ``miss_cap_m`` and mark nothing occupied."""
+    if len(frames) == 0:
         raise InvalidInput("the run has no keyframes yet", field="run")
     cfg = (grid or GridConfig()).model_copy(update={"resolution_m": resolution_m,
                                                      "miss_cap_m": miss_cap_m,
                                                      "grow_margin_m": 0.0})
-    frames = keyframes.frames
-    miss = [misses[k] if misses is not None else f.misses for k, f in enumerate(frames)]
+    miss = [f.misses for f in frames]
     world = [place(f.xy, poses[k]) for k, f in enumerate(frames)]
     clear = [None if m is None or len(m) == 0 else place(m, poses[k])
              for k, m in enumerate(miss)]

@@ -1,0 +1,67 @@
+"""The one-way flow of imports: numeric's shared modules (numeric/*.py: geometry, world,
+simulator, scan, observation, occupancy, ...) -> the method packages (numeric/slam,
+eigenspace, qualitative, viewpoint; none imports another) -> service (service/kb.py the
+only module importing pyswip) -> the routes (service/api). Every import statement
+counts, also those inside functions."""
+
+from __future__ import annotations
+
+import ast
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+NUMERIC = ROOT / "numeric"
+SERVICE = ROOT / "service"
+METHODS = sorted(p.name for p in NUMERIC.iterdir() if (p / "__init__.py").exists())
+
+
+def imports(path: Path) -> Iterator[str]:
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            yield node.module
+        elif isinstance(node, ast.Import):
+            yield from (a.name for a in node.names)
+
+
+def back_edges(root: Path) -> list[str]:
+    """Imports under ``root`` that run against the flow (as "file -> module")."""
+    bad = []
+    for f in sorted(root.rglob("*.py")):
+        rel = f.relative_to(ROOT)
+        own = rel.parts[1] if len(rel.parts) > 2 else None  # method package, or shared
+        for m in imports(f):
+            top, *rest = m.split(".")
+            if rel.parts[0] == "numeric":
+                if top in ("service", "fastapi", "starlette", "uvicorn", "pyswip"):
+                    bad.append(f"{rel} -> {m}")  # numeric knows no web and no Prolog
+                elif top == "numeric" and rest and rest[0] in METHODS and rest[0] != own:
+                    bad.append(f"{rel} -> {m}")  # shared -> method, or method -> method
+            else:
+                if top == "pyswip" and rel != Path("service/kb.py"):
+                    bad.append(f"{rel} -> {m}")
+                if m.startswith("service.api") and "api" not in rel.parts and \
+                        rel != Path("service/app.py"):
+                    bad.append(f"{rel} -> {m}")  # the services do not know their routes
+    return bad
+
+
+def test_the_method_packages_are_found() -> None:
+    assert {"slam", "eigenspace", "qualitative", "viewpoint"} <= set(METHODS)
+
+
+@pytest.mark.parametrize("root", [NUMERIC, SERVICE], ids=["numeric", "service"])
+def test_no_import_runs_against_the_flow(root: Path) -> None:
+    assert back_edges(root) == []
+
+
+def test_the_check_sees_a_back_edge(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The walker itself: a shared module importing a method package is reported."""
+    fake = tmp_path / "numeric"
+    (fake / "slam").mkdir(parents=True)
+    (fake / "slam" / "__init__.py").write_text("")
+    (fake / "shared.py").write_text("def f():\n    from numeric.slam.x import y\n")
+    monkeypatch.setattr(__import__(__name__, fromlist=["ROOT"]), "ROOT", tmp_path)
+    assert back_edges(fake) == ["numeric/shared.py -> numeric.slam.x"]
