@@ -3,15 +3,18 @@
 from __future__ import annotations
 
 import asyncio
+import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
 
 from service import errors
-from service.api.routes import eigenspace, health, qualitative, slam, viewpoint, worlds
+from service.api.routes import eigenspace, health, jobs, qualitative, slam, viewpoint, worlds
 from service.container import open_services
 from service.settings import Settings, get_settings
+
+log = logging.getLogger("chizu")
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -20,6 +23,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         services = await asyncio.to_thread(open_services, settings)
+        # the jobs a previous server process was running ended with it (the CLI, which
+        # opens the same store while a server may run, leaves them alone)
+        n = services.jobs.interrupt_unfinished()
+        if n:
+            log.warning("%d job(s) were interrupted by the last shutdown", n)
         app.state.services = services
         app.state.store, app.state.kb, app.state.worlds = (services.store, services.kb,
                                                            services.worlds)
@@ -28,6 +36,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         try:
             yield
         finally:
+            await services.jobs.close()
             services.close()
 
     app = FastAPI(title="chizu", version="0.1.0", lifespan=lifespan,
@@ -38,6 +47,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(eigenspace.router)
     app.include_router(slam.router)
     app.include_router(viewpoint.router)
+    app.include_router(jobs.router)
     errors.install(app)
     app.add_middleware(errors.BodySizeLimit, max_bytes=settings.max_body_bytes,
                        upload_bytes=settings.max_upload_bytes,

@@ -19,6 +19,7 @@ from numeric.qualitative.survey import survey
 from numeric.simulator import ObserverConfig
 from numeric.world import WorldDescription
 from service.eigenspace import EigenspaceService
+from service.jobs import Jobs
 from service.kb import KnowledgeBase
 from service.settings import Settings, get_settings
 from service.slam import SlamService
@@ -37,6 +38,7 @@ class Services:
     store: Store
     kb: KnowledgeBase
     worlds: WorldService
+    jobs: Jobs
     eigenspace: EigenspaceService
     slam: SlamService
     viewpoint: ViewpointService
@@ -69,8 +71,9 @@ def open_services(settings: Settings | None = None,
         raise
     try:
         worlds = WorldService(store, kb)
-        services = Services(settings, store, kb, worlds,
-                            EigenspaceService(store, kb, worlds, executor),
+        jobs = Jobs(store)
+        services = Services(settings, store, kb, worlds, jobs,
+                            EigenspaceService(store, kb, worlds, jobs, executor),
                             SlamService(store, kb, worlds), ViewpointService(store, kb, worlds))
         counts = worlds.restore_all()
         runs = services.slam.restore_runs()

@@ -7,6 +7,7 @@ from typing import Annotated
 from fastapi import Depends, Request
 
 from service.eigenspace import EigenspaceService
+from service.jobs import Jobs
 from service.kb import KnowledgeBase
 from service.settings import Settings, get_settings
 from service.slam import SlamService
@@ -30,6 +31,10 @@ def _viewpoint(request: Request) -> ViewpointService:
     return request.app.state.viewpoint  # type: ignore[no-any-return]
 
 
+def _jobs(request: Request) -> Jobs:
+    return request.app.state.services.jobs  # type: ignore[no-any-return]
+
+
 def _kb(request: Request) -> KnowledgeBase:
     return request.app.state.kb  # type: ignore[no-any-return]
 
@@ -40,3 +45,4 @@ KbDep = Annotated[KnowledgeBase, Depends(_kb)]
 EigenspaceDep = Annotated[EigenspaceService, Depends(_eigenspace)]
 SlamDep = Annotated[SlamService, Depends(_slam)]
 ViewpointDep = Annotated[ViewpointService, Depends(_viewpoint)]
+JobsDep = Annotated[Jobs, Depends(_jobs)]

@@ -5,8 +5,9 @@ Flow: ``numeric.eigenspace`` computes; the knowledge base receives the learning
 points, triplets and candidate-multiple sets as facts (``eigenspace_facts``) and
 decides every X / Y^(m) / Z transition by the Fig. 4 rules in
 ``prolog/eigenspace.pl`` (``eigenspace_transition``).  Analyses and sessions are
-stored in SQLite, so both survive a restart; a learning job still running at a
-restart is lost (its result was not stored) and must be posted again.
+stored in SQLite, so both survive a restart; a learning job is a durable job
+(:mod:`service.jobs`): one still running at a restart is reported ``interrupted``
+(its result was not stored) and must be posted again.
 """
 
 from __future__ import annotations
@@ -42,27 +43,14 @@ from numeric.eigenspace.movement_strategy import (
     session_belief,
 )
 from numeric.errors import InvalidInput
+from service.jobs import JobProgress, Jobs
 from service.kb import KnowledgeBase
 from service.store import Store
-from service.worlds import ArtifactKind, Conflict, NotFound, WorldService
+from service.worlds import ArtifactKind, NotFound, WorldService
 
 log = logging.getLogger(__name__)
+LEARNING_JOB = "eigenspace_learning"
 ARTIFACT = "eigenspace"
-
-
-@dataclass
-class Job:
-    id: str
-    world: str
-    status: str = "queued"  # queued | running | done | failed
-    stage: str = "queued"
-    progress: float = 0.0
-    summary: dict[str, Any] | None = None
-    error: dict[str, Any] | None = None
-
-    def public(self) -> dict[str, Any]:
-        return {"id": self.id, "world": self.world, "status": self.status, "stage": self.stage,
-                "progress": self.progress, "summary": self.summary, "error": self.error}
 
 
 @dataclass
@@ -102,13 +90,11 @@ def check_source(config: EigenspaceConfig, from_images: bool) -> None:
 
 
 class EigenspaceService:
-    def __init__(self, store: Store, kb: KnowledgeBase, worlds: WorldService,
+    def __init__(self, store: Store, kb: KnowledgeBase, worlds: WorldService, jobs: Jobs,
                  executor: Executor | None = None) -> None:
-        self.store, self.kb, self.worlds = store, kb, worlds
+        self.store, self.kb, self.worlds, self.jobs = store, kb, worlds, jobs
         self.executor = executor  # for the Monte Carlo strategy; None = in-process
         self._analyses: dict[str, EigenspaceAnalysis] = {}
-        self._jobs: dict[str, Job] = {}
-        self._tasks: set[asyncio.Task[None]] = set()
         self._session_lock = asyncio.Lock()
         worlds.on_delete.append(self._forget)
         worlds.register(ArtifactKind(
@@ -131,26 +117,21 @@ class EigenspaceService:
 
     # -- learning -----------------------------------------------------------------------
     def start_learning(self, world: str, config: EigenspaceConfig,
-                       images: ImageSet | None = None) -> Job:
-        """A learning job: in the simulator, or from a camera's ``images``."""
+                       images: ImageSet | None = None) -> dict[str, Any]:
+        """A durable learning job (:mod:`service.jobs`): in the simulator, or from a
+        camera's ``images``; its result is the analysis summary."""
         self.worlds.model(world)
         check_source(config, images is not None)
-        if any(j.world == world and j.status in ("queued", "running")
-               for j in self._jobs.values()):
-            raise Conflict(f"a learning job for world {world!r} is already running",
-                           field="world")
-        job = Job(uuid.uuid4().hex, world)
-        self._jobs[job.id] = job
-        task = asyncio.get_running_loop().create_task(self._learn(job, config, images))
-        self._tasks.add(task)
-        task.add_done_callback(self._tasks.discard)
-        return job
 
-    def job(self, world: str, job_id: str) -> Job:
-        j = self._jobs.get(job_id)
-        if j is None or j.world != world:
-            raise NotFound(f"no learning job {job_id!r} for world {world!r}", field="job")
-        return j
+        async def work(progress: JobProgress) -> dict[str, Any]:
+            a = await self.learn(world, config, images, progress)
+            return a.summary(self.worlds.model(world))
+
+        return self.jobs.start(world, LEARNING_JOB, work)
+
+    def job(self, world: str, job_id: str) -> dict[str, Any]:
+        self.worlds.model(world)
+        return self.jobs.get(job_id, world)
 
     async def learn(self, world: str, config: EigenspaceConfig,
                     images: ImageSet | None = None,
@@ -167,24 +148,6 @@ class EigenspaceService:
             await write.commit(a.to_bytes(), call=facts_call(world, a))
             self._analyses[world] = a
         return a
-
-    async def _learn(self, job: Job, config: EigenspaceConfig,
-                     images: ImageSet | None) -> None:
-        job.status = "running"
-
-        def progress(stage: str, frac: float) -> None:
-            job.stage, job.progress = stage, frac
-
-        try:
-            a = await self.learn(job.world, config, images, progress)
-            job.summary = a.summary(self.worlds.model(job.world))
-            job.status, job.stage, job.progress = "done", "done", 1.0
-        except InvalidInput as e:
-            job.status, job.error = "failed", {"detail": str(e), "field": e.field}
-        except Exception as e:  # noqa: BLE001 - reported on the job, logged here
-            log.exception("learning job %s failed", job.id)
-            job.status, job.error = "failed", {"detail": f"{type(e).__name__}: {e}",
-                                               "field": None}
 
     def summary(self, world: str) -> dict[str, Any]:
         """The analysis summary plus what it learned: the learning points (id, x, y) and

@@ -53,6 +53,19 @@ CREATE TABLE IF NOT EXISTS slam_scans (
     scan        TEXT NOT NULL,
     PRIMARY KEY (run, seq)
 );
+CREATE TABLE IF NOT EXISTS jobs (
+    id          TEXT PRIMARY KEY,
+    world       TEXT NOT NULL REFERENCES worlds(name) ON DELETE CASCADE,
+    kind        TEXT NOT NULL,
+    status      TEXT NOT NULL,
+    stage       TEXT NOT NULL,
+    progress    REAL NOT NULL,
+    result      TEXT,
+    error       TEXT,
+    created_at  REAL NOT NULL,
+    updated_at  REAL NOT NULL
+);
+CREATE INDEX IF NOT EXISTS jobs_world ON jobs(world, created_at);
 CREATE TABLE IF NOT EXISTS sessions (
     id          TEXT PRIMARY KEY,
     world       TEXT NOT NULL REFERENCES worlds(name) ON DELETE CASCADE,
@@ -199,6 +212,54 @@ class Store:
             rows = self._conn.execute("SELECT scan FROM slam_scans WHERE run = ? ORDER BY seq",
                                       (rid,)).fetchall()
         return [json.loads(r[0]) for r in rows]
+
+    # -- jobs ------------------------------------------------------------------------------
+    _JOB_COLUMNS = ("id, world, kind, status, stage, progress, result, error, created_at, "
+                    "updated_at")
+
+    def insert_job(self, jid: str, world: str, kind: str) -> None:
+        now = time.time()
+        with self.transaction() as conn:
+            conn.execute("INSERT INTO jobs (id, world, kind, status, stage, progress, "
+                         "created_at, updated_at) VALUES (?, ?, ?, 'queued', 'queued', 0, ?, ?)",
+                         (jid, world, kind, now, now))
+
+    def update_job(self, jid: str, **fields: Any) -> None:
+        """Set some of status, stage, progress, result, error (dicts stored as JSON)."""
+        cols = [k for k in ("status", "stage", "progress", "result", "error") if k in fields]
+        vals = [json.dumps(fields[k], allow_nan=False) if k in ("result", "error") and
+                fields[k] is not None else fields[k] for k in cols]
+        with self.transaction() as conn:
+            conn.execute(f"UPDATE jobs SET {', '.join(c + ' = ?' for c in cols)}, "  # noqa: S608
+                         "updated_at = ? WHERE id = ?", (*vals, time.time(), jid))
+
+    def interrupt_jobs(self) -> int:
+        """Start-up: jobs that were queued or running when the process ended."""
+        with self.transaction() as conn:
+            cur = conn.execute("UPDATE jobs SET status = 'interrupted', updated_at = ? "
+                               "WHERE status IN ('queued', 'running')", (time.time(),))
+            return int(cur.rowcount)
+
+    def jobs(self, jid: str | None = None, world: str | None = None,
+             status: str | None = None) -> list[dict[str, Any]]:
+        where, args = [], []
+        for col, v in (("id", jid), ("world", world), ("status", status)):
+            if v is not None:
+                where.append(f"{col} = ?")
+                args.append(v)
+        sql = f"SELECT {self._JOB_COLUMNS} FROM jobs"  # noqa: S608 - column names are ours
+        if where:
+            sql += " WHERE " + " AND ".join(where)
+        with self._lock:
+            rows = self._conn.execute(sql + " ORDER BY created_at, id", args).fetchall()
+        keys = self._JOB_COLUMNS.split(", ")
+        out = []
+        for r in rows:
+            d = dict(zip(keys, r, strict=True))
+            for k in ("result", "error"):
+                d[k] = None if d[k] is None else json.loads(d[k])
+            out.append(d)
+        return out
 
     def close(self) -> None:
         with self._lock:

@@ -27,6 +27,7 @@ from service.deps import EigenspaceDep
 from service.eigenspace import check_source
 from service.schemas import (
     CameraIn,
+    JobOut,
     LocalizationOut,
     NextMoveOut,
     SessionCreated,
@@ -106,17 +107,18 @@ def by_name(files: list[tuple[str, bytes]]) -> dict[str, bytes]:
     return out
 
 
-@router.post("/eigenspace", status_code=status.HTTP_202_ACCEPTED)
+@router.post("/eigenspace", status_code=status.HTTP_202_ACCEPTED, response_model=JobOut)
 async def post_eigenspace(world: WorldName, config: EigenspaceConfig,
                           eig: EigenspaceDep, response: Response) -> dict[str, Any]:
     """Learn the world's eigenspace in the simulator and analyse it (triplets, region
     model, entry model, candidate-multiple sets).  Runs as a job: poll ``Location``."""
     job = eig.start_learning(world, config)
-    response.headers["Location"] = f"/worlds/{world}/eigenspace/jobs/{job.id}"
-    return job.public()
+    response.headers["Location"] = f"/worlds/{world}/eigenspace/jobs/{job['id']}"
+    return job
 
 
-@router.post("/eigenspace/images", status_code=status.HTTP_202_ACCEPTED)
+@router.post("/eigenspace/images", status_code=status.HTTP_202_ACCEPTED,
+             response_model=JobOut)
 async def post_eigenspace_images(
         world: WorldName, eig: EigenspaceDep, response: Response,
         archive: Annotated[UploadFile | None, File(
@@ -150,14 +152,15 @@ async def post_eigenspace_images(
         files = by_name(await read_uploads(images or [], "images"))
         image_set = await asyncio.to_thread(read_image_set, text, files, wh)
     job = eig.start_learning(world, cfg, image_set)
-    response.headers["Location"] = f"/worlds/{world}/eigenspace/jobs/{job.id}"
-    return job.public()
+    response.headers["Location"] = f"/worlds/{world}/eigenspace/jobs/{job['id']}"
+    return job
 
 
-@router.get("/eigenspace/jobs/{job_id}")
+@router.get("/eigenspace/jobs/{job_id}", response_model=JobOut)
 async def get_job(world: WorldName, job_id: str, eig: EigenspaceDep) -> dict[str, Any]:
-    """Progress of a learning job (stage, 0..1), its summary when done, its error if failed."""
-    return eig.job(world, job_id).public()
+    """Progress of a learning job (stage, 0..1), its result (the analysis summary) when
+    done, its error if failed; ``interrupted`` if the server stopped while it ran."""
+    return eig.job(world, job_id)
 
 
 @router.get("/eigenspace")

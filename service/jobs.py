@@ -1,0 +1,137 @@
+"""Durable jobs: long work (an eigenspace learning) is a row in the store with its
+status, stage, progress and result, so a client polling it after a restart learns what
+happened instead of a 404.
+
+Status: ``queued`` -> ``running`` -> ``done`` | ``failed`` | ``cancelled``; a job that
+was queued or running when the process ended is marked ``interrupted`` at the next
+start (:meth:`Jobs.interrupt_unfinished`). ``DELETE /jobs/{id}`` cancels a job: its
+coroutine is cancelled at once (nothing it had not committed is committed) and the work
+in its worker thread stops at its next progress report.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import threading
+import time
+import uuid
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+from numeric.errors import InvalidInput
+from service.store import Store
+from service.worlds import Conflict, NotFound
+
+log = logging.getLogger(__name__)
+
+UNFINISHED = ("queued", "running")
+
+
+class JobCancelled(Exception):
+    """Raised in a job's worker thread by its progress report once the job is cancelled."""
+
+
+class JobProgress:
+    """What a job's work reports through: ``progress(stage, fraction)``. Writes reach the
+    store when the stage changes or every ``interval_s`` at most (the work may report
+    thousands of times); raises :class:`JobCancelled` once the job is cancelled."""
+
+    def __init__(self, store: Store, jid: str, cancelled: threading.Event,
+                 interval_s: float = 0.5) -> None:
+        self.store, self.jid, self.cancelled = store, jid, cancelled
+        self.interval_s = interval_s
+        self._stage: str | None = None
+        self._written = 0.0
+
+    def __call__(self, stage: str, frac: float) -> None:
+        if self.cancelled.is_set():
+            raise JobCancelled(self.jid)
+        now = time.monotonic()
+        if stage != self._stage or now - self._written >= self.interval_s:
+            self._stage, self._written = stage, now
+            self.store.update_job(self.jid, stage=stage,
+                                  progress=float(min(max(frac, 0.0), 1.0)))
+
+
+Work = Callable[[JobProgress], Awaitable[dict[str, Any]]]
+
+
+class Jobs:
+    def __init__(self, store: Store) -> None:
+        self.store = store
+        self._tasks: dict[str, asyncio.Task[None]] = {}
+        self._cancel: dict[str, threading.Event] = {}
+        self._closing = False
+
+    def interrupt_unfinished(self) -> int:
+        """Start-up: every job still queued or running belonged to a process that ended."""
+        return self.store.interrupt_jobs()
+
+    def start(self, world: str, kind: str, work: Work) -> dict[str, Any]:
+        """Queue ``work`` as a job of ``kind`` on ``world`` (one unfinished job per world
+        and kind: else 409) and run it on the running event loop."""
+        for st in UNFINISHED:
+            if any(j["kind"] == kind for j in self.store.jobs(world=world, status=st)):
+                raise Conflict(f"a {kind} job for world {world!r} is already {st}",
+                               field="world")
+        jid = uuid.uuid4().hex
+        self.store.insert_job(jid, world, kind)
+        self._cancel[jid] = threading.Event()
+        task = asyncio.get_running_loop().create_task(self._run(jid, work))
+        self._tasks[jid] = task
+        task.add_done_callback(lambda _t: self._forget(jid))
+        return self.get(jid)
+
+    def _forget(self, jid: str) -> None:
+        self._tasks.pop(jid, None)
+        self._cancel.pop(jid, None)
+
+    async def _run(self, jid: str, work: Work) -> None:
+        self.store.update_job(jid, status="running", stage="running")
+        try:
+            result = await work(JobProgress(self.store, jid, self._cancel[jid]))
+        except (asyncio.CancelledError, JobCancelled):
+            end = "interrupted" if self._closing else "cancelled"
+            self.store.update_job(jid, status=end, stage=end)
+            return
+        except InvalidInput as e:
+            self.store.update_job(jid, status="failed",
+                                  error={"detail": str(e), "field": e.field})
+            return
+        except Exception as e:  # noqa: BLE001 - reported on the job, logged here
+            log.exception("job %s failed", jid)
+            self.store.update_job(jid, status="failed",
+                                  error={"detail": f"{type(e).__name__}: {e}", "field": None})
+            return
+        self.store.update_job(jid, status="done", stage="done", progress=1.0, result=result)
+
+    def get(self, jid: str, world: str | None = None) -> dict[str, Any]:
+        rows = self.store.jobs(jid=jid, world=world)
+        if not rows:
+            where = "" if world is None else f" for world {world!r}"
+            raise NotFound(f"no job {jid!r}{where}", field="job")
+        return rows[0]
+
+    def list(self, world: str | None = None, status: str | None = None
+             ) -> list[dict[str, Any]]:
+        return self.store.jobs(world=world, status=status)
+
+    async def cancel(self, jid: str) -> dict[str, Any]:
+        """Cancel a queued or running job (409 for one that has ended); returns it."""
+        job = self.get(jid)
+        task = self._tasks.get(jid)
+        if job["status"] not in UNFINISHED or task is None:
+            raise Conflict(f"job {jid!r} is {job['status']}, not running", field="job")
+        self._cancel[jid].set()
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        return self.get(jid)
+
+    async def close(self) -> None:
+        """Shutdown: running jobs end as interrupted (the next start would say so too)."""
+        self._closing = True
+        for jid, task in list(self._tasks.items()):
+            self._cancel[jid].set()
+            task.cancel()
+        await asyncio.gather(*self._tasks.values(), return_exceptions=True)

@@ -1,0 +1,116 @@
+"""Durable jobs: listed, polled and cancelled under /jobs; a job that a shutdown or a
+kill -9 ends is reported ``interrupted`` after the restart; writes acknowledged before
+a kill -9 are all there after it."""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+from fastapi.testclient import TestClient
+
+from service.app import create_app
+from service.settings import Settings
+from tests.conftest import make_fig1_world, observation
+
+#: a learning long enough to be caught running: full-size images, the learning strategy
+LONG = {"learning_strategy": {"target_probability": 1.0, "max_additions": 3}}
+
+
+def wait_status(get: Any, statuses: tuple[str, ...], timeout_s: float = 120) -> dict[str, Any]:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        j = get()
+        if j["status"] in statuses:
+            return j  # type: ignore[no-any-return]
+        time.sleep(0.05)
+    raise AssertionError(f"job never reached {statuses}: {j}")
+
+
+def events(c: httpx.Client, world: str) -> int:
+    return next(int(w["events"]) for w in c.get("/worlds").json() if w["name"] == world)
+
+
+def test_cancel_list_and_bad_ids(tmp_path: Path) -> None:
+    with TestClient(create_app(Settings(data_dir=tmp_path, demo_world=""))) as c:
+        assert c.post("/worlds", json={"name": "w", "template": "room_a"}).status_code == 201
+        r = c.post("/worlds/w/eigenspace", json=LONG)
+        assert r.status_code == 202 and r.json()["status"] == "queued"
+        jid = r.json()["id"]
+        assert c.get(r.headers["location"]).json()["id"] == jid  # the world's own URL
+        wait_status(lambda: c.get(f"/jobs/{jid}").json(), ("running",))
+        busy = c.post("/worlds/w/eigenspace", json=LONG)
+        assert busy.status_code == 409 and busy.json()["field"] == "world"
+        out = c.delete(f"/jobs/{jid}")
+        assert out.status_code == 200 and out.json()["status"] == "cancelled"
+        assert c.get("/worlds/w/eigenspace").status_code == 404  # nothing committed
+        again = c.delete(f"/jobs/{jid}")
+        assert again.status_code == 409 and again.headers["content-type"].startswith(
+            "application/problem+json")
+        listed = c.get("/jobs", params={"world": "w"}).json()
+        assert [(j["id"], j["kind"], j["status"]) for j in listed] == [
+            (jid, "eigenspace_learning", "cancelled")]
+        assert c.get("/jobs", params={"status": "running"}).json() == []
+        assert c.get("/jobs/" + "0" * 32).status_code == 404
+        assert c.get("/jobs/not-an-id").status_code == 422
+        assert c.get("/jobs", params={"status": "sleeping"}).status_code == 422
+
+
+def test_a_shutdown_interrupts_running_jobs(tmp_path: Path) -> None:
+    settings = Settings(data_dir=tmp_path, demo_world="")
+    with TestClient(create_app(settings)) as c:
+        c.post("/worlds", json={"name": "w", "template": "room_a"})
+        jid = c.post("/worlds/w/eigenspace", json=LONG).json()["id"]
+        wait_status(lambda: c.get(f"/jobs/{jid}").json(), ("running",))
+    with TestClient(create_app(settings)) as c:
+        j = c.get(f"/worlds/w/eigenspace/jobs/{jid}").json()
+        assert j["status"] == "interrupted" and j["result"] is None
+        # and the world can learn again
+        assert c.post("/worlds/w/eigenspace", json=LONG).status_code == 202
+
+
+def test_kill_9_during_a_job_and_a_write_loop(tmp_path: Path,
+                                              live_server_factory: Any) -> None:
+    data = tmp_path / "data"
+    srv = live_server_factory(data)
+    acked: list[int] = []
+    stop = threading.Event()
+
+    def write_loop() -> None:  # observations, one after the other, until the kill
+        with httpx.Client(base_url=srv.url, timeout=10) as w:
+            k = 0
+            while not stop.is_set():
+                try:
+                    r = w.post("/worlds/fig/observations",
+                               json=observation("a", ["b", "d"], heading=0.001 * k))
+                except httpx.HTTPError:
+                    return
+                if r.status_code == 201:
+                    acked.append(k)
+                k += 1
+
+    with httpx.Client(base_url=srv.url, timeout=30) as c:
+        make_fig1_world(c, "fig")
+        base = events(c, "fig")
+        assert c.post("/worlds", json={"name": "w", "template": "room_a"}).status_code == 201
+        jid = c.post("/worlds/w/eigenspace", json=LONG).json()["id"]
+        writer = threading.Thread(target=write_loop)
+        writer.start()
+        wait_status(lambda: c.get(f"/jobs/{jid}").json(), ("running",))
+        while len(acked) < 20:
+            time.sleep(0.05)
+    os.kill(srv.proc.pid, signal.SIGKILL)
+    srv.proc.wait()
+    stop.set()
+    writer.join()
+    srv2 = live_server_factory(data)
+    with httpx.Client(base_url=srv2.url, timeout=30) as c:
+        assert c.get(f"/jobs/{jid}").json()["status"] == "interrupted"
+        n = events(c, "fig") - base
+        assert n >= len(acked)  # every acknowledged write is there
+        assert n <= len(acked) + 1  # at most the one in flight at the kill
