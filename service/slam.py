@@ -30,7 +30,7 @@ from numeric.occupancy import OccupancyMap, build_occupancy
 from numeric.scan import Scan, beam_angles
 from numeric.slam.runner import Slam, SlamOptions, create
 from service.kb import KnowledgeBase
-from service.schemas import ScanIn
+from service.schemas.slam import ScanIn
 from service.store import Store
 from service.worlds import ArtifactKind, NotFound, WorldService
 

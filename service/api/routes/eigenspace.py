@@ -25,9 +25,11 @@ from numeric.errors import InvalidInput
 from service.api.routes.worlds import WorldName
 from service.deps import EigenspaceDep
 from service.eigenspace import check_source
-from service.schemas import (
+from service.schemas.eigenspace import (
     CameraIn,
-    JobOut,
+    CameraOut,
+    CoveringOut,
+    EigenspaceOut,
     LocalizationOut,
     NextMoveOut,
     SessionCreated,
@@ -35,6 +37,7 @@ from service.schemas import (
     StopIn,
     TurnIn,
 )
+from service.schemas.jobs import JobOut
 
 router = APIRouter(prefix="/worlds/{world}", tags=["eigenspace localization"])
 
@@ -163,14 +166,14 @@ async def get_job(world: WorldName, job_id: str, eig: EigenspaceDep) -> dict[str
     return eig.job(world, job_id)
 
 
-@router.get("/eigenspace")
+@router.get("/eigenspace", response_model=EigenspaceOut)
 async def get_eigenspace(world: WorldName, eig: EigenspaceDep) -> dict[str, Any]:
     """Summary of the learned eigenspace (images, K, triplet count, region coverage) with
     the learning points (``points``) and the localizable triplets (``triplet_list``)."""
     return eig.summary(world)
 
 
-@router.get("/eigenspace/covering")
+@router.get("/eigenspace/covering", response_model=list[CoveringOut])
 async def get_covering(world: WorldName, eig: EigenspaceDep,
                        x: Annotated[float, Query(allow_inf_nan=False)],
                        y: Annotated[float, Query(allow_inf_nan=False)]) -> list[dict[str, Any]]:
@@ -234,7 +237,7 @@ async def get_next_move(world: WorldName, sid: str, eig: EigenspaceDep) -> dict[
     return await eig.next_move(world, sid)
 
 
-@router.post("/camera")
+@router.post("/camera", response_model=CameraOut, response_model_exclude_unset=True)
 async def post_camera(world: WorldName, body: CameraIn, eig: EigenspaceDep) -> dict[str, Any]:
     """Render the simulated camera at a pose (one image, or a full turn): base64 PNG by
     default, nested lists with ``"format": "list"``."""

@@ -1,7 +1,7 @@
 from fastapi import APIRouter
 
 from service.deps import KbDep, WorldsDep
-from service.schemas import Health
+from service.schemas.common import Health
 
 router = APIRouter(tags=["health"])
 

@@ -8,7 +8,7 @@ from fastapi import APIRouter, Path, Query
 
 from numeric.world import ID_PATTERN
 from service.deps import JobsDep
-from service.schemas import JobOut
+from service.schemas.jobs import JobOut
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 JobId = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$", description="job id")]

@@ -10,7 +10,7 @@ from numeric.world import ID_PATTERN
 from service.api.routes.worlds import WorldName
 from service.deps import WorldsDep
 from service.kb import KbError
-from service.schemas import (
+from service.schemas.qualitative import (
     DrmEdgeOut,
     DrmOut,
     ObservationOut,
@@ -20,6 +20,7 @@ from service.schemas import (
     ReachedIn,
     ReachedOut,
     RelationKind,
+    RelationOut,
     StepOut,
 )
 
@@ -43,7 +44,8 @@ async def post_reached(world: WorldName, body: ReachedIn, worlds: WorldsDep) -> 
     return ReachedOut(world=r["world"], from_=r["from"], to=r["to"])
 
 
-@router.get("/relations")
+@router.get("/relations", response_model=list[RelationOut],
+            response_model_exclude_unset=True)
 async def get_relations(world: WorldName, worlds: WorldsDep,
                         kind: RelationKind = "lr") -> list[dict[str, Any]]:
     """Relations with their probabilities (observed: 1; derived: P(rule)·ΠP(body))."""

@@ -11,12 +11,21 @@ from numeric.slam.logs import format_tum
 from numeric.slam.runner import SlamOptions
 from service.api.routes.worlds import WorldName
 from service.deps import SlamDep
-from service.schemas import ScansIn
+from service.schemas.slam import (
+    CommitOut,
+    NearRegionOut,
+    ScansIn,
+    SlamPoseOut,
+    SlamRunListed,
+    SlamRunOut,
+    TrajectoryOut,
+    WorldMapOut,
+)
 
 router = APIRouter(prefix="/worlds/{world}", tags=["SLAM"])
 
 
-@router.post("/slam-runs", status_code=status.HTTP_201_CREATED)
+@router.post("/slam-runs", status_code=status.HTTP_201_CREATED, response_model=SlamRunOut)
 async def post_run(world: WorldName, options: SlamOptions, slam: SlamDep,
                    response: Response) -> dict[str, Any]:
     """Start a SLAM run (method odom | icp | gated | rbpf | graph, particles, intensity weight
@@ -26,12 +35,12 @@ async def post_run(world: WorldName, options: SlamOptions, slam: SlamDep,
     return run
 
 
-@router.get("/slam-runs")
+@router.get("/slam-runs", response_model=list[SlamRunListed])
 async def get_runs(world: WorldName, slam: SlamDep) -> list[dict[str, Any]]:
     return slam.list_runs(world)
 
 
-@router.get("/slam-runs/{rid}")
+@router.get("/slam-runs/{rid}", response_model=SlamRunOut)
 async def get_run(world: WorldName, rid: str, slam: SlamDep) -> dict[str, Any]:
     """Scans so far, keyframes, the current pose estimate."""
     return await slam.status(world, rid)
@@ -43,20 +52,21 @@ async def delete_run(world: WorldName, rid: str, slam: SlamDep) -> Response:
     return Response(status_code=status.HTTP_204_NO_CONTENT)
 
 
-@router.post("/slam-runs/{rid}/scans")
+@router.post("/slam-runs/{rid}/scans", response_model=SlamRunOut)
 async def post_scans(world: WorldName, rid: str, body: ScansIn, slam: SlamDep) -> dict[str, Any]:
     """Stream up to 500 scans (each with its odometry) in increasing time order; the
     batch is all-or-nothing. Returns the run's status with the new pose."""
     return await slam.add_scans(world, rid, body.scans)
 
 
-@router.get("/slam-runs/{rid}/pose")
+@router.get("/slam-runs/{rid}/pose", response_model=SlamPoseOut)
 async def get_pose(world: WorldName, rid: str, slam: SlamDep) -> dict[str, Any]:
     st = await slam.status(world, rid)
     return {"t": st["last_t"], "pose": st["pose"], "scans": st["scans"]}
 
 
-@router.get("/slam-runs/{rid}/trajectory", response_model=None)
+@router.get("/slam-runs/{rid}/trajectory", response_model=None, responses={200: {
+    "model": TrajectoryOut, "content": {"text/plain": {"schema": {"type": "string"}}}}})
 async def get_trajectory(world: WorldName, rid: str, slam: SlamDep,
                          format: str = "json") -> Any:
     """Pose per scan; ``format=tum`` gives a TUM file (``t x y z qx qy qz qw``)."""
@@ -66,41 +76,44 @@ async def get_trajectory(world: WorldName, rid: str, slam: SlamDep,
     return {"t": t.tolist(), "poses": np.round(p, 6).tolist()}
 
 
-@router.get("/slam-runs/{rid}/map.png", response_class=Response)
+@router.get("/slam-runs/{rid}/map.png", response_class=Response,
+            responses={200: {"content": {"image/png": {}}}})
 async def get_map_png(world: WorldName, rid: str, slam: SlamDep) -> Response:
     """The map of the best hypothesis: free white, unknown grey, walls coloured by
     received intensity."""
     return Response((await slam.grid(world, rid)).to_png(), media_type="image/png")
 
 
-@router.get("/slam-runs/{rid}/map.pgm", response_class=Response)
+@router.get("/slam-runs/{rid}/map.pgm", response_class=Response,
+            responses={200: {"content": {"image/x-portable-graymap": {}}}})
 async def get_map_pgm(world: WorldName, rid: str, slam: SlamDep) -> Response:
     """ROS map_server image (0 occupied, 254 free, 205 unknown)."""
     return Response((await slam.grid(world, rid)).to_pgm(),
                     media_type="image/x-portable-graymap")
 
 
-@router.get("/slam-runs/{rid}/map.yaml", response_class=Response)
+@router.get("/slam-runs/{rid}/map.yaml", response_class=Response,
+            responses={200: {"content": {"application/yaml": {}}}})
 async def get_map_yaml(world: WorldName, rid: str, slam: SlamDep) -> Response:
     """ROS map_server metadata for map.pgm."""
     return Response((await slam.grid(world, rid)).to_yaml("map.pgm"),
                     media_type="application/yaml")
 
 
-@router.post("/slam-runs/{rid}/commit")
+@router.post("/slam-runs/{rid}/commit", response_model=CommitOut)
 async def post_commit(world: WorldName, rid: str, slam: SlamDep) -> dict[str, Any]:
     """Make this run's map the world's map: keyframe poses, occupancy summary and
     enclosed unknown regions become facts; the grid is stored for the planners."""
     return await slam.commit(world, rid)
 
 
-@router.get("/map")
+@router.get("/map", response_model=WorldMapOut)
 async def get_world_map(world: WorldName, slam: SlamDep) -> Any:
     """The world's committed map as the knowledge base sees it (Prolog rules)."""
     return await slam.summary(world)
 
 
-@router.get("/map/unknown-regions")
+@router.get("/map/unknown-regions", response_model=list[NearRegionOut])
 async def get_unknown_regions(world: WorldName, slam: SlamDep,
                               x: Annotated[float, Query(allow_inf_nan=False)],
                               y: Annotated[float, Query(allow_inf_nan=False)],

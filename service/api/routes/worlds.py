@@ -4,7 +4,7 @@ from fastapi import APIRouter, Path, status
 
 from numeric.world import ID_PATTERN, WorldDescription
 from service.deps import WorldsDep
-from service.schemas import WorldSummary
+from service.schemas.common import WorldSummary
 
 router = APIRouter(prefix="/worlds", tags=["worlds"])
 WorldName = Annotated[str, Path(pattern=ID_PATTERN, description="world id")]
@@ -31,7 +31,7 @@ async def delete_world(world: WorldName, worlds: WorldsDep) -> None:
     await worlds.delete(world)
 
 
-@router.get("/{world}/facts")
+@router.get("/{world}/facts", response_model=list[str])
 async def get_facts(world: WorldName, worlds: WorldsDep) -> list[str]:
     """Every fact the knowledge base holds for the world (as Prolog text)."""
     return await worlds.facts(world)

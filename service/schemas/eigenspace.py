@@ -1,4 +1,5 @@
-"""Response schemas (request bodies are the numeric models themselves)."""
+"""Eigenspace localization (Maeda & Shirai): turns of images in, localization
+answers, the learned eigenspace, the camera."""
 
 from __future__ import annotations
 
@@ -7,86 +8,6 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, model_validator
 
 from numeric.camera import CameraConfig
-from numeric.world import Id
-
-RelationKind = Literal["rec", "frec", "lr", "align", "rea", "reachable"]
-
-
-class Health(BaseModel):
-    status: Literal["ok"]
-    worlds: int
-    engine_thread_alive: bool
-    prolog_thread: int = Field(description="Prolog thread id that answered")
-    python_thread: int = Field(description="ident of the Python thread owning the engine")
-
-
-class WorldSummary(BaseModel):
-    name: str
-    template: str | None
-    landmarks: int
-    walls: int
-    objects: int
-    events: int
-
-
-class ReachedIn(BaseModel):
-    model_config = {"extra": "forbid", "populate_by_name": True}
-    from_: Id = Field(alias="from")
-    to: Id
-
-
-class ObservationOut(BaseModel):
-    world: str
-    at: str
-    relations: int = Field(description="lr/align relations now known from this landmark")
-
-
-class ReachedOut(BaseModel):
-    world: str
-    from_: str = Field(serialization_alias="from")
-    to: str
-
-
-class DrmEdgeOut(BaseModel):
-    from_: str = Field(serialization_alias="from")
-    to: str
-    p: float
-    method: str
-    via: list[str]
-
-
-class DrmOut(BaseModel):
-    nodes: list[str]
-    edges: list[DrmEdgeOut]
-
-
-class StepOut(BaseModel):
-    from_: str = Field(serialization_alias="from")
-    to: str
-    method: str
-    p: float
-    via: list[str]
-
-
-class PathOut(BaseModel):
-    found: bool
-    detail: str | None = None
-    path: list[str]
-    steps: list[StepOut]
-    probability: float
-
-
-class QueryIn(BaseModel):
-    model_config = {"extra": "forbid"}
-    goal: str = Field(min_length=1, max_length=4096,
-                      examples=["reachable(c0, To, P, Method), P > 0.9"])
-    max_solutions: int = Field(100, ge=1, le=10_000)
-
-
-class QueryOut(BaseModel):
-    solutions: list[dict[str, Any]]
-    truncated: bool
-
 
 # -- eigenspace localization ---------------------------------------------------------------
 MAX_TURN_IMAGES = 360
@@ -143,41 +64,6 @@ class CameraIn(BaseModel):
         "png", description="png: base64 PNG images (`images_png`, ~10x smaller and faster "
                            "to localize from); list: nested lists in [0, 1] (`images`)")
     camera: CameraConfig | None = None
-
-
-NonNegFinite = Annotated[float, Field(ge=0, allow_inf_nan=False)]
-MAX_BEAMS = 4096
-
-
-class ScanIn(BaseModel):
-    """One laser scan with the odometry pose at its time stamp (like a ROS
-    ``sensor_msgs/LaserScan`` plus ``nav_msgs/Odometry``). No-returns are ranges at or
-    beyond ``range_max`` (NaN is rejected)."""
-
-    model_config = ConfigDict(extra="forbid")
-    t: FiniteFloat = Field(description="time stamp (s), strictly increasing within a run")
-    ranges: Annotated[list[NonNegFinite], Field(min_length=1, max_length=MAX_BEAMS)]
-    intensities: Annotated[list[NonNegFinite], Field(max_length=MAX_BEAMS)] | None = None
-    angle_min: FiniteFloat = Field(description="direction of the first beam (rad)")
-    angle_increment: Annotated[float, Field(gt=0, le=1.0, allow_inf_nan=False)]
-    range_min: NonNegFinite = 0.02
-    range_max: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] = 30.0
-    odom: tuple[FiniteFloat, FiniteFloat, FiniteFloat] = Field(
-        description="odometry pose (x, y, theta) at t")
-
-    @model_validator(mode="after")
-    def _consistent(self) -> ScanIn:
-        if self.intensities is not None and len(self.intensities) != len(self.ranges):
-            raise ValueError(f"intensities has {len(self.intensities)} values for "
-                             f"{len(self.ranges)} ranges")
-        if self.range_min >= self.range_max:
-            raise ValueError("range_min must be below range_max")
-        return self
-
-
-class ScansIn(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-    scans: Annotated[list[ScanIn], Field(min_length=1, max_length=500)]
 
 
 # -- eigenspace localization answers (Maeda & Shirai §2.5, §3.4, Fig. 4) ----------------
@@ -260,23 +146,69 @@ class NextMoveOut(BaseModel):
     q_z: float
 
 
-class JobError(BaseModel):
-    detail: str
-    field: str | None = None
+class LearningPointOut(BaseModel):
+    id: int
+    x: float
+    y: float
 
 
-class JobOut(BaseModel):
-    """A durable job (service.jobs): ``interrupted`` when the server stopped while it
-    was queued or running; ``result`` when done (for a learning job, the analysis
-    summary); ``error`` naming the field when it failed. Times are Unix seconds."""
+class PointOut(BaseModel):
+    x: float
+    y: float
 
-    id: str
-    world: str
-    kind: str = Field(description="e.g. eigenspace_learning")
-    status: Literal["queued", "running", "done", "failed", "cancelled", "interrupted"]
-    stage: str
-    progress: float = Field(ge=0, le=1)
-    result: dict[str, Any] | None = None
-    error: JobError | None = None
-    created_at: float
-    updated_at: float
+
+class TripletOut(BaseModel):
+    """A localizable triplet (§2.3): its learning points' ids, the three directions, the
+    triangle's area, the common target and its candidate-multiple set (§3.3), if any."""
+
+    id: int
+    points: list[int]
+    directions_rad: list[float]
+    area_m2: float
+    target: PointOut
+    candidate_set: int | None
+
+
+class EntryModelOut(BaseModel):
+    """Eq. 7's entry probability, c0 + c1 · distance."""
+
+    c0: float
+    c1_per_m: float
+
+
+class EigenspaceSummaryOut(BaseModel):
+    """What learning produced (a learning job's result)."""
+
+    images: int
+    learning_points: int
+    directions: int
+    k: int = Field(description="eigenspace dimension K")
+    image_shape: list[int]
+    triplets: int
+    candidate_sets: int
+    rejected_triplets: int
+    source: str = Field(description="simulator | images")
+    c_a: float
+    d_thd_m: float
+    entry_model: EntryModelOut | None
+    region_coverage: float
+    learning_strategy: list[dict[str, Any]] | None = Field(
+        description="§4.2: each addition of learning points and P(Z) after it")
+    timings_s: dict[str, float]
+
+
+class EigenspaceOut(EigenspaceSummaryOut):
+    points: list[LearningPointOut]
+    triplet_list: list[TripletOut]
+
+
+class CoveringOut(BaseModel):
+    triplet: int
+    distance_m: float
+
+
+class CameraOut(BaseModel):
+    """Base64 PNG images (``format`` png) or nested lists in [0, 1] (``format`` list)."""
+
+    images_png: list[str] | None = None
+    images: list[list[list[float]]] | None = None

@@ -1,0 +1,24 @@
+"""Schemas every domain shares: health, worlds."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, Field
+
+
+class Health(BaseModel):
+    status: Literal["ok"]
+    worlds: int
+    engine_thread_alive: bool
+    prolog_thread: int = Field(description="Prolog thread id that answered")
+    python_thread: int = Field(description="ident of the Python thread owning the engine")
+
+
+class WorldSummary(BaseModel):
+    name: str
+    template: str | None
+    landmarks: int
+    walls: int
+    objects: int
+    events: int
