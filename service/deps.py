@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import Depends, Request
+from fastapi import Depends, Path, Request
 
+from numeric.world import ID_PATTERN
 from service.eigenspace import EigenspaceService
 from service.jobs import Jobs
 from service.kb import KnowledgeBase
@@ -46,3 +47,14 @@ EigenspaceDep = Annotated[EigenspaceService, Depends(_eigenspace)]
 SlamDep = Annotated[SlamService, Depends(_slam)]
 ViewpointDep = Annotated[ViewpointService, Depends(_viewpoint)]
 JobsDep = Annotated[Jobs, Depends(_jobs)]
+
+
+async def _existing_world(world: Annotated[str, Path(pattern=ID_PATTERN, description="world id")],
+                          worlds: WorldsDep) -> str:
+    """The path's world, 404 once here if it does not exist: before the body's images
+    are decoded or any work is done."""
+    worlds.require(world)
+    return world
+
+
+WorldDep = Annotated[str, Depends(_existing_world)]

@@ -105,7 +105,7 @@ class EigenspaceService:
         self._analyses.pop(world, None)
 
     def analysis(self, world: str) -> EigenspaceAnalysis:
-        self.worlds.model(world)
+        self.worlds.require(world)
         a = self._analyses.get(world)
         if a is None:
             blob = self.store.artifact(world, ARTIFACT)
@@ -120,7 +120,7 @@ class EigenspaceService:
                        images: ImageSet | None = None) -> dict[str, Any]:
         """A durable learning job (:mod:`service.jobs`): in the simulator, or from a
         camera's ``images``; its result is the analysis summary."""
-        self.worlds.model(world)
+        self.worlds.require(world)
         check_source(config, images is not None)
 
         async def work(progress: JobProgress) -> dict[str, Any]:
@@ -130,7 +130,7 @@ class EigenspaceService:
         return self.jobs.start(world, LEARNING_JOB, work)
 
     def job(self, world: str, job_id: str) -> dict[str, Any]:
-        self.worlds.model(world)
+        self.worlds.require(world)
         return self.jobs.get(job_id, world)
 
     async def learn(self, world: str, config: EigenspaceConfig,
@@ -218,7 +218,7 @@ class EigenspaceService:
         return {"id": sid, "world": world, "state": st.state, "stops": 0}
 
     def _session(self, world: str, sid: str) -> SessionState:
-        self.worlds.model(world)
+        self.worlds.require(world)
         row = self.store.session(sid)
         if row is None or row[0] != world:
             raise NotFound(f"no localization session {sid!r} in world {world!r}",

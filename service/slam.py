@@ -102,7 +102,7 @@ class SlamService:
         return len(self.runs)
 
     async def _run(self, world: str, rid: str) -> Run:
-        self.worlds.model(world)  # 404 for an unknown world
+        self.worlds.require(world)  # 404 for an unknown world
         run = self.runs.get(rid)
         if run is None or run.world != world:
             raise NotFound(f"SLAM run {rid!r} does not exist in world {world!r}", field="run")
@@ -119,7 +119,7 @@ class SlamService:
         run.replayed = True
 
     async def create(self, world: str, options: SlamOptions) -> dict[str, Any]:
-        self.worlds.model(world)
+        self.worlds.require(world)
         rid = "r" + uuid.uuid4().hex[:16]
         run = Run(rid, world, options, create(options))
         with self.store.transaction() as conn:
@@ -128,7 +128,7 @@ class SlamService:
         return run.status()
 
     def list_runs(self, world: str) -> list[dict[str, Any]]:
-        self.worlds.model(world)
+        self.worlds.require(world)
         return [{"id": r.id, "method": r.options.method,
                  "scans": r.scans if r.replayed else None}
                 for r in self.runs.values() if r.world == world]
@@ -208,11 +208,11 @@ class SlamService:
                 "unknown_regions": regions, "loop_closures": len(closures)}
 
     async def summary(self, world: str) -> Any:
-        self.worlds.model(world)
+        self.worlds.require(world)
         return await self.kb.acall("slam_summary", world=world)
 
     async def regions_near(self, world: str, x: float, y: float, radius: float) -> Any:
-        self.worlds.model(world)
+        self.worlds.require(world)
         return await self.kb.acall("slam_regions_near", world=world, x=x, y=y, radius=radius)
 
     async def delete(self, world: str, rid: str) -> None:

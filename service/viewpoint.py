@@ -161,7 +161,7 @@ class ViewpointService:
         return grid, "simulated"
 
     async def plan(self, world: str, req: PlanRequest) -> dict[str, Any]:
-        self.worlds.model(world)  # 404 for an unknown world
+        self.worlds.require(world)  # 404 for an unknown world
         # grouping asserts the scene as it plans: a failure anywhere puts the stored one back
         async with self.worlds.write_artifact(world, SCENE_ARTIFACT) as w, self._lock:
             scene: dict[str, Any] = {}
@@ -174,5 +174,5 @@ class ViewpointService:
         return report_json(world, report, source, grid, req)
 
     async def scene(self, world: str) -> Any:
-        self.worlds.model(world)
+        self.worlds.require(world)
         return await self.kb.acall("viewpoint_scene", world=world)

@@ -167,7 +167,7 @@ class WorldService:
         if there are none), and the error propagates."""
         art = self.artifacts[kind]
         async with self._write:
-            self.model(world)
+            self.require(world)
             previous = self.store.artifact(world, art.name)
             try:
                 yield ArtifactWrite(self, world, art)
@@ -226,6 +226,11 @@ class WorldService:
             self._models[desc.name] = World(desc)
         return self.summary(desc.name)
 
+    def require(self, name: str) -> None:
+        """404 (NotFound) unless world ``name`` exists; cheap (no geometry is built)."""
+        if name not in self._models and self.store.world(name) is None:
+            raise NotFound(f"world {name!r} does not exist", field="world")
+
     def model(self, name: str) -> World:
         if name not in self._models:
             row = self.store.world(name)
@@ -246,7 +251,7 @@ class WorldService:
 
     async def delete(self, name: str) -> None:
         async with self._write:
-            self.model(name)
+            self.require(name)
             with self.store.transaction() as conn:
                 self.store.delete_world(conn, name)
             self._models.pop(name, None)
@@ -260,7 +265,7 @@ class WorldService:
     # -- qualitative navigation ---------------------------------------------------------
     async def _append(self, world: str, kind: str, payload: dict[str, Any]) -> Any:
         async with self._write:
-            self.model(world)
+            self.require(world)
             op, args = self.event_call(world, kind, payload)
             result = await self._kb(op, args)
             try:
@@ -279,11 +284,11 @@ class WorldService:
         return await self._append(world, "reached", {"from": source, "to": target})
 
     async def relations(self, world: str, kind: str) -> list[dict[str, Any]]:
-        self.model(world)
+        self.require(world)
         return list(await self._kb("relations", {"world": world, "kind": kind}))
 
     async def drm(self, world: str) -> dict[str, Any]:
-        self.model(world)
+        self.require(world)
         return dict(await self._kb("drm", {"world": world}))
 
     async def drm_graph(self, world: str) -> nx.DiGraph:
@@ -299,7 +304,7 @@ class WorldService:
         return g
 
     async def path(self, world: str, source: str, target: str) -> DrmPath | None:
-        self.model(world)
+        self.require(world)
         g = await self.drm_graph(world)
         for field, lm in (("from", source), ("to", target)):
             if lm not in g:
@@ -308,10 +313,10 @@ class WorldService:
 
     async def query(self, world: str, goal: str, max_solutions: int) -> dict[str, Any]:
         """A read-only, whitelisted Prolog query over the world (prolog/query.pl)."""
-        self.model(world)
+        self.require(world)
         return dict(await self._kb("query", {"world": world, "goal": goal,
                                              "max_solutions": max_solutions}))
 
     async def facts(self, world: str) -> list[str]:
-        self.model(world)
+        self.require(world)
         return list(await self._kb("facts", {"world": world}))

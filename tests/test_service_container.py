@@ -148,3 +148,19 @@ def test_a_world_rebuilt_after_a_failed_event_keeps_its_artifacts(tmp_path: Path
             store.append_event = append
         assert r.status_code == 500
         assert kinds(c.get("/worlds/w/facts").json()) == stored and stored["vp_group"] == 2
+
+
+def test_an_unknown_world_is_a_404_before_the_body_is_decoded(client: TestClient) -> None:
+    """WorldDep answers first: a turn of undecodable PNGs, a malformed scan batch, an
+    image upload, all to a world that does not exist, are 404s naming the world."""
+    for method, url, kw in (
+            ("post", "/worlds/nowhere/localize", {"json": {"images_png": ["not png"] * 3}}),
+            ("post", "/worlds/nowhere/localize/images",
+             {"files": [("images", ("a.png", b"not png", "image/png"))]}),
+            ("get", "/worlds/nowhere/eigenspace/covering", {"params": {"x": 0, "y": 0}}),
+            ("post", "/worlds/nowhere/viewpoint-plan", {"json": {"robot": [0, 0, 0]}}),
+            ("get", "/worlds/nowhere/facts", {})):
+        r = getattr(client, method)(url, **kw)
+        assert r.status_code == 404, (url, r.text)
+        assert r.json()["field"] == "world" and r.headers["content-type"].startswith(
+            "application/problem+json")

@@ -22,8 +22,7 @@ from numeric.eigenspace.image_sets import (
     read_image_zip,
 )
 from numeric.errors import InvalidInput
-from service.api.routes.worlds import WorldName
-from service.deps import EigenspaceDep
+from service.deps import EigenspaceDep, WorldDep
 from service.eigenspace import check_source
 from service.schemas.eigenspace import (
     CameraIn,
@@ -111,7 +110,7 @@ def by_name(files: list[tuple[str, bytes]]) -> dict[str, bytes]:
 
 
 @router.post("/eigenspace", status_code=status.HTTP_202_ACCEPTED, response_model=JobOut)
-async def post_eigenspace(world: WorldName, config: EigenspaceConfig,
+async def post_eigenspace(world: WorldDep, config: EigenspaceConfig,
                           eig: EigenspaceDep, response: Response) -> dict[str, Any]:
     """Learn the world's eigenspace in the simulator and analyse it (triplets, region
     model, entry model, candidate-multiple sets).  Runs as a job: poll ``Location``."""
@@ -123,7 +122,7 @@ async def post_eigenspace(world: WorldName, config: EigenspaceConfig,
 @router.post("/eigenspace/images", status_code=status.HTTP_202_ACCEPTED,
              response_model=JobOut)
 async def post_eigenspace_images(
-        world: WorldName, eig: EigenspaceDep, response: Response,
+        world: WorldDep, eig: EigenspaceDep, response: Response,
         archive: Annotated[UploadFile | None, File(
             description=f"a zip of the image folder: {POSES_FILE} and the images it names "
                         "(any number of images)")] = None,
@@ -160,21 +159,21 @@ async def post_eigenspace_images(
 
 
 @router.get("/eigenspace/jobs/{job_id}", response_model=JobOut)
-async def get_job(world: WorldName, job_id: str, eig: EigenspaceDep) -> dict[str, Any]:
+async def get_job(world: WorldDep, job_id: str, eig: EigenspaceDep) -> dict[str, Any]:
     """Progress of a learning job (stage, 0..1), its result (the analysis summary) when
     done, its error if failed; ``interrupted`` if the server stopped while it ran."""
     return eig.job(world, job_id)
 
 
 @router.get("/eigenspace", response_model=EigenspaceOut)
-async def get_eigenspace(world: WorldName, eig: EigenspaceDep) -> dict[str, Any]:
+async def get_eigenspace(world: WorldDep, eig: EigenspaceDep) -> dict[str, Any]:
     """Summary of the learned eigenspace (images, K, triplet count, region coverage) with
     the learning points (``points``) and the localizable triplets (``triplet_list``)."""
     return eig.summary(world)
 
 
 @router.get("/eigenspace/covering", response_model=list[CoveringOut])
-async def get_covering(world: WorldName, eig: EigenspaceDep,
+async def get_covering(world: WorldDep, eig: EigenspaceDep,
                        x: Annotated[float, Query(allow_inf_nan=False)],
                        y: Annotated[float, Query(allow_inf_nan=False)]) -> list[dict[str, Any]]:
     """Triplets whose triangle of learning points covers (x, y), with D(s) (Prolog rules)."""
@@ -182,14 +181,14 @@ async def get_covering(world: WorldName, eig: EigenspaceDep,
 
 
 @router.post("/localize", response_model=LocalizationOut)
-async def post_localize(world: WorldName, body: TurnIn, eig: EigenspaceDep) -> dict[str, Any]:
+async def post_localize(world: WorldDep, body: TurnIn, eig: EigenspaceDep) -> dict[str, Any]:
     """One full turn of images -> state (X / Y / Z), pose when Z, candidates."""
     return await eig.localize(world, decode_turn(body))
 
 
 @router.post("/localize/images", response_model=LocalizationOut)
 async def post_localize_images(
-        world: WorldName, eig: EigenspaceDep,
+        world: WorldDep, eig: EigenspaceDep,
         images: Annotated[list[UploadFile], File(description="one full turn of PNG/JPEG "
                                                  "images, in order of relative heading "
                                                  "2*pi*j/n")],
@@ -209,7 +208,7 @@ async def post_localize_images(
 
 @router.post("/localization-sessions", status_code=status.HTTP_201_CREATED,
              response_model=SessionCreated)
-async def post_session(world: WorldName, eig: EigenspaceDep,
+async def post_session(world: WorldDep, eig: EigenspaceDep,
                        response: Response) -> dict[str, Any]:
     """Start a multi-stop localization (state X)."""
     s = await eig.create_session(world)
@@ -218,12 +217,12 @@ async def post_session(world: WorldName, eig: EigenspaceDep,
 
 
 @router.get("/localization-sessions/{sid}", response_model=SessionLocalizationOut)
-async def get_session(world: WorldName, sid: str, eig: EigenspaceDep) -> dict[str, Any]:
+async def get_session(world: WorldDep, sid: str, eig: EigenspaceDep) -> dict[str, Any]:
     return await eig.session(world, sid)
 
 
 @router.post("/localization-sessions/{sid}/stops", response_model=SessionLocalizationOut)
-async def post_stop(world: WorldName, sid: str, body: StopIn,
+async def post_stop(world: WorldDep, sid: str, body: StopIn,
                     eig: EigenspaceDep) -> dict[str, Any]:
     """One stop: a full turn of images plus the odometry since the previous stop."""
     motion = None if body.odometry is None else np.array(
@@ -232,13 +231,13 @@ async def post_stop(world: WorldName, sid: str, body: StopIn,
 
 
 @router.get("/localization-sessions/{sid}/next-move", response_model=NextMoveOut)
-async def get_next_move(world: WorldName, sid: str, eig: EigenspaceDep) -> dict[str, Any]:
+async def get_next_move(world: WorldDep, sid: str, eig: EigenspaceDep) -> dict[str, Any]:
     """The movement strategy's action (alpha, l, beta) maximising Q(Z), and that Q(Z)."""
     return await eig.next_move(world, sid)
 
 
 @router.post("/camera", response_model=CameraOut, response_model_exclude_unset=True)
-async def post_camera(world: WorldName, body: CameraIn, eig: EigenspaceDep) -> dict[str, Any]:
+async def post_camera(world: WorldDep, body: CameraIn, eig: EigenspaceDep) -> dict[str, Any]:
     """Render the simulated camera at a pose (one image, or a full turn): base64 PNG by
     default, nested lists with ``"format": "list"``."""
     pose = np.array([body.pose.x, body.pose.y, body.pose.theta])

@@ -7,8 +7,7 @@ from fastapi import APIRouter, Query, status
 from numeric.errors import InvalidInput
 from numeric.observation import Observation
 from numeric.world import ID_PATTERN
-from service.api.routes.worlds import WorldName
-from service.deps import WorldsDep
+from service.deps import WorldDep, WorldsDep
 from service.kb import KbError
 from service.schemas.qualitative import (
     DrmEdgeOut,
@@ -30,7 +29,7 @@ LandmarkQ = Annotated[str, Query(pattern=ID_PATTERN)]
 
 @router.post("/observations", response_model=ObservationOut,
              status_code=status.HTTP_201_CREATED)
-async def post_observation(world: WorldName, body: Observation, worlds: WorldsDep) -> Any:
+async def post_observation(world: WorldDep, body: Observation, worlds: WorldsDep) -> Any:
     """One panoramic observation at landmark ``at``: bearings (robot frame, rad) and
     distances (m) become rec/frec facts and lr/align relations; the quantities are dropped."""
     return await worlds.observe(world, body)
@@ -38,7 +37,7 @@ async def post_observation(world: WorldName, body: Observation, worlds: WorldsDe
 
 @router.post("/reached", response_model=ReachedOut, status_code=status.HTTP_201_CREATED,
              response_model_by_alias=True)
-async def post_reached(world: WorldName, body: ReachedIn, worlds: WorldsDep) -> Any:
+async def post_reached(world: WorldDep, body: ReachedIn, worlds: WorldsDep) -> Any:
     """Record that the robot drove from ``from`` to ``to`` (the paper's rea/2)."""
     r = await worlds.reached(world, body.from_, body.to)
     return ReachedOut(world=r["world"], from_=r["from"], to=r["to"])
@@ -46,14 +45,14 @@ async def post_reached(world: WorldName, body: ReachedIn, worlds: WorldsDep) -> 
 
 @router.get("/relations", response_model=list[RelationOut],
             response_model_exclude_unset=True)
-async def get_relations(world: WorldName, worlds: WorldsDep,
+async def get_relations(world: WorldDep, worlds: WorldsDep,
                         kind: RelationKind = "lr") -> list[dict[str, Any]]:
     """Relations with their probabilities (observed: 1; derived: P(rule)·ΠP(body))."""
     return await worlds.relations(world, kind)
 
 
 @router.get("/drm", response_model=DrmOut, response_model_by_alias=True)
-async def get_drm(world: WorldName, worlds: WorldsDep) -> Any:
+async def get_drm(world: WorldDep, worlds: WorldsDep) -> Any:
     """The Direct Reachability Map: best derivation per ordered pair."""
     d = await worlds.drm(world)
     return DrmOut(nodes=d["nodes"], edges=[
@@ -62,7 +61,7 @@ async def get_drm(world: WorldName, worlds: WorldsDep) -> Any:
 
 
 @router.get("/path", response_model=PathOut, response_model_by_alias=True)
-async def get_path(world: WorldName, worlds: WorldsDep,
+async def get_path(world: WorldDep, worlds: WorldsDep,
                    from_: Annotated[str, Query(alias="from", pattern=ID_PATTERN)],
                    to: LandmarkQ) -> Any:
     """The path maximising the product of DRM edge probabilities."""
@@ -77,7 +76,7 @@ async def get_path(world: WorldName, worlds: WorldsDep,
 
 
 @router.post("/query", response_model=QueryOut)
-async def post_query(world: WorldName, body: QueryIn, worlds: WorldsDep) -> Any:
+async def post_query(world: WorldDep, body: QueryIn, worlds: WorldsDep) -> Any:
     """Read-only Prolog query over the world's relations, e.g.
     ``reachable(c0, To, P, Method), P > 0.9``.  Only whitelisted predicates run
     (rec/3, frec/3, lr/4, align/5, rea/2, landmark/1, reachable/4-5, drm_edge/4,

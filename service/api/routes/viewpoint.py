@@ -6,8 +6,7 @@ from typing import Any
 
 from fastapi import APIRouter
 
-from service.api.routes.worlds import WorldName
-from service.deps import ViewpointDep
+from service.deps import ViewpointDep, WorldDep
 from service.schemas.viewpoint import ViewpointGroupsOut, ViewpointPlanIn, ViewpointPlanOut
 
 router = APIRouter(prefix="/worlds/{world}", tags=["viewpoint planning"])
@@ -15,7 +14,7 @@ router = APIRouter(prefix="/worlds/{world}", tags=["viewpoint planning"])
 
 @router.post("/viewpoint-plan", response_model=ViewpointPlanOut,
              response_model_exclude_unset=True)
-async def post_plan(world: WorldName, body: ViewpointPlanIn, vp: ViewpointDep) -> dict[str, Any]:
+async def post_plan(world: WorldDep, body: ViewpointPlanIn, vp: ViewpointDep) -> dict[str, Any]:
     """Group the candidates and unknown regions (Prolog rules), estimate each group's
     verification time (24 viewpoints, eqs. 5-10) and value (eqs. 15-17), and choose the
     ordered plan maximising U = V - L(t) (eq. 11) under loss L1, L2 or L3. The grid is the
@@ -26,6 +25,6 @@ async def post_plan(world: WorldName, body: ViewpointPlanIn, vp: ViewpointDep) -
 
 @router.get("/viewpoint-groups", response_model=ViewpointGroupsOut,
             response_model_exclude_unset=True)
-async def get_groups(world: WorldName, vp: ViewpointDep) -> Any:
+async def get_groups(world: WorldDep, vp: ViewpointDep) -> Any:
     """The observation groups of the world's last planned scene (Prolog facts)."""
     return await vp.scene(world)

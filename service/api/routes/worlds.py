@@ -1,13 +1,10 @@
-from typing import Annotated
+from fastapi import APIRouter, status
 
-from fastapi import APIRouter, Path, status
-
-from numeric.world import ID_PATTERN, WorldDescription
-from service.deps import WorldsDep
+from numeric.world import WorldDescription
+from service.deps import WorldDep, WorldsDep
 from service.schemas.common import WorldSummary
 
 router = APIRouter(prefix="/worlds", tags=["worlds"])
-WorldName = Annotated[str, Path(pattern=ID_PATTERN, description="world id")]
 
 
 @router.get("", response_model=list[WorldSummary])
@@ -22,16 +19,16 @@ async def create_world(body: WorldDescription, worlds: WorldsDep) -> dict:
 
 
 @router.get("/{world}", response_model=WorldDescription)
-async def get_world(world: WorldName, worlds: WorldsDep) -> WorldDescription:
+async def get_world(world: WorldDep, worlds: WorldsDep) -> WorldDescription:
     return worlds.model(world).description
 
 
 @router.delete("/{world}", status_code=status.HTTP_204_NO_CONTENT)
-async def delete_world(world: WorldName, worlds: WorldsDep) -> None:
+async def delete_world(world: WorldDep, worlds: WorldsDep) -> None:
     await worlds.delete(world)
 
 
 @router.get("/{world}/facts", response_model=list[str])
-async def get_facts(world: WorldName, worlds: WorldsDep) -> list[str]:
+async def get_facts(world: WorldDep, worlds: WorldsDep) -> list[str]:
     """Every fact the knowledge base holds for the world (as Prolog text)."""
     return await worlds.facts(world)
