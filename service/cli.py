@@ -47,7 +47,7 @@ def _open_services():  # type: ignore[no-untyped-def]
 def path(world: str, source: str = typer.Argument(..., metavar="FROM"),
          target: str = typer.Argument(..., metavar="TO")) -> None:
     """Print the most probable DRM path FROM -> TO in WORLD."""
-    from service.worlds import NotFound
+    from numeric.errors import NotFound
 
     services = _open_services()
     try:
@@ -71,7 +71,7 @@ def path(world: str, source: str = typer.Argument(..., metavar="FROM"),
 @app.command()
 def repl(world: str) -> None:
     """Open swipl with the rule files and WORLD's facts loaded; try ?- reachable(a, c, P, M)."""
-    from service.worlds import NotFound
+    from numeric.errors import NotFound
 
     swipl = shutil.which("swipl")
     if swipl is None:
@@ -408,10 +408,9 @@ def eigen_learn(world: Annotated[str, typer.Argument(help="stored world")],
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from numeric.eigenspace.image_sets import parse_size, read_image_folder
-    from numeric.errors import InvalidInput
+    from numeric.errors import ChizuError
     from numeric.world import WorldDescription
     from numeric.worlds import TEMPLATES
-    from service.worlds import NotFound
 
     cfg = _eigen_config(config)
     if not strategy:
@@ -432,7 +431,7 @@ def eigen_learn(world: Annotated[str, typer.Argument(help="stored world")],
 
             a = asyncio.run(eig.learn(world, cfg, image_set, progress))
         console.print(a.summary(eig.worlds.model(world)))
-    except (InvalidInput, NotFound) as e:
+    except ChizuError as e:
         console.print(f"[red]{e.field}: {e}[/red]")
         raise typer.Exit(2) from None
     finally:
@@ -452,8 +451,7 @@ def eigen_localize(world: Annotated[str, typer.Argument(help="stored world with 
     import numpy as np
 
     from numeric.eigenspace.image_sets import decode_image, parse_size
-    from numeric.errors import InvalidInput
-    from service.worlds import NotFound
+    from numeric.errors import ChizuError
 
     services = _open_services()
     eig = services.eigenspace
@@ -462,7 +460,7 @@ def eigen_localize(world: Annotated[str, typer.Argument(help="stored world with 
         turn = np.stack([decode_image(f.name, f.read_bytes(), wh) for f in files])
         r = asyncio.run(eig.localize(world, turn))
         console.print_json(json.dumps(r))
-    except (InvalidInput, NotFound, ValueError, OSError) as e:
+    except (ChizuError, ValueError, OSError) as e:
         console.print(f"[red]{getattr(e, 'field', '')}: {e}[/red]")
         raise typer.Exit(2) from None
     finally:

@@ -42,11 +42,11 @@ from numeric.eigenspace.movement_strategy import (
     initial_samples,
     session_belief,
 )
-from numeric.errors import InvalidInput
+from numeric.errors import InvalidInput, NotFound
 from service.jobs import JobProgress, Jobs
 from service.kb import KnowledgeBase
 from service.store import Store
-from service.worlds import ArtifactKind, NotFound, WorldService
+from service.worlds import ArtifactKind, WorldService
 
 log = logging.getLogger(__name__)
 LEARNING_JOB = "eigenspace_learning"

@@ -10,9 +10,10 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from numeric.errors import InvalidInput
+from numeric.errors import ChizuError
 from service.kb import KbError
-from service.worlds import Conflict, NotFound
+
+TITLES = {404: "Not found", 409: "Conflict", 422: "Invalid input"}
 
 log = logging.getLogger(__name__)
 PROBLEM = "application/problem+json"
@@ -72,18 +73,11 @@ def install(app: FastAPI) -> None:
             exc.status_code, "HTTP error")
         return problem(exc.status_code, title, str(exc.detail), instance=request.url.path)
 
-    @app.exception_handler(NotFound)
-    async def _not_found(request: Request, exc: NotFound) -> JSONResponse:
-        return problem(404, "Not found", str(exc), instance=request.url.path, field=exc.field)
-
-    @app.exception_handler(Conflict)
-    async def _conflict(request: Request, exc: Conflict) -> JSONResponse:
-        return problem(409, "Conflict", str(exc), instance=request.url.path, field=exc.field)
-
-    @app.exception_handler(InvalidInput)
-    async def _invalid(request: Request, exc: InvalidInput) -> JSONResponse:
-        return problem(422, "Invalid input", str(exc), instance=request.url.path,
-                       field=exc.field)
+    @app.exception_handler(ChizuError)
+    async def _chizu(request: Request, exc: ChizuError) -> JSONResponse:
+        """InvalidInput 422, NotFound 404, Conflict 409: the one error root."""
+        return problem(exc.status, TITLES.get(exc.status, "Bad request"), str(exc),
+                       instance=request.url.path, field=exc.field)
 
     @app.exception_handler(KbError)
     async def _kb(request: Request, exc: KbError) -> JSONResponse:

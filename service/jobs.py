@@ -19,9 +19,8 @@ import uuid
 from collections.abc import Awaitable, Callable
 from typing import Any
 
-from numeric.errors import InvalidInput
+from numeric.errors import ChizuError, Conflict, NotFound
 from service.store import Store
-from service.worlds import Conflict, NotFound
 
 log = logging.getLogger(__name__)
 
@@ -95,7 +94,7 @@ class Jobs:
             end = "interrupted" if self._closing else "cancelled"
             self.store.update_job(jid, status=end, stage=end)
             return
-        except InvalidInput as e:
+        except ChizuError as e:
             self.store.update_job(jid, status="failed",
                                   error={"detail": str(e), "field": e.field})
             return

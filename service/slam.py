@@ -25,14 +25,14 @@ from typing import Any
 
 import numpy as np
 
-from numeric.errors import InvalidInput
+from numeric.errors import InvalidInput, NotFound
 from numeric.occupancy import OccupancyMap, build_occupancy
 from numeric.scan import Scan, beam_angles
 from numeric.slam.runner import Slam, SlamOptions, create
 from service.kb import KnowledgeBase
 from service.schemas.slam import ScanIn
 from service.store import Store
-from service.worlds import ArtifactKind, NotFound, WorldService
+from service.worlds import ArtifactKind, WorldService
 
 log = logging.getLogger(__name__)
 MAP_ARTIFACT = "slam_map"

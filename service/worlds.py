@@ -17,6 +17,7 @@ from typing import Any
 
 import networkx as nx
 
+from numeric.errors import Conflict, NotFound
 from numeric.observation import Observation, observation_quantities
 from numeric.qualitative.drm import (
     DrmPath,
@@ -30,18 +31,6 @@ from service.kb import KbError, KnowledgeBase
 from service.store import Store
 
 log = logging.getLogger(__name__)
-
-
-class Conflict(Exception):
-    def __init__(self, message: str, field: str | None = None) -> None:
-        super().__init__(message)
-        self.field = field
-
-
-class NotFound(Exception):
-    def __init__(self, message: str, field: str | None = None) -> None:
-        super().__init__(message)
-        self.field = field
 
 
 def resolve_description(desc: WorldDescription) -> WorldDescription:
