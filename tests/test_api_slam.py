@@ -308,3 +308,24 @@ def test_old_facts_artifact_without_closures_restores(tmp_path: Any) -> None:
         m = c.get("/worlds/slam_old/map").json()
         assert m["run"] == "r01d" and m["loop_closures"] == 0
         assert closure_facts(c, "slam_old") == []
+
+
+def test_run_options_take_the_estimators_bounds(client: TestClient, world: str) -> None:
+    """SlamRunIn declares no bound of its own: particles, alpha, sigma_z and seed are
+    RbpfConfig's, and the API refuses what the estimator would."""
+    from numeric.slam.rbpf import RbpfConfig
+    from service.schemas.slam import SlamRunIn
+
+    ours = SlamRunIn.model_json_schema()["properties"]
+    theirs = RbpfConfig.model_json_schema()["properties"]
+    for name in ("particles", "alpha", "sigma_z", "seed", "proposal", "resample"):
+        assert ours[name] == theirs[name], name
+    cfg = SlamRunIn(method="rbpf", particles=64, seed=3).to_config()
+    assert isinstance(cfg, RbpfConfig) and cfg.particles == 64 and cfg.seed == 3
+    for body, field in (({"particles": 5000}, "particles"), ({"sigma_z": 0}, "sigma_z"),
+                        ({"alpha": -1}, "alpha")):
+        r = client.post(f"/worlds/{world}/slam-runs", json=body)
+        assert r.status_code == 422 and r.json()["field"] == field, r.text
+    r = client.post(f"/worlds/{world}/slam-runs", content=b'{"sigma_z": Infinity}',
+                    headers={"content-type": "application/json"})
+    assert r.status_code == 422, r.text

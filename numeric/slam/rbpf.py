@@ -61,6 +61,10 @@ ScanMaps = tuple[np.ndarray, np.ndarray, float, np.ndarray, np.ndarray, np.ndarr
                  np.ndarray, float]
 
 
+Proposal = Literal["improved", "odometry", "gated-icp"]
+Resample = Literal["always", "ess"]
+
+
 class MotionNoise(BaseModel):
     """Σ_w of eq. 7, one sigma per component, growing with the increment."""
 
@@ -80,14 +84,16 @@ class MotionNoise(BaseModel):
 class RbpfConfig(BaseModel):
     """Parameters of the RBPF (paper: 512 particles, σ_z and alpha set empirically)."""
 
-    particles: int = Field(512, ge=1, le=10000)
-    alpha: float = Field(0.0, ge=0, description="intensity weight of eq. 9 (as in eq. 1)")
-    sigma_z: float = Field(0.0005, gt=0, description="sigma of eq. 8, in the units of d_t (m²)")
+    particles: int = Field(512, ge=1, le=4096)
+    alpha: float = Field(0.0, ge=0, le=1.0, allow_inf_nan=False,
+                         description="intensity weight of eqs. 1 and 9 (m² per unit²)")
+    sigma_z: float = Field(0.0005, gt=0, le=10, allow_inf_nan=False,
+                           description="sigma of eq. 8, in the units of d_t (m²)")
     likelihood: Literal["eq8", "linear"] = Field(
         "eq8", description="eq8: exp(-d_t^2 / 2 sigma_z^2) as printed; linear: "
                            "exp(-d_t / 2 sigma_z^2), a Gaussian on the residual with sigma_z in m")
     beams: int = Field(90, ge=8, le=2000, description="beams used in eq. 9 (evenly picked)")
-    proposal: Literal["odometry", "gated-icp", "improved"] = Field(
+    proposal: Proposal = Field(
         "improved", description="odometry: eq. 7 on the odometry increment (the paper); "
         "gated-icp: eq. 7 on the increment Intensity-ICP finds for the best particle when "
         "eq. 5 accepts it, with noise scaled by proposal_noise_scale; improved: the "
@@ -113,7 +119,7 @@ class RbpfConfig(BaseModel):
     update_angular_rad: float = Field(0.05, ge=0, description="improved: ... or this turn")
     icp: IcpConfig = Field(default_factory=IcpConfig)
     gate: GateConfig = Field(default_factory=GateConfig)
-    resample: Literal["always", "ess"] = "ess"
+    resample: Resample = "ess"
     ess_threshold: float = Field(0.5, gt=0, le=1)
     threads: int = Field(default_factory=default_threads, ge=1, le=64,
                          description="threads the particles' scan matches are split over "
@@ -134,7 +140,7 @@ class RbpfConfig(BaseModel):
                                                              nearby_keyframes=24,
                                                              nearby_radius_m=12.0))
     field: FieldConfig = Field(default_factory=FieldConfig)
-    seed: int = 0
+    seed: int = Field(0, ge=0, le=2**32 - 1)
 
     @model_validator(mode="after")
     def _paper_reference(self) -> RbpfConfig:

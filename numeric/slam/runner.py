@@ -4,9 +4,10 @@ outputs the CLI and the service write."""
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Literal, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -18,26 +19,43 @@ from numeric.slam.gated import SingleHypothesisSlam
 from numeric.slam.graph import GraphSlam, GraphSlamConfig
 from numeric.slam.intensity_icp import IcpConfig
 from numeric.slam.keyframes import Keyframes
-from numeric.slam.rbpf import RbpfConfig, RbpfSlam
+from numeric.slam.rbpf import Proposal, RbpfConfig, RbpfSlam, Resample
 
 Method = Literal["odom", "icp", "gated", "rbpf", "graph"]
 
 
+def _field(model: type[BaseModel], name: str) -> Any:
+    """A copy of ``model``'s declaration of field ``name`` (type bounds, default,
+    description): the options below take each estimator parameter's bounds from the
+    estimator's own config, so they are declared once."""
+    return copy.copy(model.model_fields[name])
+
+
 class SlamOptions(BaseModel):
-    """What a SLAM run is asked to do (CLI flags and the REST body share it)."""
+    """What a SLAM run is asked to do (CLI flags and the REST body share it); the
+    estimator parameters carry the bounds of :class:`RbpfConfig`."""
 
     model_config = ConfigDict(extra="forbid")
     method: Method = "rbpf"
-    particles: int = Field(512, ge=1, le=4096)
-    alpha: float = Field(0.0, ge=0, le=1.0, allow_inf_nan=False,
-                         description="intensity weight of eqs. 1 and 9 (m² per unit²)")
-    proposal: Literal["improved", "odometry", "gated-icp"] = Field(
-        "improved", description="rbpf: improved (Grisetti et al. 2007, scan-matched Gaussian "
-        "per particle), odometry (the paper's eq. 7) or gated-icp")
-    resample: Literal["always", "ess"] = "ess"
-    sigma_z: float = Field(0.0005, gt=0, le=10, allow_inf_nan=False)
+    particles: int = _field(RbpfConfig, "particles")
+    alpha: float = _field(RbpfConfig, "alpha")
+    proposal: Proposal = _field(RbpfConfig, "proposal")
+    resample: Resample = _field(RbpfConfig, "resample")
+    sigma_z: float = _field(RbpfConfig, "sigma_z")
     map_resolution_m: float = Field(0.05, ge=0.01, le=1.0, allow_inf_nan=False)
-    seed: int = Field(0, ge=0, le=2**32 - 1)
+    seed: int = _field(RbpfConfig, "seed")
+
+    def to_config(self) -> RbpfConfig | GraphSlamConfig | IcpConfig:
+        """The estimator's config: RBPF's, graph SLAM's, or the single-hypothesis
+        methods' Intensity-ICP config."""
+        icp = IcpConfig(alpha=self.alpha)
+        if self.method == "graph":
+            return GraphSlamConfig(alpha=self.alpha)
+        if self.method == "rbpf":
+            return RbpfConfig(particles=self.particles, alpha=self.alpha,
+                              proposal=self.proposal, resample=self.resample,
+                              sigma_z=self.sigma_z, icp=icp, seed=self.seed)
+        return icp
 
 
 class Slam(Protocol):
@@ -52,14 +70,13 @@ class Slam(Protocol):
 
 def create(options: SlamOptions) -> Slam:
     """A fresh estimator for ``options.method``."""
-    icp = IcpConfig(alpha=options.alpha)
-    if options.method == "graph":
-        return GraphSlam(GraphSlamConfig(alpha=options.alpha), seed=options.seed)
-    if options.method == "rbpf":
-        return RbpfSlam(RbpfConfig(particles=options.particles, alpha=options.alpha,
-                                   proposal=options.proposal, resample=options.resample,
-                                   sigma_z=options.sigma_z, icp=icp, seed=options.seed))
-    return SingleHypothesisSlam(method=options.method, icp=icp)
+    cfg = options.to_config()
+    if isinstance(cfg, GraphSlamConfig):
+        return GraphSlam(cfg, seed=options.seed)
+    if isinstance(cfg, RbpfConfig):
+        return RbpfSlam(cfg)
+    assert options.method in ("odom", "icp", "gated")
+    return SingleHypothesisSlam(method=options.method, icp=cfg)
 
 
 @dataclass

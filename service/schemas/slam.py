@@ -9,6 +9,11 @@ from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, model_validator
 
 from numeric.slam.runner import SlamOptions
 
+#: the body of POST /slam-runs: the run's options (the CLI's too), whose estimator
+#: parameters carry the estimator configs' own bounds; ``SlamRunIn.to_config()`` gives
+#: the estimator's config
+SlamRunIn = SlamOptions
+
 NonNegFinite = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 MAX_BEAMS = 4096
 

@@ -8,13 +8,13 @@ import numpy as np
 from fastapi import APIRouter, Query, Response, status
 
 from numeric.slam.logs import format_tum
-from numeric.slam.runner import SlamOptions
 from service.deps import SlamDep, WorldDep
 from service.schemas.slam import (
     CommitOut,
     NearRegionOut,
     ScansIn,
     SlamPoseOut,
+    SlamRunIn,
     SlamRunListed,
     SlamRunOut,
     TrajectoryOut,
@@ -25,7 +25,7 @@ router = APIRouter(prefix="/worlds/{world}", tags=["SLAM"])
 
 
 @router.post("/slam-runs", status_code=status.HTTP_201_CREATED, response_model=SlamRunOut)
-async def post_run(world: WorldDep, options: SlamOptions, slam: SlamDep,
+async def post_run(world: WorldDep, options: SlamRunIn, slam: SlamDep,
                    response: Response) -> dict[str, Any]:
     """Start a SLAM run (method odom | icp | gated | rbpf | graph, particles, intensity weight
     alpha, RBPF proposal and resampling, map resolution, seed)."""
