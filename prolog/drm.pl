@@ -30,6 +30,8 @@
 :- use_module(world).
 :- use_module(params).
 :- use_module(qualitative).
+:- use_module(json_args).
+:- multifile api:run/3.
 
 params:default_rule_probability(reach_rea, 0.99).
 params:default_rule_probability(reach_rec, 0.95).
@@ -112,3 +114,41 @@ record_reached(W, A, B) :-
     ->  true
     ;   assertz(M:rea(A, B))
     ).
+
+
+		 /*******************************
+		 *   OPERATIONS (api.pl)        *
+		 *******************************/
+
+api:run(reached, Args, _{world:W, from:A, to:B}) :-
+    existing_world(Args, W),
+    arg_(from, Args, AT), known_landmark(W, AT, from, A),
+    arg_(to, Args, BT), known_landmark(W, BT, to, B),
+    transaction(record_reached(W, A, B)).
+
+api:run(relations, Args, Rs) :-
+    existing_world(Args, W),
+    arg_(kind, Args, KT), atom_string(K, KT),
+    (   relation_kind(K) -> true ; throw(chizu_error(unknown_kind(KT), kind)) ),
+    findall(R, relation(K, W, R), Rs).
+
+api:run(drm, Args, _{nodes:Ns, edges:Es}) :-
+    existing_world(Args, W), world_module(W, M),
+    findall(L, M:landmark(L), Ns),
+    drm_edges(W, Edges),
+    maplist([edge(A, B, P, Me, V), _{from:A, to:B, p:P, method:Me, via:V}]>>true, Edges, Es).
+
+relation_kind(rec).
+relation_kind(frec).
+relation_kind(lr).
+relation_kind(align).
+relation_kind(rea).
+relation_kind(reachable).
+
+relation(rec, W, _{from:A, to:B, p:P}) :- rec(W, A, B, P).
+relation(frec, W, _{from:A, to:B, feature:F, p:1.0}) :- frec(W, A, B, F).
+relation(lr, W, _{at:A, left:B, right:C, p:P}) :- lr(W, A, B, C, P).
+relation(align, W, _{at:A, first:B, second:C, kind:K, p:P}) :- align(W, A, B, C, K, P).
+relation(rea, W, _{from:A, to:B, p:1.0}) :- world_module(W, M), M:rea(A, B).
+relation(reachable, W, _{from:A, to:B, p:P, method:Me, via:V}) :-
+    reachable(W, A, B, P, Me, V).

@@ -56,6 +56,8 @@
 :- use_module(library(lists)).
 :- use_module(world).
 :- use_module(params).
+:- use_module(json_args).
+:- multifile api:run/3.
 
 %   covers/4: a point this close (metres) outside the triangle still counts.
 params:default_parameter(eig_covers_tolerance_m, 0.0).
@@ -63,9 +65,12 @@ params:default_parameter(eig_covers_tolerance_m, 0.0).
 %!  eigenspace_fact(?PI) is nondet.
 %
 %   The world facts this module reads (declared per world in world.pl).
-eigenspace_fact(eig_point/3).
-eigenspace_fact(eig_triplet/4).
-eigenspace_fact(eig_candidate_set/2).
+eigenspace_fact(PI) :- domain_fact(eigenspace, PI).
+
+:- multifile world:domain_fact/2.
+world:domain_fact(eigenspace, eig_point/3).
+world:domain_fact(eigenspace, eig_triplet/4).
+world:domain_fact(eigenspace, eig_candidate_set/2).
 
 %!  replace_eigenspace_facts(+World, +Facts) is det.
 %
@@ -246,3 +251,118 @@ segment_distance(PX-PY, AX-AY, BX-BY, D) :-
     ;   T is max(0, min(1, ((PX-AX)*(BX-AX) + (PY-AY)*(BY-AY)) / L2))
     ),
     D is sqrt((PX - (AX + T*(BX-AX)))**2 + (PY - (AY + T*(BY-AY)))**2).
+
+
+		 /*******************************
+		 *   OPERATIONS (api.pl)        *
+		 *******************************/
+
+api:run(eigenspace_facts, Args, _{world:W, points:NP, triplets:NT, candidate_sets:NS}) :-
+    existing_world(Args, W),
+    arg_(points, Args, Ps0), json_list(Ps0, points),
+    foldl(eig_point_item, Ps0, Ps, 0, NP),
+    arg_(triplets, Args, Ts0), json_list(Ts0, triplets),
+    foldl(eig_triplet_item(NP), Ts0, Ts, 0, NT),
+    arg_(candidate_sets, Args, Ss0), json_list(Ss0, candidate_sets),
+    foldl(eig_set_item(NT), Ss0, Sss, 0, NS),
+    append(Sss, MFs),
+    foldl(eig_set_disjoint, MFs, [], _),
+    pairs_keys(MFs, Ms),
+    append([Ps, Ts, Ms], Facts),
+    replace_eigenspace_facts(W, Facts).
+
+api:run(eigenspace_transition, Args, _{outcome:ON, sets:Sets, state:SJ}) :-
+    existing_world(Args, W),
+    arg_(state, Args, SJ0), json_state(W, SJ0, Prev),
+    arg_(triplets, Args, Ts),
+    arg_(unique, Args, U),
+    stop_outcome(W, Ts, U, Outcome),
+    next_state(Prev, Outcome, Next),
+    outcome_json(Outcome, ON, Sets),
+    state_json(Next, SJ).
+
+api:run(eigenspace_covering, Args, Cs) :-
+    existing_world(Args, W),
+    arg_(x, Args, X), finite_number(X, x),
+    arg_(y, Args, Y), finite_number(Y, y),
+    findall(_{triplet:T, distance_m:D},
+            ( covers(W, T, X, Y), triplet_distance(W, T, X, Y, D) ),
+            Cs).
+
+eig_point_item(P, eig_point(I, X, Y), I, I1) :-
+    I1 is I + 1,
+    field("points[~d]", [I], F),
+    (   P = [X0, Y0] -> true ; throw(chizu_error(invalid_point, F)) ),
+    finite_number(X0, F), finite_number(Y0, F),
+    X is float(X0), Y is float(Y0).
+
+eig_triplet_item(NP, D, eig_triplet(T, Ps, Ds, A), T, T1) :-
+    T1 is T + 1,
+    field("triplets[~d]", [T], F),
+    (   is_dict(D) -> true ; throw(chizu_error(invalid_triplet, F)) ),
+    field("triplets[~d].points", [T], FP),
+    field("triplets[~d].directions_rad", [T], FD),
+    field("triplets[~d].area_m2", [T], FA),
+    (   get_dict(points, D, Ps) -> true ; throw(chizu_error(missing(points), FP)) ),
+    (   is_list(Ps), length(Ps, 3) -> true ; throw(chizu_error(invalid_length(3), FP)) ),
+    forall(member(P, Ps), index_in(P, NP, unknown_point, FP)),
+    (   sort(Ps, [_, _, _]) -> true ; throw(chizu_error(duplicate_point, FP)) ),
+    (   get_dict(directions_rad, D, Ds0) -> true ; throw(chizu_error(missing(directions_rad), FD)) ),
+    (   is_list(Ds0), length(Ds0, 3) -> true ; throw(chizu_error(invalid_length(3), FD)) ),
+    maplist(finite_float(FD), Ds0, Ds),
+    (   get_dict(area_m2, D, A0) -> true ; throw(chizu_error(missing(area_m2), FA)) ),
+    finite_number(A0, FA),
+    (   A0 >= 0 -> A is float(A0) ; throw(chizu_error(invalid_area(A0), FA)) ).
+
+%   Set ids are list positions + 1.
+eig_set_item(NT, S, Facts, I, I1) :-
+    I1 is I + 1,
+    field("candidate_sets[~d]", [I], F),
+    (   is_list(S), S \== [] -> true ; throw(chizu_error(invalid_set, F)) ),
+    foldl(eig_set_member(NT, I), S, Facts, 0, _).
+
+eig_set_member(NT, I, T, eig_candidate_set(M, T)-F, J, J1) :-
+    J1 is J + 1,
+    M is I + 1,
+    field("candidate_sets[~d][~d]", [I, J], F),
+    index_in(T, NT, unknown_triplet, F).
+
+%   Every triplet is in at most one candidate set.
+eig_set_disjoint(eig_candidate_set(_, T)-F, Seen, [T|Seen]) :-
+    (   memberchk(T, Seen) -> throw(chizu_error(duplicate_triplet(T), F)) ; true ).
+
+%   {"state": "x"} | {"state": "y", "set": M | "unlisted"} | {"state": "z"}
+json_state(W, D, State) :-
+    (   is_dict(D), get_dict(state, D, K), string(K) -> true
+    ;   throw(chizu_error(invalid_state, state))
+    ),
+    (   K == "x" -> State = x, no_set(D)
+    ;   K == "z" -> State = z, no_set(D)
+    ;   K == "y"
+    ->  (   get_dict(set, D, S) -> true ; throw(chizu_error(missing(set), 'state.set')) ),
+        (   S == "unlisted"
+        ->  State = y(unlisted)
+        ;   integer(S), S >= 1
+        ->  world_module(W, M),
+            (   M:eig_candidate_set(S, _) -> State = y(S)
+            ;   throw(chizu_error(unknown_set(S), 'state.set'))
+            )
+        ;   throw(chizu_error(invalid_set(S), 'state.set'))
+        )
+    ;   throw(chizu_error(invalid_state(K), 'state.state'))
+    ).
+
+no_set(D) :-
+    (   get_dict(set, D, S), S \== null -> throw(chizu_error(unexpected(set), 'state.set')) ; true ).
+
+state_json(x, _{state:"x"}).
+state_json(z, _{state:"z"}).
+state_json(y(unlisted), _{state:"y", set:"unlisted"}) :- !.
+state_json(y(M), _{state:"y", set:M}).
+
+outcome_json(none, "none", []).
+outcome_json(unique, "unique", []).
+outcome_json(unlisted, "unlisted", []).
+outcome_json(in_set(M), "in_set", [M]).
+outcome_json(across(Ms), "across", Ms).
+

@@ -59,6 +59,8 @@
 :- use_module(library(assoc)).
 :- use_module(world).
 :- use_module(params).
+:- use_module(json_args).
+:- multifile api:run/3.
 
 %   Unknown regions smaller than this (m2) are not observation groups.
 params:default_parameter(vp_unknown_min_area_m2, 0.5).
@@ -67,11 +69,14 @@ params:default_parameter(vp_unknown_min_area_m2, 0.5).
 %
 %   The world facts this module reads and writes (declared per world in
 %   world.pl).
-grouping_fact(vp_candidate/5).
-grouping_fact(vp_unknown/4).
-grouping_fact(vp_group/3).
-grouping_fact(vp_min_area/1).
-grouping_fact(vp_plan_step/9).
+grouping_fact(PI) :- domain_fact(viewpoint, PI).
+
+:- multifile world:domain_fact/2.
+world:domain_fact(viewpoint, vp_candidate/5).
+world:domain_fact(viewpoint, vp_unknown/4).
+world:domain_fact(viewpoint, vp_group/3).
+world:domain_fact(viewpoint, vp_min_area/1).
+world:domain_fact(viewpoint, vp_plan_step/9).
 
 %!  replace_viewpoint_scene(+World, +Candidates, +Regions, +MinAreaM2) is det.
 %
@@ -142,10 +147,7 @@ normal_fact(region, vp_unknown(Id, X0, Y0, A0), vp_unknown(Id, X, Y, A)) :-
     integer(Id), Id >= 0,
     real(X0, X), real(Y0, Y), real(A0, A), A >= 0.0.
 
-real(V, F) :-
-    number(V),
-    catch(F is float(V), _, fail),
-    float_class(F, C), memberchk(C, [zero, subnormal, normal]).
+real(V, F) :- finite_real(V, F).
 
 %   Candidate coordinates and R_max are at most 1e15 (m) in magnitude, so
 %   that the distance arithmetic cannot overflow.
@@ -301,3 +303,110 @@ unknown_group_area(World, G, Area) :-
     world_module(World, M),
     M:vp_group(G, unknown, [R]),
     M:vp_unknown(R, _, _, Area).
+
+
+		 /*******************************
+		 *   OPERATIONS (api.pl)        *
+		 *******************************/
+
+%   {world, candidates: [{id, type, x, y, r_max}], regions: [{id, x, y, area_m2}],
+%    min_area_m2?}: replaces the world's viewpoint scene and replies with its
+%   observation groups.  Without min_area_m2 (or with null) the world's
+%   parameter vp_unknown_min_area_m2 is used.
+api:run(viewpoint_groups, Args, Reply) :-
+    existing_world(Args, W),
+    arg_(candidates, Args, Cs0), json_list(Cs0, candidates),
+    foldl(vp_candidate_item, Cs0, Cs, 0, _),
+    arg_(regions, Args, Rs0), json_list(Rs0, regions),
+    foldl(vp_region_item, Rs0, Rs, 0, _),
+    (   get_dict(min_area_m2, Args, A0), A0 \== null
+    ->  nonneg_float("min_area_m2", A0, MinArea)
+    ;   world_module(W, M),
+        parameter(M, vp_unknown_min_area_m2, A1),
+        MinArea is float(A1)
+    ),
+    (   get_dict(steps, Args, Ss0), Ss0 \== null
+    ->  json_list(Ss0, steps), foldl(vp_step_item, Ss0, Ss, 0, _)
+    ;   Ss = []
+    ),
+    replace_viewpoint_scene(W, Cs, Rs, MinArea, Ss),
+    viewpoint_scene_reply(W, Reply).
+
+api:run(viewpoint_scene, Args, Reply) :-
+    existing_world(Args, W),
+    viewpoint_scene_reply(W, Reply).
+
+%   One candidate {id, type, x, y, r_max}; the id becomes an atom only after
+%   valid_id/1, the type stays a string.
+vp_candidate_item(D, vp_candidate(Id, Type, X, Y, R), I, I1) :-
+    I1 is I + 1,
+    field("candidates[~d]", [I], F),
+    (   is_dict(D) -> true ; throw(chizu_error(invalid_candidate, F)) ),
+    maplist(vp_value(D, "candidates", I), [id, type, x, y, r_max], [FI, FT, FX, FY, FR],
+            [IdText, Type, X0, Y0, R0]),
+    id_field(IdText, FI, Id),
+    (   string(Type), string_length(Type, L), L >= 1, L =< 64
+    ->  true
+    ;   throw(chizu_error(invalid_type(Type), FT))
+    ),
+    vp_coordinate(FX, X0, X),
+    vp_coordinate(FY, Y0, Y),
+    vp_coordinate(FR, R0, R),
+    (   R > 0 -> true ; throw(chizu_error(invalid_number(R0), FR)) ).
+
+%   One unknown region {id, x, y, area_m2}.
+vp_region_item(D, vp_unknown(Id, X, Y, A), I, I1) :-
+    I1 is I + 1,
+    field("regions[~d]", [I], F),
+    (   is_dict(D) -> true ; throw(chizu_error(invalid_region, F)) ),
+    maplist(vp_value(D, "regions", I), [id, x, y, area_m2], [FI, FX, FY, FA],
+            [Id, X0, Y0, A0]),
+    (   integer(Id), Id >= 0 -> true ; throw(chizu_error(invalid_region_id(Id), FI)) ),
+    finite_float(FX, X0, X),
+    finite_float(FY, Y0, Y),
+    nonneg_float(FA, A0, A).
+
+vp_step_item(D, vp_plan_step(I, G, X, Y, Th, T, O, P, Done), I, I1) :-
+    I1 is I + 1,
+    field("steps[~d]", [I], F),
+    (   is_dict(D) -> true ; throw(chizu_error(invalid_step, F)) ),
+    maplist(vp_value(D, "steps", I), [group_id, pose, travel_m, observe_s, p_recog, done_at_s],
+            [FG, FP, FT, FO, FR, FD], [G, Pose, T0, O0, P0, D0]),
+    (   integer(G), G >= 0 -> true ; throw(chizu_error(invalid_group_id(G), FG)) ),
+    (   is_list(Pose), length(Pose, 3) -> true ; throw(chizu_error(invalid_pose, FP)) ),
+    maplist(vp_coordinate(FP), Pose, [X, Y, Th]),
+    nonneg_float(FT, T0, T), nonneg_float(FO, O0, O), nonneg_float(FD, D0, Done),
+    (   P0 == null -> P = none ; probability(P0, FR), P is float(P0) ).
+
+vp_value(D, List, I, Key, F, V) :-
+    field("~w[~d].~w", [List, I, Key], F),
+    (   get_dict(Key, D, V0) -> V = V0 ; throw(chizu_error(missing(Key), F)) ).
+
+%   Candidate coordinates and R_max: finite and at most 1e15 in magnitude
+%   (grouping.pl squares distances).
+vp_coordinate(Field, V0, V) :-
+    finite_float(Field, V0, V),
+    (   abs(V) =< 1.0e15 -> true ; throw(chizu_error(invalid_number(V0), Field)) ).
+
+%   {groups: [...] ordered by id, min_area_m2: A} from World's stored scene;
+%   a world without one has no groups and the threshold it would use.
+viewpoint_scene_reply(W, _{groups:Groups, min_area_m2:MinArea, steps:Steps}) :-
+    world_module(W, M),
+    findall(G-J, ( observation_group(W, G, Kind, Ms), vp_group_json(W, G, Kind, Ms, J) ), Gs0),
+    keysort(Gs0, Gs),
+    pairs_values(Gs, Groups),
+    findall(K-_{group_id:G, pose:[X, Y, Th], travel_m:T, observe_s:O, p_recog:PJ,
+                done_at_s:Done},
+            ( plan_step(W, K, G, pose(X, Y, Th), times(T, O, P, Done)),
+              ( P == none -> PJ = null ; PJ = P ) ), Ss0),
+    keysort(Ss0, Ss1),
+    pairs_values(Ss1, Steps),
+    (   M:vp_min_area(A) -> MinArea = A
+    ;   parameter(M, vp_unknown_min_area_m2, A0), MinArea is float(A0)
+    ).
+
+vp_group_json(_, G, objects, Ms, _{id:G, kind:"objects", members:Ss}) :-
+    maplist(atom_string, Ms, Ss).
+vp_group_json(W, G, unknown, Ms, _{id:G, kind:"unknown", members:Ms, area_m2:A}) :-
+    unknown_group_area(W, G, A).
+

@@ -49,6 +49,22 @@
 :- use_module(library(heaps)).
 :- use_module(library(yall)).
 :- use_module(library(apply)).
+:- use_module(json_args).
+:- multifile api:run/3.
+
+%   The facts this module reads and writes in a world (world.pl).
+:- multifile world:domain_fact/2, world:derived_fact/1.
+world:domain_fact(qualitative, rec/2).      % rec(L1, L2): L2 recognisable from L1
+world:domain_fact(qualitative, frec/3).     % frec(L1, L2, Feature)
+world:domain_fact(qualitative, lr/3).       % observed lr(L1, L2, L3)
+world:domain_fact(qualitative, align/4).    % observed align(L1, L2, L3, same|not_same)
+world:domain_fact(qualitative, rea/2).      % rea(L1, L2): L2 was reached from L1
+world:derived_fact(angle/4).                % angle(L1, L2, L3, D): transient
+world:derived_fact(distance/3).             % distance(L1, L2, D): transient
+world:derived_fact(closed/0).               % derived relations are materialised
+world:derived_fact(d_lr/4).                 % materialised lr with probability
+world:derived_fact(d_align/5).              % materialised align with probability
+world:derived_fact(d_rec/3).                % materialised rec with probability
 
 %   Rule probabilities P(head | body), named after the rules below.
 params:default_rule_probability(lr_rot_right, 0.95).      % paper: lr(D,A,C) :- lr(A,C,D)
@@ -251,3 +267,42 @@ consequence(M, align(A, B, C, not_same), P, lr(A, D, C), Q) :-       % lr_align_
     r(M, lr_align_opposite, R), Q is R*P*P2.
 
 r(M, Rule, R) :- rule_probability(M, Rule, R).
+
+
+		 /*******************************
+		 *   OPERATIONS (api.pl)        *
+		 *******************************/
+
+api:run(observe, Args, _{world:W, at:At, relations:N}) :-
+    existing_world(Args, W),
+    arg_(at, Args, AtText), known_landmark(W, AtText, at, At),
+    arg_(seen, Args, Seen0),
+    foldl(seen_item(W, At), Seen0, Seen, 0, _),
+    arg_(angles, Args, Angles0),
+    maplist(angle_item(W, At), Angles0, Angles),
+    arg_(distances, Args, Dists0),
+    maplist(distance_item(W, At), Dists0, Dists),
+    append(Angles, Dists, Quantities),
+    observe(W, At, Seen, Quantities),
+    world_module(W, M),
+    aggregate_all(count, ( M:lr(At, _, _) ; M:align(At, _, _, _) ), N).
+
+seen_item(W, At, S, seen(L, Fs), I0, I) :-
+    I is I0 + 1,
+    field("seen[~d].landmark", [I0], F),
+    arg_(landmark, S, LT), known_landmark(W, LT, F, L),
+    (   L == At -> throw(chizu_error(self_observation(L), F)) ; true ),
+    (   get_dict(features, S, Fs0) -> true ; Fs0 = [] ),
+    field("seen[~d].features", [I0], FF),
+    maplist(feature_id(FF), Fs0, Fs).
+
+%   Not a yall lambda: a compiled lambda would not see the bound FF.
+feature_id(Field, Text, Id) :- id_field(Text, Field, Id).
+
+angle_item(W, At, [T1, T2, D], angle(L1, At, L2, D)) :-
+    known_landmark(W, T1, angles, L1), known_landmark(W, T2, angles, L2),
+    (   number(D) -> true ; throw(chizu_error(invalid_angle(D), angles)) ).
+distance_item(W, At, [T, D], distance(At, L, D)) :-
+    known_landmark(W, T, distances, L),
+    (   number(D) -> true ; throw(chizu_error(invalid_distance(D), distances)) ).
+

@@ -36,6 +36,8 @@
 :- use_module(eigenspace).
 :- use_module(slam).
 :- use_module(grouping).
+:- use_module(json_args).
+:- multifile api:run/3.
 
 %!  world_query(+World, +Text, +MaxSolutions, -Solutions, -Truncated) is det.
 %
@@ -140,3 +142,16 @@ comparison(G) :-
 
 num_or_var(X) :- ( var(X) ; number(X) ), !.
 num_or_var(_) :- throw(chizu_error(not_allowed(arithmetic_expression), goal)).
+
+
+		 /*******************************
+		 *   OPERATIONS (api.pl)        *
+		 *******************************/
+
+api:run(query, Args, _{solutions:Sols, truncated:Trunc}) :-
+    existing_world(Args, W),
+    arg_(goal, Args, Text),
+    arg_(max_solutions, Args, Max),
+    (   integer(Max), Max >= 1 -> true ; throw(chizu_error(invalid_max(Max), max_solutions)) ),
+    world_query(W, Text, Max, Sols, Trunc).
+

@@ -42,15 +42,20 @@
 :- use_module(library(lists)).
 :- use_module(library(pairs)).
 :- use_module(world).
+:- use_module(json_args).
+:- multifile api:run/3.
 
 %!  slam_fact(?PI) is nondet.
 %
 %   The world facts this module reads (declared per world in world.pl).
-slam_fact(map_pose/5).
-slam_fact(map_info/5).
-slam_fact(unknown_region/5).
-slam_fact(committed_map/1).
-slam_fact(loop_closure/4).
+slam_fact(PI) :- domain_fact(slam, PI).
+
+:- multifile world:domain_fact/2.
+world:domain_fact(slam, map_pose/5).
+world:domain_fact(slam, map_info/5).
+world:domain_fact(slam, unknown_region/5).
+world:domain_fact(slam, committed_map/1).
+world:domain_fact(slam, loop_closure/4).
 
 %!  valid_run_id(+Text) is semidet.
 %
@@ -101,10 +106,7 @@ normal_fact(loop_closure(R, A, B, S0), loop_closure(R, A, B, S)) :-
 
 run(R) :- atom(R), valid_run_id(R).
 index(I) :- integer(I), I >= 0.
-real(V, F) :-
-    number(V),
-    catch(F is float(V), _, fail),
-    float_class(F, C), memberchk(C, [zero, subnormal, normal]).
+real(V, F) :- finite_real(V, F).
 nonneg(V, F) :- real(V, F), F >= 0.0.
 score(V, F) :- nonneg(V, F), F =< 1.0.
 
@@ -225,3 +227,106 @@ closes_loop(World, ScanA, ScanB) :-
     committed_run(World, Run),
     world_module(World, M),
     M:loop_closure(Run, ScanA, ScanB, _).
+
+
+		 /*******************************
+		 *   OPERATIONS (api.pl)        *
+		 *******************************/
+
+%   {world, run, poses: [[X, Y, Th]], info: {...}, regions: [{x, y, area_m2}],
+%    closures?: [[ScanA, ScanB, Score]]}: replaces the world's SLAM facts.
+%   closures is optional (calls stored before loop closures existed have
+%   none): missing means no closures.
+api:run(slam_facts, Args, _{world:W, run:Run, poses:NP, regions:NR, closures:NC}) :-
+    existing_world(Args, W),
+    arg_(run, Args, RunText), run_field(RunText, run, Run),
+    arg_(poses, Args, Ps0), json_list(Ps0, poses),
+    foldl(slam_pose_item(Run), Ps0, Ps, 0, NP),
+    arg_(info, Args, Info0), slam_info(Run, Info0, Info),
+    arg_(regions, Args, Rs0), json_list(Rs0, regions),
+    foldl(slam_region_item(Run), Rs0, Rs, 0, NR),
+    (   get_dict(closures, Args, Cs0) -> true ; Cs0 = [] ),
+    json_list(Cs0, closures),
+    foldl(slam_closure_item(Run), Cs0, Cs, 0, NC),
+    append([[committed_map(Run), Info], Ps, Rs, Cs], Facts),
+    replace_slam_facts(W, Facts).
+
+api:run(slam_summary, Args, _{run:Run, explored_fraction:F, path_length_m:L, resolution_m:Res,
+                         free_m2:Free, occupied_m2:Occ, unknown_m2:Unk, regions:Regions,
+                         loop_closures:NC}) :-
+    existing_world(Args, W),
+    committed_map_run(W, Run),
+    world_module(W, M),
+    M:map_info(Run, Res, Free, Occ, Unk),
+    explored_fraction(W, F),
+    map_path_length(W, L),
+    loop_closure_count(W, NC),
+    findall(Id-_{id:Id, x:X, y:Y, area_m2:A}, M:unknown_region(Run, Id, X, Y, A), Rs0),
+    keysort(Rs0, Rs),
+    pairs_values(Rs, Regions).
+
+api:run(slam_regions_near, Args, Regions) :-
+    existing_world(Args, W),
+    arg_(x, Args, X), finite_number(X, x),
+    arg_(y, Args, Y), finite_number(Y, y),
+    arg_(radius, Args, R), finite_number(R, radius),
+    (   R >= 0 -> true ; throw(chizu_error(invalid_radius(R), radius)) ),
+    committed_map_run(W, Run),
+    world_module(W, M),
+    findall((D-Id)-_{id:Id, x:RX, y:RY, area_m2:A, distance:D},
+            ( unknown_region_within(W, X, Y, R, Id, D),
+              M:unknown_region(Run, Id, RX, RY, A) ),
+            Rs0),
+    keysort(Rs0, Rs),
+    pairs_values(Rs, Regions).
+
+%   A SLAM run id (^r[0-9a-f]{1,64}$); the atom is made only after the check.
+run_field(Text, Field, Run) :-
+    (   valid_run_id(Text) -> atom_string(Run, Text) ; throw(chizu_error(invalid_run_id(Text), Field)) ).
+
+%   The world's committed SLAM run; a world without one has no map to read.
+committed_map_run(W, Run) :-
+    (   committed_run(W, Run) -> true ; throw(chizu_error(unknown_map(W), world)) ).
+
+%   Pose indices are list positions.
+slam_pose_item(Run, P, map_pose(Run, I, X, Y, Th), I, I1) :-
+    I1 is I + 1,
+    field("poses[~d]", [I], F),
+    (   is_list(P), P = [X0, Y0, Th0] -> true ; throw(chizu_error(invalid_pose, F)) ),
+    maplist(finite_float(F), [X0, Y0, Th0], [X, Y, Th]).
+
+slam_info(Run, D, map_info(Run, Res, Free, Occ, Unk)) :-
+    (   is_dict(D) -> true ; throw(chizu_error(invalid_info, info)) ),
+    maplist(slam_info_value(D), [resolution_m, free_m2, occupied_m2, unknown_m2],
+            [Res, Free, Occ, Unk]).
+
+slam_info_value(D, Key, V) :-
+    field("info.~w", [Key], F),
+    (   get_dict(Key, D, V0) -> true ; throw(chizu_error(missing(Key), F)) ),
+    nonneg_float(F, V0, V).
+
+%   Region ids are list positions.
+slam_region_item(Run, D, unknown_region(Run, I, X, Y, A), I, I1) :-
+    I1 is I + 1,
+    field("regions[~d]", [I], F),
+    (   is_dict(D) -> true ; throw(chizu_error(invalid_region, F)) ),
+    slam_region_value(D, I, x, FX, X0), finite_float(FX, X0, X),
+    slam_region_value(D, I, y, FY, Y0), finite_float(FY, Y0, Y),
+    slam_region_value(D, I, area_m2, FA, A0), nonneg_float(FA, A0, A).
+
+slam_region_value(D, I, Key, F, V) :-
+    field("regions[~d].~w", [I, Key], F),
+    (   get_dict(Key, D, V0) -> V = V0 ; throw(chizu_error(missing(Key), F)) ).
+
+%   One loop closure [ScanA, ScanB, Score]: scan indices (JSON integers >= 0,
+%   not 1.0) with ScanA < ScanB, and a match score in [0, 1].
+slam_closure_item(Run, C, loop_closure(Run, A, B, S), I, I1) :-
+    I1 is I + 1,
+    field("closures[~d]", [I], F),
+    (   is_list(C), C = [A, B, S0] -> true ; throw(chizu_error(invalid_closure, F)) ),
+    (   integer(A), A >= 0 -> true ; throw(chizu_error(invalid_index(A), F)) ),
+    (   integer(B), B >= 0 -> true ; throw(chizu_error(invalid_index(B), F)) ),
+    (   A < B -> true ; throw(chizu_error(unordered_closure(A, B), F)) ),
+    finite_float(F, S0, S),
+    (   S =< 1.0, S >= 0.0 -> true ; throw(chizu_error(invalid_score(S0), F)) ).
+

@@ -13,40 +13,34 @@
             drop_world/1,           % +World
             world_exists/1,         % ?World
             clear_world/1,          % +World
-            world_fact/1            % ?Name/Arity
+            world_fact/1,           % ?Name/Arity
+            domain_fact/2           % ?Domain, ?Name/Arity
           ]).
+
+%!  domain_fact(?Domain, ?PI) is nondet.
+%
+%   The stored facts a world module holds, by the domain that writes them:
+%   world (here), qualitative (qualitative.pl), eigenspace (eigenspace.pl),
+%   slam (slam.pl), viewpoint (grouping.pl).  Each module declares its own
+%   beside the rules that read them; the facts operation lists them, the
+%   REPL loads them, clear_facts and the replace_* predicates clear them by
+%   domain.
+:- multifile domain_fact/2, derived_fact/1.
+domain_fact(world, landmark/1).             % landmark(Id)
+domain_fact(world, rule_probability/2).     % per-world override of a rule's P(head|body)
+domain_fact(world, parameter/2).            % per-world override of a named parameter
+
+%!  derived_fact(?PI) is nondet.
+%
+%   Working state a world module holds besides its stored facts
+%   (qualitative.pl: the materialised closure, the quantities of an
+%   observation being converted).
 
 %!  world_fact(?PI) is nondet.
 %
-%   The dynamic predicates every world module holds.  Quantities (angle/4,
-%   distance/3) only live there while an observation is being converted.
-world_fact(landmark/1).             % landmark(Id)
-world_fact(rec/2).                  % rec(L1, L2): L2 recognisable from L1
-world_fact(frec/3).                 % frec(L1, L2, Feature)
-world_fact(angle/4).                % angle(L1, L2, L3, D): transient
-world_fact(distance/3).             % distance(L1, L2, D): transient
-world_fact(lr/3).                   % observed lr(L1, L2, L3)
-world_fact(align/4).                % observed align(L1, L2, L3, same|not_same)
-world_fact(rea/2).                  % rea(L1, L2): L2 was reached from L1
-world_fact(rule_probability/2).     % per-world override of a rule's P(head|body)
-world_fact(parameter/2).            % per-world override of a named parameter
-world_fact(closed/0).               % derived relations are materialised
-world_fact(d_lr/4).                 % materialised lr with probability
-world_fact(d_align/5).              % materialised align with probability
-world_fact(d_rec/3).                % materialised rec with probability
-world_fact(eig_point/3).            % eig_point(I, X, Y): eigenspace learning point
-world_fact(eig_triplet/4).          % eig_triplet(T, Points, Directions, Area)
-world_fact(eig_candidate_set/2).    % eig_candidate_set(M, T): T in candidate set M
-world_fact(map_pose/5).             % map_pose(Run, I, X, Y, Th): SLAM keyframe pose
-world_fact(map_info/5).             % map_info(Run, Res, Free, Occupied, Unknown)
-world_fact(unknown_region/5).       % unknown_region(Run, Id, X, Y, Area)
-world_fact(committed_map/1).        % committed_map(Run): the world's current map
-world_fact(loop_closure/4).         % loop_closure(Run, ScanA, ScanB, Score): SLAM closure
-world_fact(vp_candidate/5).         % vp_candidate(Id, Type, X, Y, RMax): object candidate
-world_fact(vp_unknown/4).           % vp_unknown(Id, X, Y, Area): unknown region of the grid
-world_fact(vp_group/3).             % vp_group(G, objects|unknown, Members): derived group
-world_fact(vp_min_area/1).          % vp_min_area(A): region area threshold of the scene
-world_fact(vp_plan_step/9).         % vp_plan_step(K, G, X, Y, Th, TravelM, ObserveS, PRecog, DoneAtS)
+%   Every dynamic predicate a world module holds.
+world_fact(PI) :- domain_fact(_, PI).
+world_fact(PI) :- derived_fact(PI).
 
 %!  valid_id(+Text) is semidet.
 %

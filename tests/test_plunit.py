@@ -69,3 +69,14 @@ def test_chizu_path_cli(tmp_path: Path) -> None:
     r = subprocess.run([sys.executable, "-m", "service.cli", "path", "demo", "rn0a", "zz"],
                        capture_output=True, text=True, timeout=120, env=env, cwd=PROLOG.parent)
     assert r.returncode == 2 and "zz" in r.stdout
+
+
+def test_no_rule_calls_an_undefined_predicate() -> None:
+    """Operations live in the domain modules (api:run/3 is multifile): a body that calls
+    a predicate its module does not see fails only when that operation runs, so check
+    every clause at once (argv_options' optional hooks in repl.pl aside)."""
+    r = subprocess.run(["swipl", "-q", "-g", "list_undefined", "-t", "halt",
+                        str(PROLOG / "load.pl")], capture_output=True, text=True, timeout=120)
+    named = [ln for ln in (r.stdout + r.stderr).splitlines()
+             if ", which is referenced by" in ln and "repl:opt_" not in ln]
+    assert named == [], r.stdout + r.stderr
