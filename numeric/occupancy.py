@@ -103,7 +103,7 @@ class OccupancyMap:
                                         * self.resolution_m, float(area[k]), entries))
         return out
 
-    def unknown_regions(self, min_area_m2: float = 0.5) -> list[dict[str, float]]:
+    def unknown_regions(self, min_area_m2: float) -> list[dict[str, float]]:
         """The enclosed unknown components of at least ``min_area_m2``: centroid and area,
         largest first (the facts a committed SLAM map reports)."""
         return [{"x": float(c.centroid[0]), "y": float(c.centroid[1]), "area_m2": c.area_m2}

@@ -63,7 +63,6 @@
 :- multifile api:run/3.
 
 %   Unknown regions smaller than this (m2) are not observation groups.
-params:default_parameter(vp_unknown_min_area_m2, 0.5).
 
 %!  grouping_fact(?PI) is nondet.
 %
@@ -312,7 +311,7 @@ unknown_group_area(World, G, Area) :-
 %   {world, candidates: [{id, type, x, y, r_max}], regions: [{id, x, y, area_m2}],
 %    min_area_m2?}: replaces the world's viewpoint scene and replies with its
 %   observation groups.  Without min_area_m2 (or with null) the world's
-%   parameter vp_unknown_min_area_m2 is used.
+%   parameter unknown_region_min_area_m2 is used.
 api:run(viewpoint_groups, Args, Reply) :-
     existing_world(Args, W),
     arg_(candidates, Args, Cs0), json_list(Cs0, candidates),
@@ -322,7 +321,7 @@ api:run(viewpoint_groups, Args, Reply) :-
     (   get_dict(min_area_m2, Args, A0), A0 \== null
     ->  nonneg_float("min_area_m2", A0, MinArea)
     ;   world_module(W, M),
-        parameter(M, vp_unknown_min_area_m2, A1),
+        parameter(M, unknown_region_min_area_m2, A1),
         MinArea is float(A1)
     ),
     (   get_dict(steps, Args, Ss0), Ss0 \== null
@@ -402,7 +401,7 @@ viewpoint_scene_reply(W, _{groups:Groups, min_area_m2:MinArea, steps:Steps}) :-
     keysort(Ss0, Ss1),
     pairs_values(Ss1, Steps),
     (   M:vp_min_area(A) -> MinArea = A
-    ;   parameter(M, vp_unknown_min_area_m2, A0), MinArea is float(A0)
+    ;   parameter(M, unknown_region_min_area_m2, A0), MinArea is float(A0)
     ).
 
 vp_group_json(_, G, objects, Ms, _{id:G, kind:"objects", members:Ss}) :-

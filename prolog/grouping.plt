@@ -133,7 +133,7 @@ test(custom_min_area, [nondet, cleanup(drop_world(g5))]) :-
     R3.result.min_area_m2 == 0.5.
 test(world_parameter_is_the_default, [nondet, cleanup(drop_world(g6))]) :-
     call_api(create_world, _{world:"g6", landmarks:[],
-                             parameters:_{vp_unknown_min_area_m2:0.25}}, R0), R0.ok == true,
+                             parameters:_{unknown_region_min_area_m2:0.25}}, R0), R0.ok == true,
     call_api(viewpoint_scene, _{world:"g6"}, S0), S0.result.min_area_m2 =:= 0.25,
     scene_args("g6", Args), call_api(viewpoint_groups, Args, R),
     R.result.min_area_m2 =:= 0.25,

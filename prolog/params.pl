@@ -15,6 +15,11 @@
 :- multifile default_rule_probability/2, default_parameter/2.
 :- dynamic default_rule_probability/2, default_parameter/2.
 
+%   Unknown regions smaller than this (m²) are not regions: neither a committed
+%   SLAM map's (slam.pl, unknown_region/5) nor a viewpoint scene's (grouping.pl,
+%   a group of its own to explore).  The one threshold both read.
+default_parameter(unknown_region_min_area_m2, 0.5).
+
 %!  rule_probability(+Module, +Rule, -P) is det.
 %
 %   P(head | body) of Rule in the world Module: the world's override if it

@@ -38,7 +38,6 @@ log = logging.getLogger(__name__)
 MAP_ARTIFACT = "slam_map"
 FACTS_ARTIFACT = "slam_facts"
 MAX_SCANS_PER_RUN = 200_000
-UNKNOWN_REGION_MIN_M2 = 0.5
 
 
 def loop_closures(slam: Slam) -> list[list[int | float]]:
@@ -194,7 +193,8 @@ class SlamService:
         g = await self.grid(world, rid)
         poses = run.slam.map_poses()
         summary = g.summary()
-        regions = g.unknown_regions(UNKNOWN_REGION_MIN_M2)
+        params = await self.kb.acall("params", world=world)
+        regions = g.unknown_regions(float(params["parameters"]["unknown_region_min_area_m2"]))
         async with run.lock:
             closures = loop_closures(run.slam)
         call = {"world": world, "run": rid,

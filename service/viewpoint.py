@@ -44,7 +44,7 @@ def kb_grouper(kb: KnowledgeBase, world: str, sink: dict[str, Any] | None = None
     ``sink`` receives the call's arguments (to store the scene)."""
 
     def group(cands: list[dict[str, Any]], regions: list[dict[str, Any]],
-              min_area: float) -> list[GroupSpec]:
+              min_area: float | None) -> list[GroupSpec]:
         args = {"world": world, "candidates": cands, "regions": regions,
                 "min_area_m2": min_area}
         reply = kb.call("viewpoint_groups", **args)

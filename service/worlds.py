@@ -90,6 +90,9 @@ class ArtifactWrite:
         return self.reply
 
 
+#: parameters that were renamed: worlds stored with the old name keep working
+RENAMED_PARAMETERS = {"vp_unknown_min_area_m2": "unknown_region_min_area_m2"}
+
 _READ_ONLY = frozenset({"worlds", "landmarks", "relations", "drm", "facts", "params",
                         "engine", "query", "eigenspace_transition",
                         "eigenspace_covering", "slam_summary", "slam_regions_near",
@@ -173,8 +176,9 @@ class WorldService:
     @staticmethod
     def create_call(desc: WorldDescription) -> dict[str, Any]:
         """The knowledge-base arguments that create ``desc``'s world."""
+        params = {RENAMED_PARAMETERS.get(k, k): v for k, v in desc.parameters.items()}
         return {"world": desc.name, "landmarks": [lm.id for lm in desc.landmarks],
-                "rule_probabilities": desc.rule_probabilities, "parameters": desc.parameters}
+                "rule_probabilities": desc.rule_probabilities, "parameters": params}
 
     @staticmethod
     def event_call(world: str, kind: str,

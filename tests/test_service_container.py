@@ -164,3 +164,21 @@ def test_an_unknown_world_is_a_404_before_the_body_is_decoded(client: TestClient
         assert r.status_code == 404, (url, r.text)
         assert r.json()["field"] == "world" and r.headers["content-type"].startswith(
             "application/problem+json")
+
+
+def test_one_unknown_region_threshold_per_world(client: TestClient) -> None:
+    """unknown_region_min_area_m2 (params.pl) decides which unknown regions a plan
+    groups when the request names no threshold, and the committed map's regions; a
+    world stored with its old name, vp_unknown_min_area_m2, keeps it."""
+    body = plan_body()
+    del body["min_area_m2"]
+    for name, params, regions in (("thr_default", {}, 1),
+                                  ("thr_big", {"unknown_region_min_area_m2": 2.0}, 0),
+                                  ("thr_old", {"vp_unknown_min_area_m2": 2.0}, 0)):
+        r = client.post("/worlds", json={"name": name, "template": "room_a",
+                                         "parameters": params})
+        assert r.status_code == 201, r.text
+        out = client.post(f"/worlds/{name}/viewpoint-plan", json=body).json()
+        assert sum(g["kind"] == "unknown" for g in out["groups"]) == regions, name
+        scene = client.get(f"/worlds/{name}/viewpoint-groups").json()
+        assert scene["min_area_m2"] == (0.5 if not params else 2.0)

@@ -114,7 +114,9 @@ class PlanRequest(BaseModel):
     t_search_s: NonNeg = Field(5.0, description="t_sea of eq. 9")
     t_dist_s: NonNeg = Field(3.0, description="t_dist of eq. 10")
     k_area: NonNeg = Field(5.0, description="value per m2 of mapped unknown area (eq. 17)")
-    min_area_m2: NonNeg = Field(0.5, description="unknown components this large are groups")
+    min_area_m2: NonNeg | None = Field(None, description="unknown components this large "
+                                       "are groups; null: the world's parameter "
+                                       "unknown_region_min_area_m2 (0.5 m² by default)")
     clearance_m: NonNeg = 0.25
     object_types: Annotated[list[ObjectType], Field(max_length=MAX_TYPES)] = []
     candidates: Annotated[list[CandidateIn], Field(max_length=MAX_CANDIDATES)] = []
@@ -160,9 +162,11 @@ class GroupSpec:
     members: tuple[str | int, ...]
 
 
-#: (candidates [{id, type, x, y, r_max}], regions [{id, x, y, area_m2}], min_area_m2)
+#: (candidates [{id, type, x, y, r_max}], regions [{id, x, y, area_m2}], min_area_m2 or
+#: None for the world's parameter)
 #: -> groups; the service's implementation asks the Prolog rules (prolog/grouping.pl).
-Grouper = Callable[[list[dict[str, object]], list[dict[str, object]], float], list[GroupSpec]]
+Grouper = Callable[[list[dict[str, object]], list[dict[str, object]], float | None],
+                   list[GroupSpec]]
 
 
 @dataclass(frozen=True)
