@@ -19,6 +19,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, model_validator
 
 from numeric.errors import InvalidInput
+from numeric.occupancy import UnknownComponent
 from numeric.viewpoint.appearance import AppearanceModel, AppearanceParams, MeasurementTables
 from numeric.viewpoint.grid import MAX_CELLS, PlanningGrid, TravelMap, from_occupancy_values
 from numeric.viewpoint.plan import (
@@ -337,9 +338,43 @@ class ViewpointPlanner:
 
     def plan(self, req: PlanRequest, grid: PlanningGrid, grouper: Grouper,
              beliefs: dict[str, np.ndarray] | None = None) -> PlanReport:
+        """The paper's pipeline (Masuzawa & Miura, §§4-6) in its four steps:
+        :meth:`candidates` (the objects to verify with their appearance models and the
+        grid's unknown regions), :meth:`group` (observation groups, by the Prolog
+        rules), :meth:`value_and_verify` (each group's expected verification time,
+        eqs. 5-10, and value, eqs. 15-17) and :meth:`solve` (the ordered plan
+        maximising U = V - L(t), eq. 11). ``beliefs`` replace candidates' orientation
+        beliefs (the online loop's updates)."""
         t0 = time.perf_counter()
+        cands, comps = self.candidates(req, grid, beliefs)
+        t1 = time.perf_counter()
+        specs = self.group(req, grouper, cands, comps)
+        t2 = time.perf_counter()
+        verifier = Verifier(grid, req.speed_m_s, req.t_verify_s, req.clearance_m,
+                            req.use_table, self.tables, self.viewpoint_sets)
+        builds, hits = self.tables.builds, self.tables.hits
+        planned, skipped = self.value_and_verify(req, grid, specs, cands, comps, verifier)
+        t3 = time.perf_counter()
+        solution, distance = self.solve(req, grid, planned)
+        t4 = time.perf_counter()
+        robot, exit_ = np.asarray(req.robot, float), np.asarray(req.exit, float)
+
+        def steps_of(plan: Plan) -> list[PlanStep]:
+            return plan_steps(plan, planned, cands, verifier, robot, exit_, req.speed_m_s,
+                              distance)
+
+        return PlanReport(planned, solution.plans, skipped, solution,
+                          {"prepare": 1e3 * (t1 - t0), "grouping": 1e3 * (t2 - t1),
+                           "local": 1e3 * (t3 - t2), "global": 1e3 * (t4 - t3),
+                           "total": 1e3 * (t4 - t0)},
+                          self.tables.builds - builds, self.tables.hits - hits, steps_of)
+
+    def candidates(self, req: PlanRequest, grid: PlanningGrid,
+                   beliefs: dict[str, np.ndarray] | None = None,
+                   ) -> tuple[dict[str, Candidate], dict[int, UnknownComponent]]:
+        """Step 1 (§4.1): the candidate objects with their type's appearance model (§3)
+        and orientation belief, and the grid's unknown components by label."""
         models = self.models(req)
-        types = {t.name: t for t in req.object_types}
         cands: dict[str, Candidate] = {}
         for i, c in enumerate(req.candidates):
             if c.type not in models:
@@ -356,21 +391,34 @@ class ViewpointPlanner:
             if beliefs and c.id in beliefs:
                 belief = beliefs[c.id]
             cands[c.id] = Candidate(c.id, c.type, np.array([c.x, c.y]), m, belief)
-        comps = {c.label: c for c in grid.unknown_components()}
-        t1 = time.perf_counter()
-        specs = grouper(
+        return cands, {c.label: c for c in grid.unknown_components()}
+
+    @staticmethod
+    def group(req: PlanRequest, grouper: Grouper, cands: dict[str, Candidate],
+              comps: dict[int, UnknownComponent]) -> list[GroupSpec]:
+        """Step 2 (§4.2): observation groups -- candidates that one look can verify
+        together, and each unknown region large enough -- decided by ``grouper`` (the
+        Prolog rules of prolog/grouping.pl in the service)."""
+        return grouper(
             [{"id": c.id, "type": c.type, "x": float(c.xy[0]), "y": float(c.xy[1]),
               "r_max": max(c.model.r_max, 1e-3)} for c in cands.values()],
             [{"id": k, "x": float(c.centroid[0]), "y": float(c.centroid[1]),
               "area_m2": c.area_m2} for k, c in comps.items()],
             req.min_area_m2)
-        t2 = time.perf_counter()
-        verifier = Verifier(grid, req.speed_m_s, req.t_verify_s, req.clearance_m,
-                            req.use_table, self.tables, self.viewpoint_sets)
-        builds, hits = self.tables.builds, self.tables.hits
+
+    def value_and_verify(self, req: PlanRequest, grid: PlanningGrid, specs: list[GroupSpec],
+                         cands: dict[str, Candidate], comps: dict[int, UnknownComponent],
+                         verifier: Verifier,
+                         ) -> tuple[list[PlannedGroup], list[PlannedGroup]]:
+        """Step 3 (§§5-6.1): every group's expected verification time and value -- an
+        object group by its best local plan (t_single, t_seq or t_par, eqs. 5-8) and
+        the sum of its objects' values; an unknown region by the search time of eqs.
+        9-10 from its nearest entry point and eq. 17's value. Returns the groups to
+        plan with and the ones that cannot be verified (boxed-in objects, walled-in
+        regions)."""
+        types = {t.name: t for t in req.object_types}
         unknown_total = sum(comps[int(s.members[0])].area_m2 for s in specs
                             if s.kind == "unknown")
-        mean_counts = {t.name: t.mean_count for t in req.object_types}
         planned: list[PlannedGroup] = []
         skipped: list[PlannedGroup] = []
         for spec in specs:
@@ -402,30 +450,44 @@ class ViewpointPlanner:
                     skipped.append(PlannedGroup(spec, name, 0.0, np.inf, entries, None,
                                                 comp.area_m2, comp.centroid))
                     continue
-                e = entries[np.argmin(np.hypot(*(entries - comp.centroid).T))]
-                # eqs. 9-10 do not look at the grid: the same region, entry point and
-                # parameters give the same time (re-plans ask again and again)
-                ukey = (tuple(np.round(comp.centroid, 9)), tuple(np.round(e, 9)),
-                       comp.area_m2, unknown_total, req.t_search_s, req.t_dist_s,
-                       req.speed_m_s, req.t_verify_s, req.clearance_m, req.use_table,
-                       tuple(sorted((k, m.params.model_dump_json())
-                                    for k, m in models.items())),
-                       tuple(sorted(mean_counts.items())))
-                t_u = self.unknown_times.get(ukey)
-                if t_u is None:
-                    t_u = unknown_region_time(verifier, models, mean_counts, comp.centroid,
-                                              e, comp.area_m2, unknown_total,
-                                              req.t_search_s, req.t_dist_s)
-                    if len(self.unknown_times) > 4096:
-                        self.unknown_times.clear()
-                    self.unknown_times[ukey] = t_u
+                t_u = self._unknown_time(req, verifier, comp, entries, unknown_total)
                 share = comp.area_m2 / unknown_total if unknown_total > 0 else 0.0
                 value = req.k_area * comp.area_m2 + share * sum(
                     t.mean_count * t.value for t in req.object_types)  # eq. 17
                 g = PlannedGroup(spec, name, value, t_u, entries, None, comp.area_m2,
                                  comp.centroid)
             (planned if np.isfinite(g.t_obs) and len(g.entries) else skipped).append(g)
-        t3 = time.perf_counter()
+        return planned, skipped
+
+    def _unknown_time(self, req: PlanRequest, verifier: Verifier, comp: UnknownComponent,
+                      entries: np.ndarray, unknown_total: float) -> float:
+        """Eqs. 9-10 for one region from its entry point nearest the centroid; they do not
+        look at the grid, so the same region, entry point and parameters give the same
+        time (re-plans ask again and again): cached."""
+        models = self.models(req)
+        mean_counts = {t.name: t.mean_count for t in req.object_types}
+        e = entries[np.argmin(np.hypot(*(entries - comp.centroid).T))]
+        ukey = (tuple(np.round(comp.centroid, 9)), tuple(np.round(e, 9)),
+                comp.area_m2, unknown_total, req.t_search_s, req.t_dist_s,
+                req.speed_m_s, req.t_verify_s, req.clearance_m, req.use_table,
+                tuple(sorted((k, m.params.model_dump_json()) for k, m in models.items())),
+                tuple(sorted(mean_counts.items())))
+        t_u = self.unknown_times.get(ukey)
+        if t_u is None:
+            t_u = unknown_region_time(verifier, models, mean_counts, comp.centroid, e,
+                                      comp.area_m2, unknown_total, req.t_search_s,
+                                      req.t_dist_s)
+            if len(self.unknown_times) > 4096:
+                self.unknown_times.clear()
+            self.unknown_times[ukey] = t_u
+        return t_u
+
+    def solve(self, req: PlanRequest, grid: PlanningGrid, planned: list[PlannedGroup],
+              ) -> tuple[Solution, Callable[[np.ndarray, np.ndarray], np.ndarray]]:
+        """Step 4 (§6, eq. 11): the ordered subset of groups maximising U = V - L(t) under
+        the request's loss, travel along the grid (geodesic) or straight; exact by DP
+        up to MAX_GROUPS_EXACT groups, by branch and bound beyond (solve_auto). Returns
+        the solution and the travel distance it used."""
         costs = [GroupCost(g.name, g.spec.kind, g.value, g.t_obs, g.entries) for g in planned]
         robot, exit_ = np.asarray(req.robot, float), np.asarray(req.exit, float)
         distance = self.travel(grid) if req.travel == "geodesic" else straight
@@ -438,18 +500,7 @@ class ViewpointPlanner:
             raise InvalidInput(f"{problem.n} groups: the DP solver handles at most "
                                f"{MAX_GROUPS_EXACT}; use solver 'auto' or 'bnb'",
                                field="solver")
-        solution = solve_auto(problem, req.runner_ups, req.time_budget_s, req.solver)
-        plans = solution.plans
-        t4 = time.perf_counter()
-        def steps_of(plan: Plan) -> list[PlanStep]:
-            return plan_steps(plan, planned, cands, verifier, robot, exit_, req.speed_m_s,
-                              distance)
-
-        return PlanReport(planned, plans, skipped, solution,
-                          {"prepare": 1e3 * (t1 - t0), "grouping": 1e3 * (t2 - t1),
-                           "local": 1e3 * (t3 - t2), "global": 1e3 * (t4 - t3),
-                           "total": 1e3 * (t4 - t0)},
-                          self.tables.builds - builds, self.tables.hits - hits, steps_of)
+        return solve_auto(problem, req.runner_ups, req.time_budget_s, req.solver), distance
 
 
 def local_plan(verifier: Verifier, members: list[Candidate]
