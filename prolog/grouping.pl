@@ -99,13 +99,20 @@ replace_viewpoint_scene(World, Candidates, Regions, MinArea) :-
 %   terms) with it; a step naming a group the scene does not have throws
 %   chizu_error(unknown_group(G), "steps[K].group_id").
 replace_viewpoint_scene(World, Candidates, Regions, MinArea0, Steps) :-
-    world_module(World, M),
     checked_list(Candidates, candidate, "candidates", Cs),
     checked_list(Regions, region, "regions", Rs),
     (   real(MinArea0, MinArea), MinArea >= 0.0
     ->  true
     ;   throw(chizu_error(invalid_number(MinArea0), "min_area_m2"))
     ),
+    store_viewpoint_scene(World, Cs, Rs, MinArea, Steps).
+
+%   Candidates and regions already in normal form -- checked one by one, by
+%   checked_list/4 or by the viewpoint_groups operation's field checks (each
+%   is checked once) -- checked across (unique ids, steps naming groups), then
+%   stored with their groups in one transaction.
+store_viewpoint_scene(World, Cs, Rs, MinArea, Steps) :-
+    world_module(World, M),
     maplist(arg(1), Cs, CIds), unique_ids(CIds, duplicate_candidate, candidates),
     maplist(arg(1), Rs, RIds), unique_ids(RIds, duplicate_region, regions),
     scene_groups(Cs, Rs, MinArea, Gs),
@@ -328,7 +335,7 @@ api:run(viewpoint_groups, Args, Reply) :-
     ->  json_list(Ss0, steps), foldl(vp_step_item, Ss0, Ss, 0, _)
     ;   Ss = []
     ),
-    replace_viewpoint_scene(W, Cs, Rs, MinArea, Ss),
+    store_viewpoint_scene(W, Cs, Rs, MinArea, Ss),
     viewpoint_scene_reply(W, Reply).
 
 api:run(viewpoint_scene, Args, Reply) :-

@@ -78,9 +78,15 @@ hex_code(C) :- between(0'a, 0'f, C).
 %   chizu_error(invalid_fact(F)) or chizu_error(inconsistent_facts(Why)) is
 %   thrown and nothing changes.  Numbers are stored as floats.
 replace_slam_facts(World, Facts) :-
-    world_module(World, M),
     (   is_list(Facts) -> true ; throw(chizu_error(invalid_facts(Facts))) ),
     maplist(checked_fact, Facts, Normal),
+    store_slam_facts(World, Normal).
+
+%   Facts already in normal form -- checked one by one, by checked_fact/2 or by
+%   the slam_facts operation's field checks (each fact is checked once) --
+%   checked across (consistent/1), then stored in one transaction.
+store_slam_facts(World, Normal) :-
+    world_module(World, M),
     consistent(Normal),
     transaction(( forall(slam_fact(N/A), ( functor(H, N, A), retractall(M:H) )),
                   forall(member(F, Normal), assertz(M:F)) )).
@@ -249,7 +255,7 @@ api:run(slam_facts, Args, _{world:W, run:Run, poses:NP, regions:NR, closures:NC}
     json_list(Cs0, closures),
     foldl(slam_closure_item(Run), Cs0, Cs, 0, NC),
     append([[committed_map(Run), Info], Ps, Rs, Cs], Facts),
-    replace_slam_facts(W, Facts).
+    store_slam_facts(W, Facts).
 
 api:run(slam_summary, Args, _{run:Run, explored_fraction:F, path_length_m:L, resolution_m:Res,
                          free_m2:Free, occupied_m2:Occ, unknown_m2:Unk, regions:Regions,
