@@ -319,3 +319,20 @@ def test_the_particles_split_over_threads_give_the_same_filter(room: World) -> N
         assert slam.matched == 2 and len(np.unique(slam.x, axis=0)) == 64
         runs.append((slam.x.copy(), slam.logw.copy()))
     assert np.array_equal(runs[0][0], runs[1][0]) and np.array_equal(runs[0][1], runs[1][1])
+
+
+def test_step_reports_what_the_filter_did(loop_log: LaserLog) -> None:
+    """RbpfSlam.step follows §7.3 and says so: the first scan starts the map, scans
+    closer than the update distance are "between", an update reports N_eff (within
+    1..N), whether it resampled (selective: only below N/2) and whether a keyframe was
+    added; the counters agree with the steps."""
+    s = RbpfSlam(RbpfConfig(particles=16, seed=0))
+    steps = [s.step(scan) for scan in loop_log.scans[:400]]
+    assert steps[0].kind == "first" and steps[0].keyframe
+    updates = [st for st in steps if st.kind == "update"]
+    assert 0 < len(updates) < len(steps) - 1 and any(st.kind == "between" for st in steps)
+    assert len(updates) == s.matched
+    assert all(st.ess is not None and 1.0 <= st.ess <= 16.0 + 1e-9 for st in updates)
+    assert sum(st.resampled for st in updates) == s.resamples
+    assert all(st.ess < 8.0 for st in updates if st.resampled)
+    assert 1 + sum(st.keyframe for st in updates) == len(s.keyframes)

@@ -157,6 +157,21 @@ def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.nda
     return np.asarray(np.searchsorted(c, (rng.random() + np.arange(n)) / n), dtype=np.intp)
 
 
+@dataclass(frozen=True)
+class RbpfStep:
+    """What one scan did to the filter (:meth:`RbpfSlam.step`): ``kind`` "first" (the
+    map's first keyframe), "between" (no filter update yet: the scan's pose follows
+    the odometry, or the best particle's map when ``track_scans``) or "update" (§7.3's
+    four steps); for an update, the effective sample size after weighing, whether the
+    particles were resampled and whether a keyframe joined the maps."""
+
+    t: float
+    kind: Literal["first", "between", "update"]
+    ess: float | None = None
+    resampled: bool = False
+    keyframe: bool = False
+
+
 @dataclass
 class RbpfSlam:
     """Feed scans with :meth:`process`; read :meth:`trajectory` and :meth:`map_poses`."""
@@ -194,7 +209,7 @@ class RbpfSlam:
         self._anchor_odom: np.ndarray | None = None
         self._last_kf_odom: np.ndarray | None = None
 
-    # -- the four steps of §7.3 ---------------------------------------------------------
+    # -- the four steps of §7.3 (driven by step) -------------------------------------------
     def predict(self, u: np.ndarray, scale: float = 1.0) -> None:
         """Eq. 7."""
         w = self.rng.normal(size=self.x.shape) * (scale * self.config.motion.sigmas(u))
@@ -334,12 +349,21 @@ class RbpfSlam:
             np.asarray(imp.start_headings_rad, dtype=float), imp.start_margin,
             imp.match_prior, np.asarray(imp.start_shifts_m, dtype=float)))
 
-    def resample_if_needed(self) -> np.ndarray | None:
+    def effective_sample_size(self) -> float:
+        """N_eff = 1 / Σ w² of the normalised weights."""
         w = np.exp(self.logw - self.logw.max())
         w /= w.sum()
-        ess = 1.0 / float(np.sum(w * w))
-        if self.config.resample == "ess" and ess >= self.config.ess_threshold * len(w):
+        return 1.0 / float(np.sum(w * w))
+
+    def maybe_resample(self, ess: float) -> np.ndarray | None:
+        """Step 3: systematic resampling, every update (the paper) or only when
+        ``ess`` < ``ess_threshold`` x N (Grisetti et al.'s selective resampling);
+        returns the drawn indices, or None. Maps follow their particles through the
+        lineage matrix: nothing is copied."""
+        if self.config.resample == "ess" and ess >= self.config.ess_threshold * len(self.x):
             return None
+        w = np.exp(self.logw - self.logw.max())
+        w /= w.sum()
         idx = systematic_resample(w, self.rng)
         self.x = self.x[idx]
         self.loglik = self.loglik[idx]
@@ -361,51 +385,96 @@ class RbpfSlam:
         self._n_kf += 1
 
     # -- driver -------------------------------------------------------------------------
-    def process(self, scan: Scan) -> None:
+    def process(self, scan: Scan) -> RbpfStep:
+        """:meth:`step` (the name every estimator shares)."""
+        return self.step(scan)
+
+    def step(self, scan: Scan) -> RbpfStep:
+        """One scan through §7.3: the first starts the map; between two updates (less
+        than the update distance or turn of odometry) the scan's pose is refined but
+        the particles stay; else predict and weigh (eqs. 7-9, or the improved
+        proposal), maybe resample, update the maps."""
         xy, inten = scan.points()
         self.times.append(scan.t)
         if self._anchor_odom is None:
-            self.x[:] = scan.odom
-            self._anchor_odom = scan.odom.copy()
-            self._last_kf_odom = scan.odom.copy()
-            self._store_step(None)
-            self._scan_delta.append(np.zeros(3))
-            self.add_keyframe(0, xy, inten)
-            return
-        cfg = self.config
-        improved = cfg.proposal == "improved"
-        lin, ang = ((cfg.update_linear_m, cfg.update_angular_rad) if improved
-                    else (cfg.map.update_linear_m, cfg.map.update_angular_rad))
+            self._first(scan, xy, inten)
+            return RbpfStep(scan.t, "first", keyframe=True)
         u = relative(self._anchor_odom, scan.odom)
+        lin, ang = self._update_distances()
         if not moved(self._anchor_odom, scan.odom, lin, ang) or len(xy) < 8:
-            self._scan_step.append(len(self._hist_pose) - 1)
-            if improved and cfg.track_scans and len(xy) >= 8:
-                pick = self._beams(xy, improved)
-                u = self.track(u, xy[pick], None if inten is None else inten[pick])
-            self._scan_delta.append(u)
-            return
-        pick = self._beams(xy, improved)
-        if improved:
-            ll = self.improved_step(u, xy[pick], None if inten is None else inten[pick])
-        else:
-            um = self.matched_increment(u, xy, inten) if cfg.proposal == "gated-icp" else None
-            if um is None:
-                self.predict(u)
-            else:
-                self.predict(um, cfg.proposal_noise_scale)
-            ll = self.likelihood(xy[pick], None if inten is None else inten[pick])
+            self._between(u, xy, inten)
+            return RbpfStep(scan.t, "between")
+        ll = self.predict_and_weigh(u, xy, inten)
         self.logw += ll
         self.loglik += ll
-        idx = self.resample_if_needed()
+        ess = self.effective_sample_size()
+        idx = self.maybe_resample(ess)
+        keyframe = self.update_maps(scan, xy, inten, idx)
+        return RbpfStep(scan.t, "update", ess, idx is not None, keyframe)
+
+    def _first(self, scan: Scan, xy: np.ndarray, inten: np.ndarray | None) -> None:
+        self.x[:] = scan.odom
+        self._anchor_odom = scan.odom.copy()
+        self._last_kf_odom = scan.odom.copy()
+        self._store_step(None)
+        self._scan_delta.append(np.zeros(3))
+        self.add_keyframe(0, xy, inten)
+
+    def _update_distances(self) -> tuple[float, float]:
+        """Travel and turn between filter updates: the improved proposal's own
+        (GMapping's linearUpdate / angularUpdate), else the paper's keyframe ones."""
+        cfg = self.config
+        if cfg.proposal == "improved":
+            return cfg.update_linear_m, cfg.update_angular_rad
+        return cfg.map.update_linear_m, cfg.map.update_angular_rad
+
+    def _between(self, u: np.ndarray, xy: np.ndarray, inten: np.ndarray | None) -> None:
+        """A scan between two updates: its pose is the last update's best particle (+)
+        ``u`` (the odometry since), or (+) the increment :meth:`track` matches."""
+        cfg = self.config
+        self._scan_step.append(len(self._hist_pose) - 1)
+        if cfg.proposal == "improved" and cfg.track_scans and len(xy) >= 8:
+            pick = self._beams(xy, True)
+            u = self.track(u, xy[pick], None if inten is None else inten[pick])
+        self._scan_delta.append(u)
+
+    def predict_and_weigh(self, u: np.ndarray, xy: np.ndarray,
+                          inten: np.ndarray | None) -> np.ndarray:
+        """Steps 1-2: move the particles by the proposal and return their log weight
+        increments -- the improved proposal's η (:meth:`improved_step`), or eq. 7's
+        prediction (on the odometry, or on the gated Intensity-ICP increment) weighed by
+        eqs. 8-9 (:meth:`likelihood`)."""
+        cfg = self.config
+        improved = cfg.proposal == "improved"
+        pick = self._beams(xy, improved)
+        xs, its = xy[pick], None if inten is None else inten[pick]
+        if improved:
+            return self.improved_step(u, xs, its)
+        um = self.matched_increment(u, xy, inten) if cfg.proposal == "gated-icp" else None
+        if um is None:
+            self.predict(u)
+        else:
+            self.predict(um, cfg.proposal_noise_scale)
+        return self.likelihood(xs, its)
+
+    def update_maps(self, scan: Scan, xy: np.ndarray, inten: np.ndarray | None,
+                    idx: np.ndarray | None) -> bool:
+        """Step 4: record the update in the trajectory tree and, once the robot has moved
+        ``keyframe_linear_m`` / ``keyframe_angular_rad`` since the last keyframe, add
+        the scan as a keyframe every particle places at its own pose. Returns whether
+        one was added."""
+        cfg = self.config
         self.matched += 1
         self._store_step(idx)
         self._scan_delta.append(np.zeros(3))
         self._anchor_odom = scan.odom.copy()
         assert self._last_kf_odom is not None
-        if moved(self._last_kf_odom, scan.odom, cfg.map.keyframe_linear_m,
-                 cfg.map.keyframe_angular_rad):
-            self.add_keyframe(len(self.times) - 1, xy, inten)
-            self._last_kf_odom = scan.odom.copy()
+        if not moved(self._last_kf_odom, scan.odom, cfg.map.keyframe_linear_m,
+                     cfg.map.keyframe_angular_rad):
+            return False
+        self.add_keyframe(len(self.times) - 1, xy, inten)
+        self._last_kf_odom = scan.odom.copy()
+        return True
 
     def _beams(self, xy: np.ndarray, improved: bool) -> np.ndarray:
         """The ``beams`` a match uses, evenly picked; with the improved proposal among
