@@ -145,4 +145,4 @@ run(clear_facts, Args, _{world:W, domain:D}) :-
     ;   throw(chizu_error(unknown_domain(DT), domain))
     ),
     world_module(W, M),
-    transaction(forall(domain_fact(D, N/A), ( functor(H, N, A), retractall(M:H) ))).
+    transaction(clear_domain(M, D)).

@@ -23,8 +23,12 @@
                                          position (X, Y) m, RMax > 0 m (X, Y
                                          and RMax at most 1e15 in magnitude,
                                          so distances cannot overflow)
-      vp_unknown(Id, X, Y, AreaM2)       unknown region Id (integer >= 0),
-                                         centroid (X, Y) m, area >= 0 m2
+      unknown_region(scene, Id, X, Y, AreaM2)
+                                         unknown region Id (integer >= 0) of
+                                         the plan's grid, centroid (X, Y) m,
+                                         area >= 0 m2 (world.pl: the one
+                                         unknown-region fact, a SLAM map's
+                                         regions keyed by its run)
       vp_group(G, Kind, Members)         derived group G (integer >= 0);
                                          Kind = objects: Members is the sorted
                                          list of its candidates; Kind =
@@ -72,7 +76,6 @@ grouping_fact(PI) :- domain_fact(viewpoint, PI).
 
 :- multifile world:domain_fact/2.
 world:domain_fact(viewpoint, vp_candidate/5).
-world:domain_fact(viewpoint, vp_unknown/4).
 world:domain_fact(viewpoint, vp_group/3).
 world:domain_fact(viewpoint, vp_min_area/1).
 world:domain_fact(viewpoint, vp_plan_step/9).
@@ -80,7 +83,7 @@ world:domain_fact(viewpoint, vp_plan_step/9).
 %!  replace_viewpoint_scene(+World, +Candidates, +Regions, +MinAreaM2) is det.
 %
 %   Replaces every vp_* fact of World, in a transaction, by the candidates
-%   (a list of vp_candidate/5 terms), the regions (a list of vp_unknown/4
+%   (a list of vp_candidate/5 terms), the regions (a list of unknown_region(scene, ...)
 %   terms), the observation groups derived from them (vp_group/3) and
 %   vp_min_area(MinAreaM2).  The api checks the input field by field; this
 %   checks it again (a bad term throws chizu_error(invalid_fact(F)), a list
@@ -114,7 +117,7 @@ replace_viewpoint_scene(World, Candidates, Regions, MinArea0, Steps) :-
 store_viewpoint_scene(World, Cs, Rs, MinArea, Steps) :-
     world_module(World, M),
     maplist(arg(1), Cs, CIds), unique_ids(CIds, duplicate_candidate, candidates),
-    maplist(arg(1), Rs, RIds), unique_ids(RIds, duplicate_region, regions),
+    maplist(arg(2), Rs, RIds), unique_ids(RIds, duplicate_region, regions),
     scene_groups(Cs, Rs, MinArea, Gs),
     forall(member(vp_plan_step(K, G, _, _, _, _, _, _, _), Steps),
            (   memberchk(vp_group(G, _, _), Gs)
@@ -122,7 +125,7 @@ store_viewpoint_scene(World, Cs, Rs, MinArea, Steps) :-
            ;   format(string(F), "steps[~d].group_id", [K]),
                throw(chizu_error(unknown_group(G), F))
            )),
-    transaction(( forall(grouping_fact(N/A), ( functor(H, N, A), retractall(M:H) )),
+    transaction(( clear_domain(M, viewpoint),
                   forall(member(F, Cs), assertz(M:F)),
                   forall(member(F, Rs), assertz(M:F)),
                   forall(member(F, Gs), assertz(M:F)),
@@ -149,7 +152,7 @@ normal_fact(candidate, vp_candidate(Id, T, X0, Y0, R0), vp_candidate(Id, T, X, Y
     atom(Id), valid_id(Id),
     string(T), string_length(T, L), L >= 1, L =< 64,
     bounded(X0, X), bounded(Y0, Y), bounded(R0, R), R > 0.0.
-normal_fact(region, vp_unknown(Id, X0, Y0, A0), vp_unknown(Id, X, Y, A)) :-
+normal_fact(region, unknown_region(scene, Id, X0, Y0, A0), unknown_region(scene, Id, X, Y, A)) :-
     integer(Id), Id >= 0,
     real(X0, X), real(Y0, Y), real(A0, A), A >= 0.0.
 
@@ -180,7 +183,7 @@ unique_id(Kind, List, Id, S0-I, S-I1) :-
 %   The vp_group/3 facts of a (checked) scene, numbered as described above.
 scene_groups(Cs, Rs, MinArea, Groups) :-
     object_components(Cs, Comps),
-    findall(R, ( member(vp_unknown(R, _, _, A), Rs), A >= MinArea ), Big0),
+    findall(R, ( member(unknown_region(scene, R, _, _, A), Rs), A >= MinArea ), Big0),
     sort(Big0, Big),
     foldl(object_group, Comps, OGs, 0, N),
     foldl(unknown_group, Big, UGs, N, _),
@@ -308,7 +311,7 @@ candidate_group(World, C, G) :-
 unknown_group_area(World, G, Area) :-
     world_module(World, M),
     M:vp_group(G, unknown, [R]),
-    M:vp_unknown(R, _, _, Area).
+    M:unknown_region(scene, R, _, _, Area).
 
 
 		 /*******************************
@@ -361,7 +364,7 @@ vp_candidate_item(D, vp_candidate(Id, Type, X, Y, R), I, I1) :-
     (   R > 0 -> true ; throw(chizu_error(invalid_number(R0), FR)) ).
 
 %   One unknown region {id, x, y, area_m2}.
-vp_region_item(D, vp_unknown(Id, X, Y, A), I, I1) :-
+vp_region_item(D, unknown_region(scene, Id, X, Y, A), I, I1) :-
     I1 is I + 1,
     field("regions[~d]", [I], F),
     (   is_dict(D) -> true ; throw(chizu_error(invalid_region, F)) ),

@@ -70,7 +70,8 @@ error_is(E, Type, Field) :- E.type == Type, E.field == Field.
 
 scene_facts(W, Fs) :-
     world_module(W, M),
-    findall(F, ( grouping_fact(N/A), functor(F, N, A), M:F ), Fs).
+    findall(F, ( (   grouping_fact(N/A), functor(F, N, A)
+                 ;   F = unknown_region(scene, _, _, _, _) ), M:F ), Fs).
 
 groups(W, Gs) :- findall(G-K-Ms, observation_group(W, G, K, Ms), Gs).
 
@@ -120,7 +121,7 @@ test(area_threshold, [nondet, cleanup(drop_world(g4))]) :-
     fixture("g4"),
     findall(G-A, unknown_group_area(g4, G, A), GAs), GAs == [3-2.0, 4-0.5],
     \+ observation_group(g4, _, unknown, [1]),
-    world_module(g4, M), M:vp_unknown(1, 5.0, 5.0, 0.3), M:vp_min_area(0.5).
+    world_module(g4, M), M:unknown_region(scene, 1, 5.0, 5.0, 0.3), M:vp_min_area(0.5).
 test(custom_min_area, [nondet, cleanup(drop_world(g5))]) :-
     fixture("g5"),
     scene_args("g5", A0),
@@ -170,10 +171,10 @@ test(large_rmax_reaches_far, [nondet, cleanup(drop_world(g8))]) :-
     Gs2 == Gs.
 test(stores_floats, [nondet, cleanup(drop_world(g9))]) :-
     create_world(g9),
-    replace_viewpoint_scene(g9, [vp_candidate(a, "mug", 1, 2, 3)], [vp_unknown(4, 5, 6, 7)], 1),
+    replace_viewpoint_scene(g9, [vp_candidate(a, "mug", 1, 2, 3)], [unknown_region(scene, 4, 5, 6, 7)], 1),
     world_module(g9, M),
     M:vp_candidate(a, T, X, Y, R), T == "mug", X == 1.0, Y == 2.0, R == 3.0,
-    M:vp_unknown(4, RX, RY, RA), RX == 5.0, RY == 6.0, RA == 7.0,
+    M:unknown_region(scene, 4, RX, RY, RA), RX == 5.0, RY == 6.0, RA == 7.0,
     M:vp_min_area(A), A == 1.0.
 test(empty_scene, [nondet, cleanup(drop_world(g10))]) :-
     fixture("g10"),
@@ -210,7 +211,7 @@ test(replace_drops_previous_scene, [nondet, cleanup(drop_world(g11))]) :-
     R.result.groups =@= [_{id:0, kind:"objects", members:["n1"]},
                         _{id:1, kind:"unknown", members:[9], area_m2:4.0}],
     world_module(g11, M),
-    \+ M:vp_candidate(c1, _, _, _, _), \+ M:vp_unknown(0, _, _, _),
+    \+ M:vp_candidate(c1, _, _, _, _), \+ M:unknown_region(scene, 0, _, _, _),
     \+ observation_group(g11, 2, _, _), \+ joinable(g11, _, _),
     aggregate_all(count, M:vp_group(_, _, _), 2),
     aggregate_all(count, M:vp_min_area(_), 1).
@@ -222,7 +223,7 @@ test(module_duplicates_and_bad_terms, [nondet, cleanup(drop_world(g12))]) :-
     catch(( replace_viewpoint_scene(g12, [vp_candidate(a, "t", 0, 0, 1), vp_candidate(b, "t", 0, 0, 1),
                                           vp_candidate(a, "t", 1, 1, 1)], [], 0), fail ),
           chizu_error(duplicate_candidate(a), "candidates[2].id"), true),
-    catch(( replace_viewpoint_scene(g12, [], [vp_unknown(3, 0, 0, 1), vp_unknown(3, 0, 0, 1)], 0), fail ),
+    catch(( replace_viewpoint_scene(g12, [], [unknown_region(scene, 3, 0, 0, 1), unknown_region(scene, 3, 0, 0, 1)], 0), fail ),
           chizu_error(duplicate_region(3), "regions[1].id"), true),
     forall(member(Cs-Rs-A, [ [vp_candidate(a, t, 0, 0, 1)]-[]-0,
                              [vp_candidate('A', "t", 0, 0, 1)]-[]-0,
@@ -231,8 +232,8 @@ test(module_duplicates_and_bad_terms, [nondet, cleanup(drop_world(g12))]) :-
                              [vp_candidate(a, "t", 1.0e16, 0, 1)]-[]-0,
                              [vp_candidate(a, "", 0, 0, 1)]-[]-0,
                              [_]-[]-0,
-                             []-[vp_unknown(-1, 0, 0, 1)]-0,
-                             []-[vp_unknown(1, 0, 0, -1)]-0,
+                             []-[unknown_region(scene, -1, 0, 0, 1)]-0,
+                             []-[unknown_region(scene, 1, 0, 0, -1)]-0,
                              []-[vp_candidate(a, "t", 0, 0, 1)]-0,
                              []-[]-(-1),
                              []-[]-inf,
@@ -246,7 +247,7 @@ test(worlds_do_not_share, [nondet, cleanup((drop_world(g13), drop_world(g14)))])
     \+ observation_group(g14, _, _, _), \+ joinable(g14, _, _),
     observation_group(g13, 0, objects, _).
 test(fact_kinds_registered, [true(Ks == [vp_candidate/5, vp_group/3, vp_min_area/1,
-                                         vp_plan_step/9, vp_unknown/4])]) :-
+                                         vp_plan_step/9])]) :-
     findall(K, grouping_fact(K), Ks0), msort(Ks0, Ks),
     forall(member(K, Ks), world_fact(K)).
 
@@ -342,7 +343,7 @@ test(scene_reads_stored_groups, [nondet, cleanup(drop_world(g21))]) :-
 test(facts_op_lists_them, [nondet, cleanup(drop_world(g22))]) :-
     fixture("g22"), call_api(facts, _{world:"g22"}, R),
     memberchk("vp_candidate(c3,\"mug\",3.2,0.0,1.0)", R.result),
-    memberchk("vp_unknown(1,5.0,5.0,0.3)", R.result),
+    memberchk("unknown_region(scene,1,5.0,5.0,0.3)", R.result),
     memberchk("vp_group(0,objects,[c1,c2,c3])", R.result),
     memberchk("vp_group(4,unknown,[2])", R.result),
     memberchk("vp_min_area(0.5)", R.result).
@@ -364,7 +365,7 @@ test(query_whitelist, [nondet, cleanup(drop_world(g23))]) :-
     world_query(g23, "candidate_group(c5, G)", 10, [S4], false), S4.'G' == 2,
     world_query(g23, "unknown_group_area(G, A), A < 1", 10, [S5], false),
     S5.'G' == 4, S5.'A' =:= 0.5,
-    world_query(g23, "vp_candidate(c3, T, X, _, _), vp_unknown(1, _, _, A)", 10, [S6], false),
+    world_query(g23, "vp_candidate(c3, T, X, _, _), unknown_region(scene, 1, _, _, A)", 10, [S6], false),
     S6.'T' == "mug", S6.'X' =:= 3.2, S6.'A' =:= 0.3,
     world_query(g23, "\\+ same_group(c4, c5)", 10, [_], false),
     catch(( world_query(g23, "replace_viewpoint_scene(g23, [], [], 0)", 5, _, _), fail ),

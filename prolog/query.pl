@@ -11,12 +11,13 @@
         eig_point/3, eig_triplet/4, eig_candidate_set/2, stop_outcome/3,
         next_state/3, state_after/2, covers/3, triplet_distance/4
       - the SLAM map facts and rules (slam.pl), world filled in:
-        map_pose/5, map_info/5, unknown_region/5, committed_map/1,
+        map_pose/5, map_info/5, unknown_region/5 (a SLAM run's regions, or
+        the viewpoint scene's: Map = scene), committed_map/1,
         loop_closure/4, explored_fraction/1, unknown_region_within/5,
         largest_unknown_region/2, map_path_length/1, loop_closure_count/1,
         closes_loop/2
       - the viewpoint-planning scene and its observation groups
-        (grouping.pl), world filled in: vp_candidate/5, vp_unknown/4,
+        (grouping.pl), world filled in: vp_candidate/5,
         observation_group/3, same_group/2, joinable/2, candidate_group/2,
         unknown_group_area/2, plan_step/4 (the last plan's steps)
       - comparison: =, \=, ==, \==, and <, >, =<, >=, =:= on numbers or
@@ -124,7 +125,6 @@ relation_goal(W, loop_closure_count(N), slam:loop_closure_count(W, N)).
 relation_goal(W, closes_loop(A, B), slam:closes_loop(W, A, B)).
 relation_goal(W, vp_candidate(Id, T, X, Y, R), M:vp_candidate(Id, T, X, Y, R)) :-
     world_module(W, M).
-relation_goal(W, vp_unknown(Id, X, Y, A), M:vp_unknown(Id, X, Y, A)) :- world_module(W, M).
 relation_goal(W, observation_group(G, K, Ms), grouping:observation_group(W, G, K, Ms)).
 relation_goal(W, same_group(A, B), grouping:same_group(W, A, B)).
 relation_goal(W, joinable(A, B), grouping:joinable(W, A, B)).

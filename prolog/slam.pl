@@ -49,11 +49,11 @@
 %
 %   The world facts this module reads (declared per world in world.pl).
 slam_fact(PI) :- domain_fact(slam, PI).
+slam_fact(unknown_region/5).        % its runs' regions (world.pl)
 
 :- multifile world:domain_fact/2.
 world:domain_fact(slam, map_pose/5).
 world:domain_fact(slam, map_info/5).
-world:domain_fact(slam, unknown_region/5).
 world:domain_fact(slam, committed_map/1).
 world:domain_fact(slam, loop_closure/4).
 
@@ -88,7 +88,7 @@ replace_slam_facts(World, Facts) :-
 store_slam_facts(World, Normal) :-
     world_module(World, M),
     consistent(Normal),
-    transaction(( forall(slam_fact(N/A), ( functor(H, N, A), retractall(M:H) )),
+    transaction(( clear_domain(M, slam),
                   forall(member(F, Normal), assertz(M:F)) )).
 
 checked_fact(F, _) :-

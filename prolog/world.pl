@@ -14,7 +14,8 @@
             world_exists/1,         % ?World
             clear_world/1,          % +World
             world_fact/1,           % ?Name/Arity
-            domain_fact/2           % ?Domain, ?Name/Arity
+            domain_fact/2,          % ?Domain, ?Name/Arity
+            clear_domain/2          % +Module, +Domain
           ]).
 
 %!  domain_fact(?Domain, ?PI) is nondet.
@@ -29,6 +30,26 @@
 domain_fact(world, landmark/1).             % landmark(Id)
 domain_fact(world, rule_probability/2).     % per-world override of a rule's P(head|body)
 domain_fact(world, parameter/2).            % per-world override of a named parameter
+%   unknown_region(Map, Id, X, Y, AreaM2): an enclosed unknown region (centroid
+%   (X, Y) m, area m²) of a map: Map is a SLAM run (the committed map; slam.pl
+%   writes those) or `scene` (the grid of the last viewpoint plan; grouping.pl
+%   writes those).  The one unknown-region fact; region_owner/2 says whose.
+domain_fact(map, unknown_region/5).
+
+%!  region_owner(?Domain, +Map) is semidet.
+%
+%   Domain writes the unknown regions of Map.
+region_owner(viewpoint, Map) :- Map == scene.
+region_owner(slam, Map) :- Map \== scene.
+
+%!  clear_domain(+Module, +Domain) is det.
+%
+%   Retracts Domain's facts from the world module Module: its own predicates
+%   and the unknown regions of its maps.  Call it inside a transaction.
+clear_domain(M, D) :-
+    forall(domain_fact(D, N/A), ( functor(H, N, A), retractall(M:H) )),
+    forall(( M:unknown_region(Map, _, _, _, _), region_owner(D, Map) ),
+           retractall(M:unknown_region(Map, _, _, _, _))).
 
 %!  derived_fact(?PI) is nondet.
 %

@@ -38,9 +38,9 @@ def plan_body() -> dict[str, Any]:
 
 
 def kinds(facts: list[str]) -> dict[str, int]:
-    return {k: sum(f.startswith(k + "(") for f in facts)
+    return {k: sum(f.startswith(k if k.endswith("scene") else k + "(") for f in facts)
             for k in ("eig_triplet", "map_pose", "loop_closure", "committed_map", "vp_group",
-                      "vp_plan_step")}
+                      "vp_plan_step", "unknown_region(scene")}
 
 
 def make_all_artifacts(c: TestClient, world: str) -> dict[str, int]:
@@ -57,6 +57,7 @@ def make_all_artifacts(c: TestClient, world: str) -> dict[str, int]:
     got = kinds(c.get(f"/worlds/{world}/facts").json())
     assert got["eig_triplet"] > 0 and got["map_pose"] > 0 and got["committed_map"] == 1
     assert got["vp_group"] == 2 and got["vp_plan_step"] >= 1  # the object and the region
+    assert got["unknown_region(scene"] == 1  # the plan grid's region, beside the map's
     return got
 
 
