@@ -65,3 +65,27 @@ def test_the_check_sees_a_back_edge(tmp_path: Path, monkeypatch: pytest.MonkeyPa
     (fake / "shared.py").write_text("def f():\n    from numeric.slam.x import y\n")
     monkeypatch.setattr(__import__(__name__, fromlist=["ROOT"]), "ROOT", tmp_path)
     assert back_edges(fake) == ["numeric/shared.py -> numeric.slam.x"]
+
+
+def test_the_openapi_documents_every_answer() -> None:
+    """Every operation's success answer has a schema (a model, a typed list, or the
+    media type of an image or text answer): no bare ``object``."""
+    from service.app import create_app
+
+    spec = create_app().openapi()
+    generic = ({}, {"type": "object"}, {"type": "object", "additionalProperties": True})
+    bare = []
+    for path, ops in spec["paths"].items():
+        for method, op in ops.items():
+            ok = False
+            for code, resp in op["responses"].items():
+                if not code.startswith("2"):
+                    continue
+                ok = ok or code == "204"
+                for media, content in resp.get("content", {}).items():
+                    schema = {k: v for k, v in content.get("schema", {}).items()
+                              if k != "title"}
+                    ok = ok or media != "application/json" or schema not in generic
+            if not ok:
+                bare.append(f"{method.upper()} {path}")
+    assert bare == []
