@@ -50,7 +50,7 @@ world_query(World, Text, Max, Solutions, Truncated) :-
           ( syntax_message(E, Msg), throw(chizu_error(syntax_error(Msg), goal)) )),
     safe(World, Goal0, Goal),
     Limit is Max + 1,
-    findall(VNs, limit(Limit, Goal), All0),
+    catch(findall(VNs, limit(Limit, Goal), All0), error(E, _), goal_error(E)),
     length(All0, N),
     (   N > Max -> Truncated = true, length(All, Max), append(All, _, All0)
     ;   Truncated = false, All = All0
@@ -58,6 +58,14 @@ world_query(World, Text, Max, Solutions, Truncated) :-
     maplist(bindings_dict, All, Solutions).
 world_query(_, _, _, _, _) :-
     throw(chizu_error(invalid_goal, goal)).
+
+%   An error the client's goal raised (an unbound argument to a comparison, a
+%   type error) is the client's: chizu_error(goal_error(E), goal), a 422.
+%   Limits (time, inferences) and resource errors pass on as they are.
+goal_error(E) :-
+    (   E = resource_error(_) -> throw(error(E, _)) ; true ),
+    format(string(Msg), "~q", [E]),
+    throw(chizu_error(goal_error(Msg), goal)).
 
 syntax_message(error(syntax_error(What), _), Msg) :- !, format(string(Msg), "~w", [What]).
 syntax_message(E, Msg) :- format(string(Msg), "~q", [E]).
@@ -67,7 +75,9 @@ bindings_dict(VNs, Dict) :-
     dict_pairs(Dict, _, Pairs).
 
 json_value(V, null) :- var(V), !.
-json_value(V, V) :- number(V), !.
+json_value(V, V) :- integer(V), !.
+json_value(V, V) :- float(V), float_class(V, C), memberchk(C, [zero, subnormal, normal]), !.
+json_value(V, S) :- float(V), !, format(string(S), "~w", [V]).  % inf, nan: not JSON numbers
 json_value(V, S) :- atom(V), !, atom_string(V, S).
 json_value(V, V) :- string(V), !.
 json_value(V, L) :- is_list(V), !, maplist(json_value, V, L).

@@ -65,7 +65,7 @@ def open_services(settings: Settings | None = None,
     store = Store(settings.db_path)
     try:
         kb = KnowledgeBase(settings.prolog_dir, settings.kb_time_limit_s,
-                           settings.kb_inference_limit)
+                           settings.kb_inference_limit, settings.kb_query_time_limit_s)
     except BaseException:
         store.close()
         raise

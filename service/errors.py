@@ -31,7 +31,8 @@ KB_STATUS = {
 
 def problem(status: int, title: str, detail: str, instance: str | None = None,
             field: str | None = None, errors: list[dict[str, Any]] | None = None,
-            type_: str | None = None) -> JSONResponse:
+            type_: str | None = None, headers: dict[str, str] | None = None
+            ) -> JSONResponse:
     body: dict[str, Any] = {
         "type": f"/problems/{type_ or title.lower().replace(' ', '-')}",
         "title": title, "status": status, "detail": detail,
@@ -42,7 +43,7 @@ def problem(status: int, title: str, detail: str, instance: str | None = None,
         body["field"] = field
     if errors:
         body["errors"] = errors
-    return JSONResponse(body, status_code=status, media_type=PROBLEM)
+    return JSONResponse(body, status_code=status, media_type=PROBLEM, headers=headers)
 
 
 def _loc(loc: tuple[Any, ...]) -> str:
@@ -71,7 +72,9 @@ def install(app: FastAPI) -> None:
     async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         title = {404: "Not found", 405: "Method not allowed", 413: "Payload too large"}.get(
             exc.status_code, "HTTP error")
-        return problem(exc.status_code, title, str(exc.detail), instance=request.url.path)
+        # keep the exception's headers: a 405 names the allowed methods (Allow)
+        return problem(exc.status_code, title, str(exc.detail), instance=request.url.path,
+                       headers=getattr(exc, "headers", None))
 
     @app.exception_handler(ChizuError)
     async def _chizu(request: Request, exc: ChizuError) -> JSONResponse:
@@ -116,6 +119,31 @@ class BodySizeLimit:
         declared = headers.get(b"content-length")
         if declared is not None and (not declared.isdigit() or int(declared) > limit):
             await self._reject(scope, send, limit)
+            return
+        if declared is None and scope.get("method") in ("POST", "PUT", "PATCH"):
+            # a chunked body has no declared length: read it here, up to the limit, so
+            # that an oversized one is a 413 (the body parser would call it a 400)
+            body = bytearray()
+            while True:
+                msg = await receive()
+                if msg["type"] != "http.request":
+                    return  # the client went away
+                body += msg.get("body", b"")
+                if len(body) > limit:
+                    await self._reject(scope, send, limit)
+                    return
+                if not msg.get("more_body", False):
+                    break
+            sent = False
+
+            async def replay() -> dict[str, Any]:
+                nonlocal sent
+                if not sent:
+                    sent = True
+                    return {"type": "http.request", "body": bytes(body), "more_body": False}
+                return dict(await receive())
+
+            await self.app(scope, replay, send)
             return
         seen = 0
 

@@ -47,10 +47,14 @@ class KnowledgeBase:
     """Owns the SWI-Prolog engine on one thread; thread-safe and asyncio-friendly."""
 
     def __init__(self, prolog_dir: Path, time_limit_s: float = 10.0,
-                 inference_limit: int = 200_000_000) -> None:
+                 inference_limit: int = 200_000_000,
+                 query_time_limit_s: float | None = None) -> None:
         self.prolog_dir = Path(prolog_dir).resolve()
         self.time_limit_s = time_limit_s
         self.inference_limit = inference_limit
+        #: a client's own goals (the query op) get this shorter limit: the engine is
+        #: one thread, and a legal goal run to the end of its limit holds every caller
+        self.query_time_limit_s = min(time_limit_s, query_time_limit_s or time_limit_s)
         self._jobs: queue.Queue[Any] = queue.Queue()
         self._ready: Future[None] = Future()
         self._thread = threading.Thread(target=self._run, name="chizu-prolog", daemon=True)
@@ -150,7 +154,8 @@ class KnowledgeBase:
 
     # -- callers -------------------------------------------------------------------
     def _request(self, op: str, args: dict[str, Any]) -> bytes:
-        return json.dumps({"op": op, "args": args, "time_limit_s": self.time_limit_s,
+        limit = self.query_time_limit_s if op == "query" else self.time_limit_s
+        return json.dumps({"op": op, "args": args, "time_limit_s": limit,
                            "inference_limit": self.inference_limit},
                           allow_nan=False).encode("utf-8")
 

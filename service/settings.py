@@ -21,6 +21,8 @@ class Settings(BaseSettings):
     demo_world: str | None = Field("demo", description="built-in world created at start-up")
     kb_time_limit_s: float = Field(10.0, gt=0)
     kb_inference_limit: int = Field(200_000_000, gt=0)
+    kb_query_time_limit_s: float = Field(2.0, gt=0, description="time limit of a client's "
+                                         "own Prolog goals (POST /query)")
     max_body_bytes: int = Field(8 * 1024 * 1024, gt=0)
     max_upload_bytes: int = Field(256 * 1024 * 1024, gt=0,
                                   description="bodies of image-set uploads")
