@@ -14,8 +14,8 @@ from numeric.geometry import compose, relative
 from numeric.laser import Laser, LaserConfig, record_log
 from numeric.scan import LaserLog, Scan
 from numeric.simulator import OdometryConfig, follow_path, odometry_along
-from numeric.slam.keyframes import moved
-from numeric.slam.proposal import gaussian_fit
+from numeric.slam.keyframes import FieldConfig, Keyframe, LikelihoodField, moved
+from numeric.slam.proposal import FieldPack, count_inliers, gaussian_fit, loop_search
 from numeric.slam.rbpf import MotionNoise, RbpfConfig, RbpfSlam
 from numeric.world import World
 from numeric.worlds import from_template
@@ -336,3 +336,26 @@ def test_step_reports_what_the_filter_did(loop_log: LaserLog) -> None:
     assert sum(st.resampled for st in updates) == s.resamples
     assert all(st.ess < 8.0 for st in updates if st.resampled)
     assert 1 + sum(st.keyframe for st in updates) == len(s.keyframes)
+
+
+def test_the_loop_search_finds_a_place_beyond_the_matchers_reach(room: World) -> None:
+    """The loop-aware start (:meth:`RbpfSlam._loop_start`): a scan 0.7 m and 0.05 rad off
+    its keyframe's place -- beyond the likelihood field's 0.3 m cutoff, where the scan
+    matcher alone stays -- is found by the correlative grid and its refinement, with
+    most beams within 5 cm of the keyframe there and few at the offset start."""
+    p0 = np.array([4.0, 3.0, 0.3])
+    scan = Laser(room, LASER).scan(0.0, p0, p0, np.random.default_rng(3))
+    xy, _ = scan.points()
+    field = LikelihoodField(Keyframe(0, xy, None), FieldConfig(), None)
+    fp = FieldPack.of([field], False)
+    kf = p0.reshape(1, 1, 3)
+    beams = xy[np.linspace(0, len(xy) - 1, 90).astype(int)]
+    li = np.zeros(len(beams))
+    maps = (beams, li, 0.0, fp.grid, fp.inten, fp.meta, fp.origins, fp.inv_res)
+    start = p0 + np.array([0.6, -0.35, 0.05])
+    assert count_inliers(start, *maps, kf, 0.05**2) < 30
+    poses, inl, eig = loop_search(start, *maps, kf, 0.09, 0.04, 0.05**2, 200.0, 12, 1.0,
+                                  0.1, 0.1, 0.025, 6, 0.3)
+    r = int(np.argmax(inl))
+    assert np.hypot(*(poses[r, :2] - p0[:2])) < 0.05 and abs(poses[r, 2] - p0[2]) < 0.01
+    assert inl[r] >= 0.8 * len(beams) and eig[r] > 5.0

@@ -25,6 +25,10 @@ pose drawn from a Gaussian fitted to ``p(z|m,x) p(x|x_{t-1},u)`` around the matc
 among the returns within ``map.max_points_m`` (the reach of the keyframes). The scans in
 between refine the odometry but do not touch the particles: each is matched against
 the best particle's map for its own pose (:meth:`RbpfSlam.track`, ``track_scans``).
+When the best particle's reference holds old keyframes (a loop), each update also
+searches the scan against them alone, and a clearly better, well-constrained alignment
+beyond the matcher's reach becomes every particle's start and motion prior
+(:meth:`RbpfSlam._loop_start`, ``improved.loop_search``).
 ``proposal="odometry"`` is the paper's method unchanged (bit for bit).
 
 Maps are never copied: the keyframe scans are shared and each particle's map is its
@@ -49,7 +53,9 @@ from numeric.slam.keyframes import FieldCache, FieldConfig, Keyframes, MapConfig
 from numeric.slam.proposal import (
     FieldPack,
     ImprovedConfig,
+    count_inliers,
     loglik_all,
+    loop_search,
     propose_all,
     robust_increment,
 )
@@ -182,6 +188,9 @@ class RbpfSlam:
     matched: int = 0
     resamples: int = 0
     improved_failures: int = 0  # particle updates that fell back to the motion model
+    #: accepted loop starts (:meth:`_loop_start`): time, shift (m), beams explained by
+    #: the old keyframes at the current estimate and at the alternative
+    loop_starts: list[tuple[float, float, int, int]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         cfg = self.config
@@ -208,6 +217,8 @@ class RbpfSlam:
         self.times: list[float] = []
         self._anchor_odom: np.ndarray | None = None
         self._last_kf_odom: np.ndarray | None = None
+        self._loop_streak = 0  # consecutive updates whose loop search agreed
+        self._loop_shift = np.zeros(3)  # ... on this correction (world frame)
 
     # -- the four steps of §7.3 (driven by step) -------------------------------------------
     def predict(self, u: np.ndarray, scale: float = 1.0) -> None:
@@ -283,6 +294,10 @@ class RbpfSlam:
         u_start = u
         if len(imp.start_headings_rad) > 1:
             u_start = self._robust_start(u, maps, kf_pose[:, best:best + 1])
+        if imp.loop_search:
+            u_loop = self._loop_start(u_start, chosen, maps, kf_pose[:, best:best + 1])
+            if u_loop is not None:  # the loop's increment replaces the odometry's
+                u = u_start = u_loop
         xs, kfs = self.x[first], kf_pose[:, first]
 
         def propose(ix: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -313,6 +328,72 @@ class RbpfSlam:
         self.x = new
         self.improved_failures += int(fb.sum())
         return np.asarray(imp.weight_gain * inc)
+
+    def _loop_start(self, u_start: np.ndarray, chosen: np.ndarray, maps: ScanMaps,
+                    kf_best: np.ndarray) -> np.ndarray | None:
+        """A loop-closing increment for every particle, or None.
+
+        The improved proposal (Grisetti et al. 2007, §IV) only refines a pose inside the
+        matcher's basin: after a long loop the place seen before can be farther off than
+        the likelihood field's cutoff, and then no particle is pulled back (the paper
+        relies on enough particles having drifted the right way). When the best
+        particle's reference holds old keyframes (not among the recent ones), the scan is
+        searched for against them alone (:func:`loop_search`, a correlative grid around
+        the current estimate ``x_best (+) u_start``, refined by the scan matcher). The
+        best alternative is taken only on strong evidence: it explains at least
+        ``loop_min_fraction`` of the beams within ``loop_inlier_m`` of the old map,
+        ``loop_min_gain`` more than the current estimate and ``loop_ambiguity`` more
+        than any other mode, its position is well constrained (``loop_min_eig``) and
+        ``loop_persistence`` consecutive updates agree. Every particle then starts at, and
+        is drawn around (the motion prior centred on), its pose (+) the returned
+        increment: the shift is common, so the relative weights hold, and the residual
+        being the minimum over the keyframes, the old ones explain the scan there."""
+        cfg, imp = self.config, self.config.improved
+        old = np.flatnonzero(chosen < self._n_kf - cfg.map.recent_keyframes)
+        xy, li, alpha = maps[0], maps[1], maps[2]
+        n_b = len(xy)
+        if len(old) < imp.loop_min_old:
+            self._loop_streak = 0
+            return None
+        fp = FieldPack.of([self.fields.get(int(chosen[i])) for i in old], alpha > 0)
+        kf_old = np.ascontiguousarray(kf_best[old])
+        fields = (fp.grid, fp.inten, fp.meta, fp.origins, fp.inv_res)
+        x0 = self.x[self.best]
+        cur = compose(x0, u_start)
+        in2 = imp.loop_inlier_m ** 2
+        n_cur = int(count_inliers(cur, xy, li, alpha, *fields, kf_old, in2))
+        if n_cur + imp.loop_min_gain * n_b > n_b:  # cannot gain enough
+            self._loop_streak = 0
+            return None
+        cut = min(imp.cutoff_m, cfg.field.cutoff_m)
+        poses, inl, eig = loop_search(
+            cur, xy, li, alpha, *fields, kf_old, cut * cut, imp.loop_coarse_cutoff_m ** 2,
+            in2, 1.0 / (2.0 * imp.sigma_m ** 2), imp.max_iterations, imp.loop_radius_m,
+            imp.loop_step_m, imp.loop_angle_rad, imp.loop_angle_step_rad, imp.loop_refine,
+            imp.loop_min_sep_m)
+        r = int(np.argmax(inl))
+        alt = poses[r]
+        apart = np.hypot(poses[:, 0] - alt[0], poses[:, 1] - alt[1]) >= imp.loop_min_sep_m
+        second = int(inl[apart].max()) if np.any(apart) else 0
+        shift = np.array([alt[0] - cur[0], alt[1] - cur[1], wrap_angle(alt[2] - cur[2])])
+        good = (inl[r] >= imp.loop_min_fraction * n_b
+                and inl[r] - n_cur >= imp.loop_min_gain * n_b
+                and inl[r] - second >= imp.loop_ambiguity * n_b
+                and eig[r] >= imp.loop_min_eig
+                and np.hypot(shift[0], shift[1]) >= imp.loop_min_shift_m)
+        if not good:
+            self._loop_streak = 0
+            return None
+        agree = (self._loop_streak > 0
+                 and np.hypot(*(shift[:2] - self._loop_shift[:2])) < imp.loop_min_sep_m)
+        self._loop_streak = self._loop_streak + 1 if agree else 1
+        self._loop_shift = shift
+        if self._loop_streak < imp.loop_persistence:
+            return None
+        self._loop_streak = 0
+        self.loop_starts.append((self.times[-1], float(np.hypot(shift[0], shift[1])), n_cur,
+                                 int(inl[r])))
+        return np.asarray(relative(x0, alt))
 
     def _best_map(self, u: np.ndarray, inten: np.ndarray | None,
                   ) -> tuple[np.ndarray, FieldPack, float]:
