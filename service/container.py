@@ -73,7 +73,8 @@ def open_services(settings: Settings | None = None,
         worlds = WorldService(store, kb)
         jobs = Jobs(store)
         services = Services(settings, store, kb, worlds, jobs,
-                            EigenspaceService(store, kb, worlds, jobs, executor),
+                            EigenspaceService(store, kb, worlds, jobs, executor,
+                                              settings.max_learning_pixels),
                             SlamService(store, kb, worlds), ViewpointService(store, kb, worlds))
         counts = worlds.restore_all()
         runs = services.slam.restore_runs()

@@ -27,6 +27,7 @@ from numeric.eigenspace.analysis import (
     EigenspaceConfig,
     Progress,
     analyse_images,
+    learning_pixels,
 )
 from numeric.eigenspace.image_sets import ImageSet
 from numeric.eigenspace.learning_strategy import learn_with_strategy
@@ -91,8 +92,11 @@ def check_source(config: EigenspaceConfig, from_images: bool) -> None:
 
 class EigenspaceService:
     def __init__(self, store: Store, kb: KnowledgeBase, worlds: WorldService, jobs: Jobs,
-                 executor: Executor | None = None) -> None:
+                 executor: Executor | None = None,
+                 max_learning_pixels: int = 200_000_000) -> None:
         self.store, self.kb, self.worlds, self.jobs = store, kb, worlds, jobs
+        #: a learning job renders at most this many pixels (the paper's room: 5 M)
+        self.max_learning_pixels = max_learning_pixels
         self.executor = executor  # for the Monte Carlo strategy; None = in-process
         self._analyses: dict[str, EigenspaceAnalysis] = {}
         self._session_lock = asyncio.Lock()
@@ -120,8 +124,18 @@ class EigenspaceService:
                        images: ImageSet | None = None) -> dict[str, Any]:
         """A durable learning job (:mod:`service.jobs`): in the simulator, or from a
         camera's ``images``; its result is the analysis summary."""
-        self.worlds.require(world)
+        w = self.worlds.model(world)
         check_source(config, images is not None)
+        try:
+            n = 0 if images is not None else learning_pixels(w, config)
+        except InvalidInput:  # a world the learning cannot use: the job says why
+            n = 0
+        if n > self.max_learning_pixels:
+            raise InvalidInput(
+                f"this learning would render up to {n:,} pixels (grid points and additions "
+                f"x learning.n_directions x camera pixels x supersample²); at most "
+                f"{self.max_learning_pixels:,}: a coarser learning.spacing_m, fewer "
+                "directions or smaller images", field="learning.spacing_m")
 
         async def work(progress: JobProgress) -> dict[str, Any]:
             a = await self.learn(world, config, images, progress)

@@ -24,6 +24,8 @@ class Settings(BaseSettings):
     kb_query_time_limit_s: float = Field(2.0, gt=0, description="time limit of a client's "
                                          "own Prolog goals (POST /query)")
     max_body_bytes: int = Field(8 * 1024 * 1024, gt=0)
+    max_learning_pixels: int = Field(200_000_000, gt=0, description="pixels an eigenspace "
+                                     "learning job may render (the paper's room: 5 M)")
     max_upload_bytes: int = Field(256 * 1024 * 1024, gt=0,
                                   description="bodies of image-set uploads")
 

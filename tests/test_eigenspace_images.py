@@ -272,11 +272,14 @@ def test_rest_upload_errors_name_the_file(client: TestClient, exported: Any,
     assert r.status_code == 422 and r.json()["field"] == "archive"  # neither way
     # nothing was learned by the failed uploads
     assert client.get("/worlds/cam_bad/eigenspace").status_code == 404
-    # a learned world refuses a turn of the wrong size, naming the field
+    # a learned world refuses a turn of the wrong size from the first file's header
     turn = [("images", (f"{j}.png", encode_png(np.zeros((10, 10))), "image/png"))
             for j in range(72)]
     r = client.post("/worlds/cam_a/localize/images", files=turn)
-    assert r.status_code == 422 and r.json()["field"] == "images", r.text
+    assert r.status_code == 422 and r.json()["field"] == "images[0]", r.text
+    h, w = client.get("/worlds/cam_a/eigenspace").json()["image_shape"]
+    turn = [("images", (f"{j}.png", encode_png(np.zeros((h, w))), "image/png"))
+            for j in range(72)]
     turn[3] = ("images", ("3.png", b"junk", "image/png"))
     r = client.post("/worlds/cam_a/localize/images", files=turn)
     assert r.status_code == 422 and r.json()["field"] == "images[3]", r.text

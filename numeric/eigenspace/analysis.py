@@ -383,6 +383,20 @@ def fit_entry(model: EigenspaceModel, triplets: Triplets, c_a: float,
                            config.entry.max_distance_m)
 
 
+def learning_pixels(world: World, config: EigenspaceConfig) -> int:
+    """An upper bound of the pixels a simulator learning renders, known before any
+    work: the grid's points (before those near walls are dropped) plus §4.2's
+    additions, times N_theta images of W x H pixels, each supersampled."""
+    lo, hi = world.bounds
+    lc = config.learning
+    span = np.maximum(hi - lo - 2 * lc.margin_m, 0.0)
+    points = int(np.prod(np.floor(span / lc.spacing_m) + 1))
+    if config.learning_strategy is not None:
+        points += config.learning_strategy.max_additions
+    cam = config.camera
+    return points * lc.n_directions * cam.width_px * cam.height_px * cam.supersample**2
+
+
 def analyse(world: World, config: EigenspaceConfig, points: np.ndarray | None = None,
             progress: Progress | None = None) -> EigenspaceAnalysis:
     """Learn and analyse ``world`` in the simulator (§2.1-§3.3).  ``points`` defaults

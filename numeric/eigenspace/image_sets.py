@@ -78,10 +78,14 @@ def parse_size(text: str | None) -> tuple[int, int] | None:
 
 
 def decode_image(name: str, data: bytes, size: tuple[int, int] | None = None,
-                 formats: tuple[str, ...] = FORMATS) -> np.ndarray:
+                 formats: tuple[str, ...] = FORMATS,
+                 expect: tuple[int, int] | None = None) -> np.ndarray:
     """A grey image ``(H, W)`` in [0, 1] from the bytes of a file in one of ``formats``
     (PNG or JPEG), resized to ``size`` (width, height) when given; the file's size is
-    checked from its header before any pixel is decoded. Errors name the file."""
+    checked from its header before any pixel is decoded: at most MAX_FILE_SIDE_PX a
+    side, and exactly ``expect`` (width, height) when given without ``size`` (an
+    eigenspace's own image size: a larger image is refused unread). Errors name the
+    file."""
     try:
         with Image.open(io.BytesIO(data)) as im:
             if im.format not in formats:
@@ -91,6 +95,9 @@ def decode_image(name: str, data: bytes, size: tuple[int, int] | None = None,
             if max(w, h) > MAX_FILE_SIDE_PX:
                 raise InvalidInput(f"{name}: {w} x {h} px; at most {MAX_FILE_SIDE_PX} px a "
                                    "side", field=name)
+            if expect is not None and size is None and (w, h) != tuple(expect):
+                raise InvalidInput(f"{name}: {w} x {h} px; this eigenspace's images are "
+                                   f"{expect[0]} x {expect[1]} px", field=name)
             deep = im.mode in ("I;16", "I;16B", "I;16L", "I")  # 16-bit grey PNG
             grey = im if deep else im.convert("L")
             if size is not None and (w, h) != tuple(size):

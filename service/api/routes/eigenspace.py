@@ -41,8 +41,9 @@ from service.schemas.jobs import JobOut
 router = APIRouter(prefix="/worlds/{world}", tags=["eigenspace localization"])
 
 
-def decode_turn(body: TurnIn) -> np.ndarray:
-    """Images ``(n, H, W)`` from nested lists or base64 PNG; 4xx naming the field."""
+def decode_turn(body: TurnIn, shape: tuple[int, int] | None = None) -> np.ndarray:
+    """Images ``(n, H, W)`` from nested lists or base64 PNG; 4xx naming the field. A
+    PNG whose header is not ``shape`` (H, W) is refused before it is decoded."""
     if body.images is not None:
         shapes = {(len(im), len(im[0])) for im in body.images}
         for i, im in enumerate(body.images):
@@ -59,7 +60,8 @@ def decode_turn(body: TurnIn) -> np.ndarray:
             raw = base64.b64decode(s, validate=True)
         except (binascii.Error, ValueError) as e:
             raise InvalidInput(f"not base64: {e}", field=f"images_png[{i}]") from e
-        out.append(decode_image(f"images_png[{i}]", raw, formats=("PNG",)))
+        out.append(decode_image(f"images_png[{i}]", raw, formats=("PNG",),
+                                expect=None if shape is None else (shape[1], shape[0])))
     return stack_turn(out, "images_png")
 
 
@@ -183,7 +185,9 @@ async def get_covering(world: WorldDep, eig: EigenspaceDep,
 @router.post("/localize", response_model=LocalizationOut)
 async def post_localize(world: WorldDep, body: TurnIn, eig: EigenspaceDep) -> dict[str, Any]:
     """One full turn of images -> state (X / Y / Z), pose when Z, candidates."""
-    return await eig.localize(world, decode_turn(body))
+    shape = eig.analysis(world).model.image_shape  # 404 before decoding anything
+    turn = await asyncio.to_thread(decode_turn, body, shape)  # off the event loop
+    return await eig.localize(world, turn)
 
 
 @router.post("/localize/images", response_model=LocalizationOut)
@@ -195,12 +199,12 @@ async def post_localize_images(
         size: Annotated[str | None, Form(description="resize to WIDTHxHEIGHT px")] = None
         ) -> dict[str, Any]:
     """``/localize`` for image files (multipart upload), e.g. straight from a camera."""
-    eig.analysis(world)  # 404 before decoding anything
+    h, w = eig.analysis(world).model.image_shape  # 404 before decoding anything
     wh = parse_size(size)
     files = await read_uploads(images, "images")
 
     def decode() -> np.ndarray:
-        return stack_turn([decode_image(f"images[{i}]", data, wh)
+        return stack_turn([decode_image(f"images[{i}]", data, wh, expect=(w, h))
                            for i, (_, data) in enumerate(files)], "images")
 
     return await eig.localize(world, await asyncio.to_thread(decode))
@@ -227,7 +231,9 @@ async def post_stop(world: WorldDep, sid: str, body: StopIn,
     """One stop: a full turn of images plus the odometry since the previous stop."""
     motion = None if body.odometry is None else np.array(
         [body.odometry.dx, body.odometry.dy, body.odometry.dtheta])
-    return await eig.add_stop(world, sid, decode_turn(body), motion)
+    shape = eig.analysis(world).model.image_shape  # 404 before decoding anything
+    turn = await asyncio.to_thread(decode_turn, body, shape)  # off the event loop
+    return await eig.add_stop(world, sid, turn, motion)
 
 
 @router.get("/localization-sessions/{sid}/next-move", response_model=NextMoveOut)
@@ -241,7 +247,11 @@ async def post_camera(world: WorldDep, body: CameraIn, eig: EigenspaceDep) -> di
     """Render the simulated camera at a pose (one image, or a full turn): base64 PNG by
     default, nested lists with ``"format": "list"``."""
     pose = np.array([body.pose.x, body.pose.y, body.pose.theta])
-    imgs = eig.render(world, pose, body.camera, body.turn)
-    if body.format == "png":
-        return {"images_png": [png_b64(i) for i in imgs]}
-    return {"images": np.round(imgs, 4).tolist()}
+
+    def render() -> dict[str, Any]:  # rendering and encoding: off the event loop
+        imgs = eig.render(world, pose, body.camera, body.turn)
+        if body.format == "png":
+            return {"images_png": [png_b64(i) for i in imgs]}
+        return {"images": np.round(imgs, 4).tolist()}
+
+    return await asyncio.to_thread(render)
