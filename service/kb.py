@@ -157,7 +157,9 @@ class KnowledgeBase:
         limit = self.query_time_limit_s if op == "query" else self.time_limit_s
         return json.dumps({"op": op, "args": args, "time_limit_s": limit,
                            "inference_limit": self.inference_limit},
-                          allow_nan=False).encode("utf-8")
+                          # UTF-8 as it is: Prolog's JSON reader takes the \ud83d\ude00
+                          # escape of a character outside the BMP for two code points
+                          allow_nan=False, ensure_ascii=False).encode("utf-8")
 
     def submit(self, op: str, **args: Any) -> Future[str]:
         """Queue one operation; the future yields the raw JSON reply."""
