@@ -39,6 +39,7 @@ bench: install
 	$(PY) tests/bench/slam.py
 	$(PY) tests/bench/slam_stream.py
 	$(PY) tests/bench/viewpoint.py
+	$(PY) tests/bench/restart.py
 
 lint: install
 	$(VENV)/bin/ruff check numeric service tests

@@ -133,6 +133,36 @@ run(facts, Args, Facts) :-
                  format(string(S), "~k", [H]) ),
             Facts).
 
+%   {world}: the qualitative facts the world's events made (domain
+%   qualitative: rec, frec, lr, align, rea), as Prolog text -- a snapshot the
+%   service stores so that a restart need not replay every event.
+run(snapshot, Args, Facts) :-
+    existing_world(Args, W), world_module(W, M),
+    findall(S, ( domain_fact(qualitative, N/A),
+                 functor(H, N, A), M:H,
+                 format(string(S), "~k", [H]) ),
+            Facts).
+
+%   {world, facts: [Text]}: asserts a snapshot's facts (as the snapshot op wrote
+%   them) into the world, in a transaction.  Each text is read as data, with no
+%   variables, and only qualitative fact shapes with ground arguments are
+%   asserted; anything else throws chizu_error(not_a_fact(Text), "facts[I]").
+run(load_snapshot, Args, _{world:W, facts:N}) :-
+    existing_world(Args, W), world_module(W, M),
+    arg_(facts, Args, Texts), json_list(Texts, facts),
+    foldl(snapshot_fact, Texts, Facts, 0, N),
+    transaction(forall(member(F, Facts), assertz(M:F))).
+
+snapshot_fact(Text, F, I, I1) :-
+    I1 is I + 1,
+    field("facts[~d]", [I], Field),
+    (   string(Text),
+        catch(term_string(F, Text, [variable_names([])]), _, fail),
+        ground(F), functor(F, N, A), domain_fact(qualitative, N/A)
+    ->  true
+    ;   throw(chizu_error(not_a_fact(Text), Field))
+    ).
+
 %   {world, domain: "slam" | "eigenspace" | "viewpoint"}: removes every fact
 %   of that domain from the world, in a transaction.  The service's rollback
 %   when a world's first artifact of a kind fails to be stored: nothing was

@@ -53,6 +53,12 @@ CREATE TABLE IF NOT EXISTS slam_scans (
     scan        TEXT NOT NULL,
     PRIMARY KEY (run, seq)
 );
+CREATE TABLE IF NOT EXISTS snapshots (
+    world       TEXT PRIMARY KEY REFERENCES worlds(name) ON DELETE CASCADE,
+    event_id    INTEGER NOT NULL,
+    facts       TEXT NOT NULL,
+    created_at  REAL NOT NULL
+);
 CREATE TABLE IF NOT EXISTS jobs (
     id          TEXT PRIMARY KEY,
     world       TEXT NOT NULL REFERENCES worlds(name) ON DELETE CASCADE,
@@ -140,17 +146,34 @@ class Store:
 
     @staticmethod
     def append_event(conn: sqlite3.Connection, world: str, kind: str,
-                     payload: dict[str, Any]) -> None:
-        conn.execute("INSERT INTO events (world, kind, payload, created_at) VALUES (?, ?, ?, ?)",
-                     (world, kind, json.dumps(payload, allow_nan=False), time.time()))
+                     payload: dict[str, Any]) -> int:
+        """Append one event; returns its id."""
+        cur = conn.execute("INSERT INTO events (world, kind, payload, created_at) "
+                           "VALUES (?, ?, ?, ?)",
+                           (world, kind, json.dumps(payload, allow_nan=False), time.time()))
+        return int(cur.lastrowid or 0)
 
-    def events(self, world: str) -> list[Event]:
+    def events(self, world: str, after: int = 0) -> list[Event]:
+        """The world's events in order, those with an id above ``after`` only."""
         with self._lock:
             rows = self._conn.execute(
-                "SELECT id, world, kind, payload FROM events WHERE world = ? ORDER BY id",
-                (world,),
+                "SELECT id, world, kind, payload FROM events WHERE world = ? AND id > ? "
+                "ORDER BY id", (world, after),
             ).fetchall()
         return [Event(r[0], r[1], r[2], json.loads(r[3])) for r in rows]
+
+    # -- snapshots: a world's event-made facts, so start-up replays only what follows ----
+    @staticmethod
+    def put_snapshot(conn: sqlite3.Connection, world: str, event_id: int,
+                     facts: list[str]) -> None:
+        conn.execute("INSERT OR REPLACE INTO snapshots (world, event_id, facts, created_at) "
+                     "VALUES (?, ?, ?, ?)", (world, event_id, json.dumps(facts), time.time()))
+
+    def snapshot(self, world: str) -> tuple[int, list[str]] | None:
+        with self._lock:
+            row = self._conn.execute("SELECT event_id, facts FROM snapshots WHERE world = ?",
+                                     (world,)).fetchone()
+        return None if row is None else (int(row[0]), list(json.loads(row[1])))
 
     def event_count(self, world: str) -> int:
         with self._lock:

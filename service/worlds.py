@@ -93,7 +93,12 @@ class ArtifactWrite:
 #: parameters that were renamed: worlds stored with the old name keep working
 RENAMED_PARAMETERS = {"vp_unknown_min_area_m2": "unknown_region_min_area_m2"}
 
+#: a world's event-made facts are snapshotted every this many events: start-up loads
+#: the snapshot and replays only the events after it, so its time stays flat
+SNAPSHOT_EVERY = 200
+
 _READ_ONLY = frozenset({"worlds", "landmarks", "relations", "drm", "facts", "params",
+                        "snapshot",
                         "engine", "query", "eigenspace_transition",
                         "eigenspace_covering", "slam_summary", "slam_regions_near",
                         "viewpoint_scene"})
@@ -111,6 +116,7 @@ class WorldService:
         self.on_delete: list[Callable[[str], None]] = []
         #: the artifact kinds whose facts a world's knowledge base holds (register)
         self.artifacts: dict[str, ArtifactKind] = {}
+        self._since_snapshot: dict[str, int] = {}  # events appended since the snapshot
 
     def register(self, kind: ArtifactKind) -> None:
         """Declare an artifact kind: :meth:`restore_all` re-asserts it and
@@ -135,9 +141,16 @@ class WorldService:
         """(Re)build one world from the store; returns the artifact kinds it had."""
         self._changed(desc.name)
         self.kb.call("create_world", **self.create_call(desc))
-        for ev in self.store.events(desc.name):
+        snap = self.store.snapshot(desc.name)
+        after = 0
+        if snap is not None:  # the facts of every event up to snap's, then the rest
+            after, facts = snap
+            self.kb.call("load_snapshot", world=desc.name, facts=facts)
+        events = self.store.events(desc.name, after)
+        for ev in events:
             op, args = self.event_call(desc.name, ev.kind, ev.payload)
             self.kb.call(op, **args)
+        self._since_snapshot[desc.name] = len(events)
         restored = []
         for kind in self.artifacts.values():
             blob = self.store.artifact(desc.name, kind.name)
@@ -263,12 +276,26 @@ class WorldService:
             result = await self._kb(op, args)
             try:
                 with self.store.transaction() as conn:
-                    self.store.append_event(conn, world, kind, payload)
+                    event_id = self.store.append_event(conn, world, kind, payload)
             except BaseException:
                 log.exception("store write failed; rebuilding %s from the store", world)
                 self._load_into_kb(self.model(world).description)
                 raise
+            n = self._since_snapshot[world] = self._since_snapshot.get(world, 0) + 1
+            if n >= SNAPSHOT_EVERY:
+                await self._snapshot(world, event_id)
             return result
+
+    async def _snapshot(self, world: str, event_id: int) -> None:
+        """Store the world's event-made facts as of event ``event_id`` (the caller holds
+        the writers' lock). A failure only costs the next start-up a longer replay."""
+        try:
+            facts = await self._kb("snapshot", {"world": world})
+            with self.store.transaction() as conn:
+                self.store.put_snapshot(conn, world, event_id, list(facts))
+            self._since_snapshot[world] = 0
+        except Exception:  # noqa: BLE001 - the events are stored; replay still works
+            log.exception("snapshot of %s failed", world)
 
     async def observe(self, world: str, obs: Observation) -> Any:
         return await self._append(world, "observation", obs.model_dump(mode="json"))

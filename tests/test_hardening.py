@@ -157,3 +157,55 @@ def test_text_outside_the_bmp_round_trips(client: TestClient) -> None:
     assert r.status_code == 200, r.text
     assert r.json()["solutions"] == [{"T": kind}]
     assert any(kind in f for f in client.get("/worlds/emoji/facts").json())
+
+
+def test_start_up_loads_a_snapshot_instead_of_replaying(tmp_path: Path) -> None:
+    """Every SNAPSHOT_EVERY events a world's event-made facts are stored; a restart
+    loads them and replays only the events after. The relations are the same as
+    before the restart and as a full replay from the events alone."""
+    import sqlite3
+
+    from service.app import create_app
+    from service.settings import Settings
+    from service.worlds import SNAPSHOT_EVERY
+    from tests.conftest import make_fig1_world, observation
+
+    settings = Settings(data_dir=tmp_path, demo_world="")
+    kinds = ("lr", "align", "rec", "rea", "reachable")
+    with TestClient(create_app(settings)) as c:
+        make_fig1_world(c, "snap")
+        for i in range(SNAPSHOT_EVERY + 30):
+            at, seen = (("b", ["a", "c"]), ("d", ["a", "c"]))[i % 2]
+            r = c.post("/worlds/snap/observations", json=observation(at, seen, heading=0.01 * i))
+            assert r.status_code == 201, r.text
+        assert c.post("/worlds/snap/reached", json={"from": "c", "to": "b"}).status_code == 201
+        before = {k: c.get("/worlds/snap/relations", params={"kind": k}).json() for k in kinds}
+    db = sqlite3.connect(settings.db_path)
+    (snapped,) = db.execute("SELECT event_id FROM snapshots WHERE world = 'snap'").fetchone()
+    (last,) = db.execute("SELECT max(id) FROM events WHERE world = 'snap'").fetchone()
+    assert 0 < snapped < last  # a snapshot, and events after it to replay
+    with TestClient(create_app(settings)) as c:
+        after = {k: c.get("/worlds/snap/relations", params={"kind": k}).json() for k in kinds}
+    assert after == before
+    db.execute("DELETE FROM snapshots")
+    db.commit()
+    db.close()
+    with TestClient(create_app(settings)) as c:  # the events alone give the same
+        replayed = {k: c.get("/worlds/snap/relations", params={"kind": k}).json()
+                    for k in kinds}
+    assert replayed == before
+
+
+def test_a_snapshot_is_read_as_data(client: TestClient) -> None:
+    """load_snapshot asserts only ground qualitative facts: a goal, a variable or a
+    fact of another kind is refused naming it."""
+    kb = client.app.state.services.kb  # type: ignore[attr-defined]
+    from service.kb import KbError
+
+    for bad in ("halt", "lr(a, X, c)", "landmark(z)", "lr(a, b", "map_pose(r1, 0, 0, 0, 0)"):
+        try:
+            kb.call("load_snapshot", world="demo", facts=["rec(c0, c1)", bad])
+        except KbError as e:
+            assert e.field == "facts[1]", e
+        else:
+            raise AssertionError(f"{bad!r} was loaded")
