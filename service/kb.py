@@ -55,6 +55,7 @@ class KnowledgeBase:
         #: a client's own goals (the query op) get this shorter limit: the engine is
         #: one thread, and a legal goal run to the end of its limit holds every caller
         self.query_time_limit_s = min(time_limit_s, query_time_limit_s or time_limit_s)
+        self.prolog_thread_id = 0  #: the engine's Prolog thread id, once it has said
         self._jobs: queue.Queue[Any] = queue.Queue()
         self._ready: Future[None] = Future()
         self._thread = threading.Thread(target=self._run, name="chizu-prolog", daemon=True)

@@ -209,3 +209,25 @@ def test_a_snapshot_is_read_as_data(client: TestClient) -> None:
             assert e.field == "facts[1]", e
         else:
             raise AssertionError(f"{bad!r} was loaded")
+
+
+def test_health_answers_while_a_query_holds_the_engine(client: TestClient) -> None:
+    """A legal goal run to its time limit held the one engine, and /health waited 9.5 s
+    behind it. Now /health probes the engine for 20 ms and says it is busy."""
+    import threading
+    import time
+
+    assert client.get("/health").json()["engine_busy"] is False
+    slow = ("reachable(A, B, P, M), reachable(C, D, Q, N), reachable(E, F, R, O), fail")
+    done: list[int] = []
+    t = threading.Thread(target=lambda: done.append(client.post(
+        "/worlds/demo/query", json={"goal": slow}).status_code))
+    t.start()
+    time.sleep(0.3)  # the query is running
+    t0 = time.perf_counter()
+    h = client.get("/health")
+    waited = time.perf_counter() - t0
+    t.join()
+    assert h.status_code == 200 and h.json()["engine_busy"] is True, h.text
+    assert waited < 0.5, waited  # the goal ran for its whole 2 s limit
+    assert done == [422]  # the slow goal: over its time limit, the client's problem

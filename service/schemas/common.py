@@ -11,7 +11,10 @@ class Health(BaseModel):
     status: Literal["ok"]
     worlds: int
     engine_thread_alive: bool
-    prolog_thread: int = Field(description="Prolog thread id that answered")
+    engine_busy: bool = Field(description="the engine did not answer the probe at once: "
+                              "a request holds it (up to its time limit)")
+    prolog_thread: int = Field(description="Prolog thread id of the engine (0 until it "
+                               "has answered a probe)")
     python_thread: int = Field(description="ident of the Python thread owning the engine")
 
 

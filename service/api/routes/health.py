@@ -1,3 +1,5 @@
+import asyncio
+
 from fastapi import APIRouter
 
 from service.deps import KbDep, WorldsDep
@@ -5,11 +7,25 @@ from service.schemas.common import Health
 
 router = APIRouter(tags=["health"])
 
+#: how long /health waits for the engine to answer before it reports it busy: the
+#: engine is one thread, and a legal request may hold it up to its time limit
+ENGINE_PROBE_S = 0.02
+
 
 @router.get("/health", response_model=Health)
 async def health(worlds: WorldsDep, kb: KbDep) -> Health:
-    engine = await kb.acall("engine")  # the engine answers, from its one thread
+    """Liveness without waiting in line: the engine thread is alive, and it answers
+    within ENGINE_PROBE_S or is reported busy (a request is running; the probe is
+    dropped, not queued behind it)."""
+    try:
+        # until the engine has answered once, wait for it: its thread id is not known yet
+        engine = await asyncio.wait_for(kb.acall("engine"),
+                                        ENGINE_PROBE_S if kb.prolog_thread_id else None)
+        kb.prolog_thread_id = int(engine["thread"])
+        busy = False
+    except TimeoutError:
+        busy = True
     return Health(status="ok", worlds=len(worlds.names()),
-                  engine_thread_alive=kb.engine_thread.is_alive(),
-                  prolog_thread=int(engine["thread"]),
+                  engine_thread_alive=kb.engine_thread.is_alive(), engine_busy=busy,
+                  prolog_thread=kb.prolog_thread_id,
                   python_thread=kb.engine_thread.ident or 0)
