@@ -93,7 +93,8 @@ class GridIn(BaseModel):
     height: int = Field(ge=1, le=4000)
     resolution_m: float = Field(gt=0.005, le=5.0, allow_inf_nan=False)
     origin: tuple[FiniteFloat, FiniteFloat] = (0.0, 0.0)
-    data: list[int] = Field(max_length=MAX_CELLS)
+    data: list[Annotated[int, Field(ge=-1, le=100, strict=True)]] = Field(
+        max_length=MAX_CELLS, description="-1 unknown, 0..100 occupancy; JSON integers")
 
     def to_grid(self) -> PlanningGrid:
         return from_occupancy_values(self.width, self.height, self.resolution_m, self.origin,

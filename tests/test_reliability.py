@@ -1,0 +1,86 @@
+"""A seeded bad-input table per endpoint: NaN and Infinity as raw JSON text, an empty
+body, the wrong shape, a string for a number, a huge body, text Prolog cannot take.
+Each is a 4xx problem+json naming the field (413 for the huge one), and the service
+answers /health afterwards."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+
+from tests.conftest import make_fig1_world, observation
+from tests.test_api_slam import scan_json
+from tests.test_service_container import plan_body
+
+PROBLEM = "application/problem+json"
+
+
+@pytest.fixture(scope="module")
+def endpoints(client: TestClient) -> list[tuple[str, dict[str, Any], list[str | int]]]:
+    """(path, a valid body, the path to one of its numbers) per POST endpoint."""
+    make_fig1_world(client, "rel_fig")
+    assert client.post("/worlds", json={"name": "rel_room", "template": "room_a"}
+                       ).status_code == 201
+    rid = client.post("/worlds/rel_room/slam-runs", json={"method": "gated"}).json()["id"]
+    return [
+        ("/worlds", {"name": "rel_new", "landmarks": [{"id": "a", "x": 0.0, "y": 0.0}]},
+         ["landmarks", 0, "x"]),
+        ("/worlds/rel_fig/observations", observation("a", ["b", "d"]),
+         ["seen", 0, "bearing_rad"]),
+        ("/worlds/rel_fig/query", {"goal": "landmark(L)", "max_solutions": 5},
+         ["max_solutions"]),
+        ("/worlds/rel_room/camera", {"pose": {"x": 3.0, "y": 5.0}, "turn": 2}, ["pose", "x"]),
+        ("/worlds/rel_room/slam-runs", {"method": "gated", "sigma_z": 0.001}, ["sigma_z"]),
+        (f"/worlds/rel_room/slam-runs/{rid}/scans", {"scans": [scan_json(0)]},
+         ["scans", 0, "t"]),
+        ("/worlds/rel_room/viewpoint-plan", plan_body(), ["time_limit_s"]),
+    ]
+
+
+def with_value(body: dict[str, Any], path: list[str | int], raw: str) -> bytes:
+    """``body`` as JSON text with the number at ``path`` replaced by the raw text."""
+    marker = "__MARK__"
+    b = json.loads(json.dumps(body))
+    node = b
+    for k in path[:-1]:
+        node = node[k]
+    node[path[-1]] = marker
+    return json.dumps(b).replace(f'"{marker}"', raw).encode()
+
+
+CASES = ["nan", "inf", "-inf", "string", "empty", "array", "null_body", "huge"]
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_bad_input_table(client: TestClient, endpoints: Any, case: str) -> None:
+    for path, body, num in endpoints:
+        raw = {"nan": "NaN", "inf": "Infinity", "-inf": "-Infinity",
+               "string": '"twelve"'}.get(case)
+        if raw is not None:
+            content = with_value(body, num, raw)
+        else:
+            content = {"empty": b"", "array": b"[]", "null_body": b"null",
+                       "huge": b'{"x": "' + b"a" * (9 << 20) + b'"}'}[case]
+        r = client.post(path, content=content, headers={"content-type": "application/json"})
+        want = 413 if case == "huge" else 422
+        assert r.status_code == want, (path, case, r.text[:300])
+        assert r.headers["content-type"].startswith(PROBLEM), (path, case)
+        field = r.json().get("field")
+        assert field, (path, case, r.text[:300])
+        if raw is not None:  # the field named is the number's own
+            assert str(num[-1]) in field, (path, case, field)
+    assert client.get("/health").status_code == 200
+
+
+def test_names_prolog_cannot_take(client: TestClient, endpoints: Any) -> None:
+    """Ids are ^[a-z][a-zA-Z0-9_]{0,63}$: a quote, a NUL, an emoji or 65 characters is a
+    422 naming the field before anything reaches Prolog."""
+    for bad in ("a'), halt", "a\u0000b", "caf\u00e9", "\U0001F600", "a" * 65, ""):
+        r = client.post("/worlds", json={"name": bad})
+        assert r.status_code == 422 and r.json()["field"] == "name", (bad, r.text)
+        r = client.post("/worlds/rel_fig/reached", json={"from": bad, "to": "a"})
+        assert r.status_code in (404, 422) and r.json()["field"] == "from", (bad, r.text)
+    assert client.get("/health").status_code == 200
