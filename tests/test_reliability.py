@@ -84,3 +84,39 @@ def test_names_prolog_cannot_take(client: TestClient, endpoints: Any) -> None:
         r = client.post("/worlds/rel_fig/reached", json={"from": bad, "to": "a"})
         assert r.status_code in (404, 422) and r.json()["field"] == "from", (bad, r.text)
     assert client.get("/health").status_code == 200
+
+
+def test_every_list_in_a_request_is_capped_in_the_schema(client: TestClient) -> None:
+    """Size caps are stated in the OpenAPI: no array or map in a request body without a
+    maximum (the movement strategy's action lists and a candidate's belief had none,
+    and took NaN)."""
+    spec = client.get("/openapi.json").json()
+    comps = spec["components"]["schemas"]
+    open_ended: list[str] = []
+
+    def walk(sch: dict[str, Any], path: str, seen: frozenset[str]) -> None:
+        if "$ref" in sch:
+            ref = sch["$ref"].split("/")[-1]
+            if ref not in seen:
+                walk(comps[ref], path, seen | {ref})
+            return
+        for key in ("anyOf", "oneOf", "allOf"):
+            for s in sch.get(key, []):
+                walk(s, path, seen)
+        if sch.get("type") == "array":
+            if "maxItems" not in sch and "prefixItems" not in sch:
+                open_ended.append(path)
+            walk(sch.get("items", {}), path + "[]", seen)
+        for p, s in sch.get("properties", {}).items():
+            walk(s, f"{path}.{p}", seen)
+
+    for path, ops in spec["paths"].items():
+        for method, op in ops.items():
+            for content in op.get("requestBody", {}).get("content", {}).values():
+                walk(content["schema"], f"{method.upper()} {path} ", frozenset())
+    assert open_ended == []
+    r = client.post("/worlds/rel_room/eigenspace", content=b'{"strategy": {"alphas_rad": [NaN]}}',
+                    headers={"content-type": "application/json"})
+    assert r.status_code == 422 and r.json()["field"] == "strategy.alphas_rad[0]", r.text
+    r = client.post("/worlds/rel_room/eigenspace", json={"strategy": {"lengths_m": []}})
+    assert r.status_code == 422 and r.json()["field"] == "strategy.lengths_m", r.text

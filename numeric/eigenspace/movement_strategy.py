@@ -18,7 +18,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Executor
 from dataclasses import dataclass
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -27,15 +27,23 @@ from numeric.eigenspace.localization import Session
 from numeric.eigenspace.regions import EntryModel
 from numeric.geometry import compose, free_distance, wrap_angle
 
+Angle = Annotated[float, Field(ge=-2 * np.pi, le=2 * np.pi, allow_inf_nan=False)]
+Length = Annotated[float, Field(ge=0.0, le=100.0, allow_inf_nan=False)]
+
 
 class StrategyConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
     n_samples: int = Field(400, ge=10, le=100_000, description="I initial poses of eq. 8")
-    alphas_rad: list[float] = Field(
-        default_factory=lambda: [float(a) for a in np.deg2rad(np.arange(-135, 181, 45))])
-    lengths_m: list[float] = Field(default_factory=lambda: [0.5, 1.0, 2.0, 3.0, 4.0])
-    betas_rad: list[float] = Field(default_factory=lambda: [0.0, float(np.pi / 2),
-                                                           float(np.pi), float(-np.pi / 2)])
+    #: the action grid (alpha, l, beta) of eq. 8: turn, drive, turn; at most 64 values
+    #: each (the grid is their product), finite
+    alphas_rad: list[Angle] = Field(
+        default_factory=lambda: [float(a) for a in np.deg2rad(np.arange(-135, 181, 45))],
+        min_length=1, max_length=64)
+    lengths_m: list[Length] = Field(default_factory=lambda: [0.5, 1.0, 2.0, 3.0, 4.0],
+                                    min_length=1, max_length=64)
+    betas_rad: list[Angle] = Field(default_factory=lambda: [0.0, float(np.pi / 2),
+                                                           float(np.pi), float(-np.pi / 2)],
+                                   min_length=1, max_length=64)
     clearance_m: float = Field(0.3, ge=0.0, le=10.0)
     chunks: int = Field(4, ge=1, le=256, description="action-grid chunks for the executor")
 

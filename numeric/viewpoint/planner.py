@@ -81,7 +81,7 @@ class CandidateIn(BaseModel):
     x: FiniteFloat
     y: FiniteFloat
     belief: list[Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]] | None = Field(
-        None, description="orientation belief P(theta_i) over N_theta orientations")
+        None, max_length=360, description="orientation belief P(theta_i) over N_theta orientations")
 
 
 class GridIn(BaseModel):

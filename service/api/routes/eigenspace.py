@@ -25,6 +25,7 @@ from numeric.errors import InvalidInput
 from service.deps import EigenspaceDep, WorldDep
 from service.eigenspace import check_source
 from service.schemas.eigenspace import (
+    MAX_TURN_IMAGES,
     CameraIn,
     CameraOut,
     CoveringOut,
@@ -132,7 +133,8 @@ async def post_eigenspace_images(
             description=f"or {POSES_FILE} (file,x,y,theta[,role]: m, m, rad; role learn "
                         "or calibrate) ...")] = None,
         images: Annotated[list[UploadFile] | None, File(
-            description="... and the PNG/JPEG files it names, up to 1000 parts")] = None,
+            description="... and the PNG/JPEG files it names, up to 1000 parts",
+            max_length=1000)] = None,
         size: Annotated[str | None, Form(description="resize every image to WIDTHxHEIGHT "
                                          "px, e.g. 64x32")] = None,
         config: Annotated[str | None, Form(description="EigenspaceConfig as JSON "
@@ -195,7 +197,8 @@ async def post_localize_images(
         world: WorldDep, eig: EigenspaceDep,
         images: Annotated[list[UploadFile], File(description="one full turn of PNG/JPEG "
                                                  "images, in order of relative heading "
-                                                 "2*pi*j/n")],
+                                                 "2*pi*j/n", min_length=1,
+                                                 max_length=MAX_TURN_IMAGES)],
         size: Annotated[str | None, Form(description="resize to WIDTHxHEIGHT px")] = None
         ) -> dict[str, Any]:
     """``/localize`` for image files (multipart upload), e.g. straight from a camera."""
