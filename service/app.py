@@ -11,7 +11,7 @@ from fastapi import FastAPI
 
 from service import errors
 from service.api.routes import eigenspace, health, jobs, qualitative, slam, viewpoint, worlds
-from service.container import open_services
+from service.container import ensure_demo, open_services
 from service.settings import Settings, get_settings
 
 log = logging.getLogger("chizu")
@@ -22,7 +22,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        services = await asyncio.to_thread(open_services, settings)
+        services = await asyncio.to_thread(open_services, settings, None, False)
+        try:
+            await ensure_demo(services)  # on this loop: its locks are this loop's
+        except BaseException:
+            services.close()
+            raise
         # the jobs a previous server process was running ended with it (the CLI, which
         # opens the same store while a server may run, leaves them alone)
         n = services.jobs.interrupt_unfinished()

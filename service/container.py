@@ -56,11 +56,20 @@ async def create_demo(service: WorldService, name: str) -> None:
         await service.observe(name, obs)
 
 
+async def ensure_demo(services: Services) -> None:
+    """Create the configured demo world if it is missing."""
+    name = services.settings.demo_world
+    if name and services.store.world(name) is None:
+        await create_demo(services.worlds, name)
+
+
 def open_services(settings: Settings | None = None,
-                  executor: Executor | None = None) -> Services:
-    """Open and restore everything (blocking; the app runs it in a worker thread, as it
-    runs an event loop of its own for the demo world). ``executor`` runs the eigenspace
-    learning strategy's Monte Carlo evaluation (None: in-process)."""
+                  executor: Executor | None = None, demo: bool = True) -> Services:
+    """Open and restore everything (blocking; the app runs it in a worker thread).
+    ``demo``: create the configured demo world if it is missing, on an event loop of
+    its own (the CLI; the app creates it on its own loop, :func:`ensure_demo`).
+    ``executor`` runs the eigenspace learning strategy's Monte Carlo evaluation (None:
+    in-process)."""
     settings = settings or get_settings()
     store = Store(settings.db_path)
     try:
@@ -80,8 +89,8 @@ def open_services(settings: Settings | None = None,
         runs = services.slam.restore_runs()
         log.info("restored from %s: %s, %d SLAM run(s)", settings.db_path,
                  ", ".join(f"{n} {k}" for k, n in counts.items()), runs)
-        if settings.demo_world and store.world(settings.demo_world) is None:
-            asyncio.run(create_demo(worlds, settings.demo_world))
+        if demo:
+            asyncio.run(ensure_demo(services))
     except BaseException:
         kb.close()
         store.close()

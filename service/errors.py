@@ -120,9 +120,10 @@ class BodySizeLimit:
         if declared is not None and (not declared.isdigit() or int(declared) > limit):
             await self._reject(scope, send, limit)
             return
-        if declared is None and scope.get("method") in ("POST", "PUT", "PATCH"):
-            # a chunked body has no declared length: read it here, up to the limit, so
-            # that an oversized one is a 413 (the body parser would call it a 400)
+        if declared is None and not upload and scope.get("method") in ("POST", "PUT", "PATCH"):
+            # a chunked body has no declared length: read it here, up to the limit (8 MiB),
+            # so that an oversized one is a 413 (the body parser would call it a 400);
+            # image-set uploads (up to 256 MiB) stream on, spooled to disk by the parser
             body = bytearray()
             while True:
                 msg = await receive()

@@ -20,6 +20,7 @@ from collections.abc import Awaitable, Callable
 from typing import Any
 
 from numeric.errors import ChizuError, Conflict, NotFound
+from service.kb import KbError
 from service.store import Store
 
 log = logging.getLogger(__name__)
@@ -87,23 +88,36 @@ class Jobs:
         self._cancel.pop(jid, None)
 
     async def _run(self, jid: str, work: Work) -> None:
-        self.store.update_job(jid, status="running", stage="running")
+        """Run ``work``; whatever happens, the row ends in a final status (a failure to
+        store the result itself is reported as the job's failure)."""
+        status, fields = "failed", {}
         try:
+            self.store.update_job(jid, status="running", stage="running")
             result = await work(JobProgress(self.store, jid, self._cancel[jid]))
+            status, fields = "done", {"stage": "done", "progress": 1.0, "result": result}
         except (asyncio.CancelledError, JobCancelled):
-            end = "interrupted" if self._closing else "cancelled"
-            self.store.update_job(jid, status=end, stage=end)
-            return
+            status = "interrupted" if self._closing else "cancelled"
+            fields = {"stage": status}
         except ChizuError as e:
-            self.store.update_job(jid, status="failed",
-                                  error={"detail": str(e), "field": e.field})
-            return
+            if getattr(e, "status", 400) >= 500 or isinstance(e, KbError):
+                log.warning("job %s failed: %s", jid, e)
+            fields = {"error": {"detail": str(e), "field": e.field}}
         except Exception as e:  # noqa: BLE001 - reported on the job, logged here
             log.exception("job %s failed", jid)
-            self.store.update_job(jid, status="failed",
-                                  error={"detail": f"{type(e).__name__}: {e}", "field": None})
-            return
-        self.store.update_job(jid, status="done", stage="done", progress=1.0, result=result)
+            fields = {"error": {"detail": f"{type(e).__name__}: {e}", "field": None}}
+        finally:
+            self._finish(jid, status, fields)
+
+    def _finish(self, jid: str, status: str, fields: dict[str, Any]) -> None:
+        try:
+            self.store.update_job(jid, status=status, **fields)
+        except Exception:  # noqa: BLE001 - e.g. a result that is not JSON
+            log.exception("storing the outcome of job %s", jid)
+            try:
+                self.store.update_job(jid, status="failed", error={
+                    "detail": "the job's outcome could not be stored", "field": None})
+            except Exception:  # noqa: BLE001
+                log.exception("job %s keeps its last status", jid)
 
     def get(self, jid: str, world: str | None = None) -> dict[str, Any]:
         rows = self.store.jobs(jid=jid, world=world)
@@ -125,12 +139,22 @@ class Jobs:
         self._cancel[jid].set()
         task.cancel()
         await asyncio.gather(task, return_exceptions=True)
+        if self._status(jid) in UNFINISHED:  # cancelled before it ever ran
+            self._finish(jid, "cancelled", {"stage": "cancelled"})
         return self.get(jid)
 
     async def close(self) -> None:
         """Shutdown: running jobs end as interrupted (the next start would say so too)."""
         self._closing = True
-        for jid, task in list(self._tasks.items()):
+        tasks = dict(self._tasks)
+        for jid, task in tasks.items():
             self._cancel[jid].set()
             task.cancel()
-        await asyncio.gather(*self._tasks.values(), return_exceptions=True)
+        await asyncio.gather(*tasks.values(), return_exceptions=True)
+        for jid in tasks:
+            if self._status(jid) in UNFINISHED:  # cancelled before it ever ran
+                self._finish(jid, "interrupted", {"stage": "interrupted"})
+
+    def _status(self, jid: str) -> str | None:
+        rows = self.store.jobs(jid=jid)
+        return str(rows[0]["status"]) if rows else None

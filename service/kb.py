@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import ctypes
+import hashlib
 import json
 import queue
 import threading
@@ -56,6 +57,10 @@ class KnowledgeBase:
         #: one thread, and a legal goal run to the end of its limit holds every caller
         self.query_time_limit_s = min(time_limit_s, query_time_limit_s or time_limit_s)
         self.prolog_thread_id = 0  #: the engine's Prolog thread id, once it has said
+        #: a digest of the rule files: a snapshot made by other rules is not loaded
+        self.rules_digest = hashlib.sha256(b"".join(
+            p.name.encode() + p.read_bytes()
+            for p in sorted(self.prolog_dir.glob("*.pl")))).hexdigest()[:16]
         self._jobs: queue.Queue[Any] = queue.Queue()
         self._ready: Future[None] = Future()
         self._thread = threading.Thread(target=self._run, name="chizu-prolog", daemon=True)

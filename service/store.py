@@ -164,16 +164,27 @@ class Store:
 
     # -- snapshots: a world's event-made facts, so start-up replays only what follows ----
     @staticmethod
-    def put_snapshot(conn: sqlite3.Connection, world: str, event_id: int,
+    def put_snapshot(conn: sqlite3.Connection, world: str, event_id: int, rules: str,
                      facts: list[str]) -> None:
+        """The facts as of event ``event_id``, made by the rules whose digest is ``rules``."""
         conn.execute("INSERT OR REPLACE INTO snapshots (world, event_id, facts, created_at) "
-                     "VALUES (?, ?, ?, ?)", (world, event_id, json.dumps(facts), time.time()))
+                     "VALUES (?, ?, ?, ?)",
+                     (world, event_id, json.dumps({"rules": rules, "facts": facts}),
+                      time.time()))
 
-    def snapshot(self, world: str) -> tuple[int, list[str]] | None:
+    def snapshot(self, world: str) -> tuple[int, str, list[str]] | None:
+        """(event id, rules digest, facts) of the world's snapshot, or None."""
         with self._lock:
             row = self._conn.execute("SELECT event_id, facts FROM snapshots WHERE world = ?",
                                      (world,)).fetchone()
-        return None if row is None else (int(row[0]), list(json.loads(row[1])))
+        if row is None:
+            return None
+        data = json.loads(row[1])
+        return int(row[0]), str(data.get("rules", "")), list(data.get("facts", []))
+
+    @staticmethod
+    def delete_snapshot(conn: sqlite3.Connection, world: str) -> None:
+        conn.execute("DELETE FROM snapshots WHERE world = ?", (world,))
 
     def event_count(self, world: str) -> int:
         with self._lock:

@@ -141,11 +141,7 @@ class WorldService:
         """(Re)build one world from the store; returns the artifact kinds it had."""
         self._changed(desc.name)
         self.kb.call("create_world", **self.create_call(desc))
-        snap = self.store.snapshot(desc.name)
-        after = 0
-        if snap is not None:  # the facts of every event up to snap's, then the rest
-            after, facts = snap
-            self.kb.call("load_snapshot", world=desc.name, facts=facts)
+        after = self._load_snapshot(desc)
         events = self.store.events(desc.name, after)
         for ev in events:
             op, args = self.event_call(desc.name, ev.kind, ev.payload)
@@ -159,6 +155,25 @@ class WorldService:
                 restored.append(kind.name)
         self._models[desc.name] = World(desc)
         return restored
+
+    def _load_snapshot(self, desc: WorldDescription) -> int:
+        """Load the world's snapshot if the rules that made it are the ones loaded now;
+        returns the last event it covers (0: replay every event). A snapshot the rules
+        refuse is dropped, and the world is rebuilt from its events alone."""
+        snap = self.store.snapshot(desc.name)
+        if snap is None:
+            return 0
+        event_id, rules, facts = snap
+        if rules == self.kb.rules_digest:
+            try:
+                self.kb.call("load_snapshot", world=desc.name, facts=facts)
+                return event_id
+            except KbError:
+                log.exception("snapshot of %s refused: replaying its events", desc.name)
+                self.kb.call("create_world", **self.create_call(desc))
+        with self.store.transaction() as conn:  # stale: the next one is made afresh
+            self.store.delete_snapshot(conn, desc.name)
+        return 0
 
     # -- the one artifact write path -------------------------------------------------------
     @asynccontextmanager
@@ -177,12 +192,13 @@ class WorldService:
             try:
                 yield ArtifactWrite(self, world, art)
             except BaseException:
+                # shielded: a second cancellation (a shutdown) must not drop the rollback
+                # from the engine's queue and leave facts the store does not have
+                undo = (self._kb(art.op, art.call(world, previous)) if previous is not None
+                        else self._kb("clear_facts", {"world": world, "domain": art.domain}))
                 try:
-                    if previous is not None:
-                        await self._kb(art.op, art.call(world, previous))
-                    else:
-                        await self._kb("clear_facts", {"world": world, "domain": art.domain})
-                except Exception:  # the original error is the one to report
+                    await asyncio.shield(undo)
+                except BaseException:  # the original error is the one to report
                     log.exception("putting back %s facts of %s", art.name, world)
                 raise
 
@@ -261,6 +277,7 @@ class WorldService:
             with self.store.transaction() as conn:
                 self.store.delete_world(conn, name)
             self._models.pop(name, None)
+            self._since_snapshot.pop(name, None)
             for hook in self.on_delete:
                 hook(name)
             try:
@@ -292,10 +309,11 @@ class WorldService:
         try:
             facts = await self._kb("snapshot", {"world": world})
             with self.store.transaction() as conn:
-                self.store.put_snapshot(conn, world, event_id, list(facts))
-            self._since_snapshot[world] = 0
+                self.store.put_snapshot(conn, world, event_id, self.kb.rules_digest,
+                                        list(facts))
         except Exception:  # noqa: BLE001 - the events are stored; replay still works
             log.exception("snapshot of %s failed", world)
+        self._since_snapshot[world] = 0  # after a failure too: try again SNAPSHOT_EVERY on
 
     async def observe(self, world: str, obs: Observation) -> Any:
         return await self._append(world, "observation", obs.model_dump(mode="json"))

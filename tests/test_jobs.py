@@ -114,3 +114,30 @@ def test_kill_9_during_a_job_and_a_write_loop(tmp_path: Path,
         n = events(c, "fig") - base
         assert n >= len(acked)  # every acknowledged write is there
         assert n <= len(acked) + 1  # at most the one in flight at the kill
+
+
+def test_a_job_cancelled_before_it_starts_is_cancelled(tmp_path: Path) -> None:
+    """Cancelled before its task ever ran, a job stayed "queued" and every later learning
+    of that world was a 409; now it ends cancelled and the world can learn again."""
+    import asyncio
+
+    from service.jobs import Jobs
+    from service.store import Store
+
+    store = Store(tmp_path / "s.sqlite3")
+    with store.transaction() as conn:
+        store.insert_world(conn, "w", {"name": "w"})
+    jobs = Jobs(store)
+
+    async def scenario() -> tuple[str, str]:
+        async def work(progress: Any) -> dict[str, Any]:
+            return {"ok": True}
+
+        jid = jobs.start("w", "k", work)["id"]
+        cancelled = (await jobs.cancel(jid))["status"]  # before the task's first step
+        again = jobs.start("w", "k", work)["id"]
+        await asyncio.sleep(0.05)
+        return cancelled, jobs.get(again)["status"]
+
+    assert asyncio.run(scenario()) == ("cancelled", "done")
+    store.close()

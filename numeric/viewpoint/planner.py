@@ -418,6 +418,7 @@ class ViewpointPlanner:
         plan with and the ones that cannot be verified (boxed-in objects, walled-in
         regions)."""
         types = {t.name: t for t in req.object_types}
+        models = self.models(req)
         unknown_total = sum(comps[int(s.members[0])].area_m2 for s in specs
                             if s.kind == "unknown")
         planned: list[PlannedGroup] = []
@@ -451,7 +452,7 @@ class ViewpointPlanner:
                     skipped.append(PlannedGroup(spec, name, 0.0, np.inf, entries, None,
                                                 comp.area_m2, comp.centroid))
                     continue
-                t_u = self._unknown_time(req, verifier, comp, entries, unknown_total)
+                t_u = self._unknown_time(req, models, verifier, comp, entries, unknown_total)
                 share = comp.area_m2 / unknown_total if unknown_total > 0 else 0.0
                 value = req.k_area * comp.area_m2 + share * sum(
                     t.mean_count * t.value for t in req.object_types)  # eq. 17
@@ -460,12 +461,12 @@ class ViewpointPlanner:
             (planned if np.isfinite(g.t_obs) and len(g.entries) else skipped).append(g)
         return planned, skipped
 
-    def _unknown_time(self, req: PlanRequest, verifier: Verifier, comp: UnknownComponent,
-                      entries: np.ndarray, unknown_total: float) -> float:
+    def _unknown_time(self, req: PlanRequest, models: dict[str, AppearanceModel],
+                      verifier: Verifier, comp: UnknownComponent, entries: np.ndarray,
+                      unknown_total: float) -> float:
         """Eqs. 9-10 for one region from its entry point nearest the centroid; they do not
         look at the grid, so the same region, entry point and parameters give the same
         time (re-plans ask again and again): cached."""
-        models = self.models(req)
         mean_counts = {t.name: t.mean_count for t in req.object_types}
         e = entries[np.argmin(np.hypot(*(entries - comp.centroid).T))]
         ukey = (tuple(np.round(comp.centroid, 9)), tuple(np.round(e, 9)),

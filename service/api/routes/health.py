@@ -18,9 +18,9 @@ async def health(worlds: WorldsDep, kb: KbDep) -> Health:
     within ENGINE_PROBE_S or is reported busy (a request is running; the probe is
     dropped, not queued behind it)."""
     try:
-        # until the engine has answered once, wait for it: its thread id is not known yet
+        # until the engine has answered once, give it longer: its thread id is not known
         engine = await asyncio.wait_for(kb.acall("engine"),
-                                        ENGINE_PROBE_S if kb.prolog_thread_id else None)
+                                        ENGINE_PROBE_S if kb.prolog_thread_id else 1.0)
         kb.prolog_thread_id = int(engine["thread"])
         busy = False
     except TimeoutError:
