@@ -199,8 +199,10 @@ class ImageSource:
 
     name = "source"
 
-    def learning_images(self, points: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-        """``(points (Nw, 2), images (Nw, Nt, H, W))``."""
+    def learning_images(self, points: np.ndarray | None,
+                        done: Callable[[float], None] | None = None,
+                        ) -> tuple[np.ndarray, np.ndarray]:
+        """``(points (Nw, 2), images (Nw, Nt, H, W))``; ``done(fraction)`` as they come."""
         raise NotImplementedError
 
     def calibration(self, model: EigenspaceModel, triplets: Triplets
@@ -232,13 +234,15 @@ class SimulatedCamera(ImageSource):
         self.recorded: dict[str, np.ndarray] = {}
         self._turns: EntryObservations | None = None
 
-    def learning_images(self, points: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    def learning_images(self, points: np.ndarray | None,
+                        done: Callable[[float], None] | None = None,
+                        ) -> tuple[np.ndarray, np.ndarray]:
         lc = self.config.learning
         pts = learning_grid(self.world, lc.spacing_m, lc.margin_m) if points is None \
             else np.asarray(points, dtype=float).reshape(-1, 2)
         if len(pts) < 3:
             raise InvalidInput("at least 3 learning points are needed", field="points")
-        imgs = render_learning_images(self.camera, pts, lc.n_directions)
+        imgs = render_learning_images(self.camera, pts, lc.n_directions, done)
         self.recorded.update(points=pts, turns=imgs)
         return pts, imgs
 
@@ -294,7 +298,9 @@ class ImportedImages(ImageSource):
     def __init__(self, images: ImageSet, config: EigenspaceConfig, min_pairs: int = 8) -> None:
         self.images, self.config, self.min_pairs = images, config, min_pairs
 
-    def learning_images(self, points: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    def learning_images(self, points: np.ndarray | None,
+                        done: Callable[[float], None] | None = None,
+                        ) -> tuple[np.ndarray, np.ndarray]:
         return self.images.points, self.images.turns
 
     def calibration(self, model: EigenspaceModel, triplets: Triplets
@@ -437,7 +443,8 @@ def analyse_source(world: World, config: EigenspaceConfig, source: ImageSource,
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     report("learning", 0.0)
-    pts, imgs = source.learning_images(points)
+    # rendering is the long part: report (and let a cancelled job stop) after each point
+    pts, imgs = source.learning_images(points, lambda f: report("learning", 0.3 * f))
     model = learn_images(imgs, pts, config.learning)
     timings["learning"] = time.perf_counter() - t0
     report("triplets", 0.3)

@@ -7,6 +7,7 @@ so the dynamic range B is 1.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -139,9 +140,16 @@ def learning_grid(world: World, spacing_m: float, margin_m: float) -> np.ndarray
     return grid[world.is_free(grid)]
 
 
-def render_learning_images(camera: Camera, points: np.ndarray, n_directions: int) -> np.ndarray:
-    """Images ``(Nw, Nt, H, W)``: a full turn at every learning point, theta_j = 2 pi j / Nt."""
-    return np.stack([camera.render_turn(p, 0.0, n_directions) for p in points])
+def render_learning_images(camera: Camera, points: np.ndarray, n_directions: int,
+                           done: Callable[[float], None] | None = None) -> np.ndarray:
+    """Images ``(Nw, Nt, H, W)``: a full turn at every learning point, theta_j = 2 pi j / Nt.
+    ``done(fraction)`` after each point (a job's progress; it may raise to stop)."""
+    turns = []
+    for i, p in enumerate(points):
+        turns.append(camera.render_turn(p, 0.0, n_directions))
+        if done is not None:
+            done((i + 1) / len(points))
+    return np.stack(turns)
 
 
 def learn(camera: Camera, points: np.ndarray, config: LearningConfig) -> EigenspaceModel:
