@@ -40,6 +40,7 @@ bench: install
 	$(PY) tests/bench/slam_stream.py
 	$(PY) tests/bench/viewpoint.py
 	$(PY) tests/bench/restart.py
+	$(PY) tests/bench/localize_clients.py
 
 lint: install
 	$(VENV)/bin/ruff check numeric service tests
