@@ -54,6 +54,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(viewpoint.router)
     app.include_router(jobs.router)
     errors.install(app)
+    errors.document_problems(app)
     app.add_middleware(errors.BodySizeLimit, max_bytes=settings.max_body_bytes,
                        upload_bytes=settings.max_upload_bytes,
                        upload_suffixes=("/eigenspace/images",))

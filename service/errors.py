@@ -171,3 +171,61 @@ class BodySizeLimit:
 
 class _TooLarge(Exception):
     pass
+
+
+PROBLEM_SCHEMA: dict[str, Any] = {
+    "title": "Problem", "type": "object", "required": ["type", "title", "status", "detail"],
+    "description": "RFC 9457 problem details; ``field`` names the offending input",
+    "properties": {
+        "type": {"type": "string"}, "title": {"type": "string"},
+        "status": {"type": "integer"}, "detail": {"type": "string"},
+        "instance": {"type": "string"}, "field": {"type": "string"},
+        "errors": {"type": "array", "items": {
+            "type": "object", "properties": {"field": {"type": "string"},
+                                             "message": {"type": "string"}}}},
+    },
+}
+#: the operations that answer 409 (a name taken, a job already running or ended)
+CONFLICTS = {("post", "/worlds"), ("post", "/worlds/{world}/eigenspace"),
+             ("post", "/worlds/{world}/eigenspace/images"), ("delete", "/jobs/{job_id}")}
+_REASONS = {400: "Bad request", 404: "Not found (the field names what)",
+            409: "Conflict with the current state", 413: "Payload too large",
+            422: "Invalid input (the field names it)",
+            500: "Internal error (a bug: please report it)",
+            503: "The knowledge base is unavailable or over its limit"}
+
+
+def document_problems(app: FastAPI) -> None:
+    """Make the OpenAPI tell the truth about errors: every operation's 4xx/5xx answers
+    are ``application/problem+json`` (PROBLEM_SCHEMA), not FastAPI's default
+    ``HTTPValidationError`` JSON; 404 wherever the path names something, 409 where a
+    name or a job can clash (CONFLICTS), 413 wherever there is a body, 422 everywhere,
+    503 for the engine."""
+    from fastapi.openapi.utils import get_openapi
+
+    def openapi() -> dict[str, Any]:
+        if app.openapi_schema is not None:
+            return app.openapi_schema
+        spec = get_openapi(title=app.title, version=app.version,
+                           description=app.description, routes=app.routes)
+        comps = spec.setdefault("components", {}).setdefault("schemas", {})
+        comps["Problem"] = PROBLEM_SCHEMA
+        for name in ("HTTPValidationError", "ValidationError"):
+            comps.pop(name, None)
+        ref = {"application/problem+json": {"schema": {"$ref": "#/components/schemas/Problem"}}}
+        for path, ops in spec.get("paths", {}).items():
+            for method, op in ops.items():
+                codes = {422, 500, 503}
+                if "{" in path:
+                    codes.add(404)
+                if (method, path) in CONFLICTS:
+                    codes.add(409)
+                if "requestBody" in op:
+                    codes.add(413)
+                for code in sorted(codes):
+                    op.setdefault("responses", {})[str(code)] = {
+                        "description": _REASONS[code], "content": ref}
+        app.openapi_schema = spec
+        return spec
+
+    app.openapi = openapi  # type: ignore[method-assign]

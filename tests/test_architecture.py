@@ -89,3 +89,21 @@ def test_the_openapi_documents_every_answer() -> None:
             if not ok:
                 bare.append(f"{method.upper()} {path}")
     assert bare == []
+
+
+def test_the_openapi_documents_every_error_as_a_problem() -> None:
+    """Every 4xx and 5xx answer of every operation is declared as
+    application/problem+json with the Problem schema (FastAPI's default 422 declared a
+    JSON shape chizu never sends); 404 wherever the path names something."""
+    from service.app import create_app
+
+    spec = create_app().openapi()
+    assert "HTTPValidationError" not in spec["components"]["schemas"]
+    for path, ops in spec["paths"].items():
+        for method, op in ops.items():
+            errors = {c: r for c, r in op["responses"].items() if c[0] in "45"}
+            assert "422" in errors and ("{" not in path or "404" in errors), (method, path)
+            for code, resp in errors.items():
+                assert list(resp["content"]) == ["application/problem+json"], (path, code)
+                assert resp["content"]["application/problem+json"]["schema"] == {
+                    "$ref": "#/components/schemas/Problem"}, (path, code)
