@@ -7,10 +7,11 @@ from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse
+from fastapi.responses import JSONResponse, Response
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from numeric.errors import ChizuError
+from service.disconnect import ClientGone
 from service.kb import KbError
 
 TITLES = {404: "Not found", 409: "Conflict", 422: "Invalid input"}
@@ -67,6 +68,11 @@ def install(app: FastAPI) -> None:
                        f"{first['field']}: {first['message']}" if first["field"]
                        else str(first["message"]),
                        instance=request.url.path, field=first["field"] or None, errors=errors)
+
+    @app.exception_handler(ClientGone)
+    async def _gone(request: Request, exc: ClientGone) -> Response:
+        # nobody is there to read it: nginx's "client closed request", for the logs
+        return Response(status_code=499)
 
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
@@ -237,3 +238,39 @@ def test_health_answers_while_a_query_holds_the_engine(client: TestClient) -> No
     assert h.status_code == 200 and h.json()["engine_busy"] is True, h.text
     assert waited < 0.5, waited  # the goal ran for its whole 2 s limit
     assert done and done[0] in (200, 422)  # finished, or stopped at its limit (load)
+
+
+def test_a_query_whose_client_left_is_dropped(client: TestClient) -> None:
+    """A client goal queued behind a slow one, whose client disconnects meanwhile, is
+    dropped before it runs (the engine skips a cancelled call)."""
+    import asyncio
+    import threading
+    import time
+
+    from service.disconnect import ClientGone, unless_disconnected
+
+    kb = client.app.state.services.kb  # type: ignore[attr-defined]
+    slow = "reachable(A, B, P, M), reachable(C, D, Q, N), reachable(E, F, R, O), fail"
+    busy = threading.Thread(target=lambda: kb.submit("query", world="demo", goal=slow,
+                                                     max_solutions=1).result())
+    busy.start()
+    time.sleep(0.2)
+    queued: list[Any] = []
+
+    class Gone:
+        async def is_disconnected(self) -> bool:
+            return True
+
+    async def ask() -> None:
+        fut = kb.submit("query", world="demo", goal="landmark(L)", max_solutions=1)
+        queued.append(fut)
+        await unless_disconnected(Gone(), asyncio.wrap_future(fut), poll_s=0.01)
+
+    try:
+        asyncio.run(ask())
+    except ClientGone:
+        pass
+    else:
+        raise AssertionError("the departed client's query was answered")
+    busy.join()
+    assert queued[0].cancelled()  # dropped, never run

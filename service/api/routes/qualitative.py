@@ -2,12 +2,13 @@
 
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Query, status
+from fastapi import APIRouter, Query, Request, status
 
 from numeric.errors import InvalidInput
 from numeric.observation import Observation
 from numeric.world import ID_PATTERN
 from service.deps import WorldDep, WorldsDep
+from service.disconnect import unless_disconnected
 from service.kb import KbError
 from service.schemas.qualitative import (
     DrmEdgeOut,
@@ -76,13 +77,16 @@ async def get_path(world: WorldDep, worlds: WorldsDep,
 
 
 @router.post("/query", response_model=QueryOut)
-async def post_query(world: WorldDep, body: QueryIn, worlds: WorldsDep) -> Any:
+async def post_query(world: WorldDep, body: QueryIn, worlds: WorldsDep,
+                     request: Request) -> Any:
     """Read-only Prolog query over the world's relations, e.g.
     ``reachable(c0, To, P, Method), P > 0.9``.  Only whitelisted predicates run
     (rec/3, frec/3, lr/4, align/5, rea/2, landmark/1, reachable/4-5, drm_edge/4,
-    comparisons, member/2); time and inference limits apply."""
+    comparisons, member/2); time and inference limits apply, and a query whose client
+    has gone is dropped if it has not started."""
     try:
-        return await worlds.query(world, body.goal, body.max_solutions)
+        return await unless_disconnected(
+            request, worlds.query(world, body.goal, body.max_solutions))
     except KbError as e:
         if e.type == "limit":
             raise InvalidInput(f"query exceeded the {e.value} limit", field="goal") from None
