@@ -176,7 +176,7 @@ class SlamService:
         async with run.lock:
             if run.scans == 0:
                 raise InvalidInput("the run has no scans yet", field="run")
-            key = (run.scans, bool(getattr(run.slam, "aligned", False)))
+            key = (run.scans, run.slam.aligned)
             if run._map is None or run._map[0] != key:
                 g = await asyncio.to_thread(build_occupancy, run.slam.keyframes.frames,
                                             run.slam.map_poses(), run.options.map_resolution_m)
@@ -186,10 +186,9 @@ class SlamService:
     async def commit(self, world: str, rid: str) -> dict[str, Any]:
         """Make the run's map the world's map: facts into the knowledge base, grid stored."""
         run = await self._run(world, rid)
-        finish = getattr(run.slam, "finish", None)
-        if finish is not None and run.scans:  # graph SLAM: global scan alignment first
+        if run.scans:  # graph SLAM: global scan alignment first (the filters: nothing)
             async with run.lock:
-                await asyncio.to_thread(finish)
+                await asyncio.to_thread(run.slam.finish)
         g = await self.grid(world, rid)
         poses = run.slam.map_poses()
         summary = g.summary()

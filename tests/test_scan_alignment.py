@@ -116,5 +116,5 @@ def test_graph_slam_finish_aligns_and_a_new_scan_resumes_online() -> None:
 def test_a_graph_run_over_a_log_ends_aligned() -> None:
     log = simulated_log("room_a", seed=1, speed_m_s=0.6).head(120)
     slam, result = run_log(log, SlamOptions(method="graph"))
-    assert getattr(slam, "aligned", False)
+    assert slam.aligned
     assert np.array_equal(result.poses, slam.trajectory()[1])

@@ -143,6 +143,14 @@ class SingleHypothesisSlam:
         self.times.append(t)
         self.poses.append(pose.copy())
 
+    def finish(self) -> int:
+        """The end of a run: nothing to do (graph SLAM aligns its scans here)."""
+        return 0
+
+    @property
+    def aligned(self) -> bool:
+        return False
+
     def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         return np.array(self.times), np.array(self.poses).reshape(-1, 3)
 

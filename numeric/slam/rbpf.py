@@ -585,6 +585,15 @@ class RbpfSlam:
         k = self._n_kf
         return np.asarray(self._kf_pose[np.arange(k), self._lineage[:k, particle]])
 
+    def finish(self) -> int:
+        """The end of a run: nothing to do (the filter's estimate is already its
+        answer; graph SLAM aligns its scans here)."""
+        return 0
+
+    @property
+    def aligned(self) -> bool:
+        return False
+
     # -- outputs ------------------------------------------------------------------------
     @property
     def best(self) -> int:

@@ -59,9 +59,16 @@ class SlamOptions(BaseModel):
 
 
 class Slam(Protocol):
+    """What every estimator offers. ``finish()`` ends a run: graph SLAM's global scan
+    alignment; the filters have nothing to do there. ``aligned``: whether the outputs
+    are finish()'s (until the next scan)."""
+
     keyframes: Keyframes
 
     def process(self, scan: Scan) -> object: ...
+    def finish(self) -> int: ...
+    @property
+    def aligned(self) -> bool: ...
     def trajectory(self) -> tuple[np.ndarray, np.ndarray]: ...
     def map_poses(self) -> np.ndarray: ...
     @property
@@ -98,9 +105,7 @@ def run_log(log: LaserLog, options: SlamOptions,
         slam.process(scan)
         if progress is not None:
             progress(i + 1)
-    finish = getattr(slam, "finish", None)
-    if finish is not None:  # graph SLAM's global scan alignment, once the log is over
-        finish()
+    slam.finish()  # graph SLAM's global scan alignment, once the log is over
     seconds = time.perf_counter() - t0
     times, poses = slam.trajectory()
     return slam, SlamResult(times, poses, whole_map(slam, options.map_resolution_m), seconds)
