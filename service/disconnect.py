@@ -31,6 +31,8 @@ async def unless_disconnected(request: Disconnectable, work: Awaitable[T],
             if done:
                 return task.result()  # type: ignore[no-any-return]
             if await request.is_disconnected():
+                if task.done():  # it finished meanwhile: its answer (or error) stands
+                    return task.result()  # type: ignore[no-any-return]
                 task.cancel()
                 raise ClientGone
     except BaseException:

@@ -50,7 +50,7 @@ class JobProgress:
         now = time.monotonic()
         if stage != self._stage or now - self._written >= self.interval_s:
             self._stage, self._written = stage, now
-            self.store.update_job(self.jid, stage=stage,
+            self.store.update_job(self.jid, unfinished_only=True, stage=stage,
                                   progress=float(min(max(frac, 0.0), 1.0)))
 
 

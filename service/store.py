@@ -179,7 +179,14 @@ class Store:
                                      (world,)).fetchone()
         if row is None:
             return None
-        data = json.loads(row[1])
+        try:
+            data = json.loads(row[1])
+        except ValueError:
+            data = {}
+        if isinstance(data, list):  # the first format: facts alone, rules unknown
+            data = {"facts": data}
+        if not isinstance(data, dict):
+            data = {}
         return int(row[0]), str(data.get("rules", "")), list(data.get("facts", []))
 
     @staticmethod
@@ -258,14 +265,17 @@ class Store:
                          "created_at, updated_at) VALUES (?, ?, ?, 'queued', 'queued', 0, ?, ?)",
                          (jid, world, kind, now, now))
 
-    def update_job(self, jid: str, **fields: Any) -> None:
-        """Set some of status, stage, progress, result, error (dicts stored as JSON)."""
+    def update_job(self, jid: str, unfinished_only: bool = False, **fields: Any) -> None:
+        """Set some of status, stage, progress, result, error (dicts stored as JSON);
+        ``unfinished_only``: only while the job is queued or running (progress reports,
+        which must not touch a job that has ended)."""
         cols = [k for k in ("status", "stage", "progress", "result", "error") if k in fields]
         vals = [json.dumps(fields[k], allow_nan=False) if k in ("result", "error") and
                 fields[k] is not None else fields[k] for k in cols]
+        guard = " AND status IN ('queued', 'running')" if unfinished_only else ""
         with self.transaction() as conn:
             conn.execute(f"UPDATE jobs SET {', '.join(c + ' = ?' for c in cols)}, "  # noqa: S608
-                         "updated_at = ? WHERE id = ?", (*vals, time.time(), jid))
+                         f"updated_at = ? WHERE id = ?{guard}", (*vals, time.time(), jid))
 
     def interrupt_jobs(self) -> int:
         """Start-up: jobs that were queued or running when the process ended."""

@@ -96,6 +96,9 @@ RENAMED_PARAMETERS = {"vp_unknown_min_area_m2": "unknown_region_min_area_m2"}
 #: a world's event-made facts are snapshotted every this many events: start-up loads
 #: the snapshot and replays only the events after it, so its time stays flat
 SNAPSHOT_EVERY = 200
+#: bumped whenever the Python side of an event (event_call, the quantities of an
+#: observation) changes what its facts are: older snapshots are then replayed instead
+SNAPSHOT_FORMAT = 1
 
 _READ_ONLY = frozenset({"worlds", "landmarks", "relations", "drm", "facts", "params",
                         "snapshot",
@@ -160,11 +163,15 @@ class WorldService:
         """Load the world's snapshot if the rules that made it are the ones loaded now;
         returns the last event it covers (0: replay every event). A snapshot the rules
         refuse is dropped, and the world is rebuilt from its events alone."""
-        snap = self.store.snapshot(desc.name)
+        try:
+            snap = self.store.snapshot(desc.name)
+        except Exception:  # noqa: BLE001 - an unreadable row is a stale one
+            log.exception("snapshot of %s unreadable", desc.name)
+            snap = (0, "", [])
         if snap is None:
             return 0
         event_id, rules, facts = snap
-        if rules == self.kb.rules_digest:
+        if rules == self._snapshot_key():
             try:
                 self.kb.call("load_snapshot", world=desc.name, facts=facts)
                 return event_id
@@ -174,6 +181,10 @@ class WorldService:
         with self.store.transaction() as conn:  # stale: the next one is made afresh
             self.store.delete_snapshot(conn, desc.name)
         return 0
+
+    def _snapshot_key(self) -> str:
+        """What a snapshot's facts depend on: the rules and the Python side of events."""
+        return f"{self.kb.rules_digest}:{SNAPSHOT_FORMAT}"
 
     # -- the one artifact write path -------------------------------------------------------
     @asynccontextmanager
@@ -194,12 +205,22 @@ class WorldService:
             except BaseException:
                 # shielded: a second cancellation (a shutdown) must not drop the rollback
                 # from the engine's queue and leave facts the store does not have
-                undo = (self._kb(art.op, art.call(world, previous)) if previous is not None
-                        else self._kb("clear_facts", {"world": world, "domain": art.domain}))
-                try:
-                    await asyncio.shield(undo)
-                except BaseException:  # the original error is the one to report
-                    log.exception("putting back %s facts of %s", art.name, world)
+                undo = asyncio.ensure_future(
+                    self._kb(art.op, art.call(world, previous)) if previous is not None
+                    else self._kb("clear_facts", {"world": world, "domain": art.domain}))
+                cancelled = False
+                while not undo.done():  # held under the lock until the undo has run
+                    try:
+                        await asyncio.shield(undo)
+                    except asyncio.CancelledError:
+                        cancelled = True
+                    except Exception:  # noqa: BLE001 - logged below
+                        pass
+                if not undo.cancelled() and undo.exception() is not None:
+                    log.error("putting back %s facts of %s failed: %s", art.name, world,
+                              undo.exception())
+                if cancelled:
+                    raise asyncio.CancelledError from None
                 raise
 
     @staticmethod
@@ -309,7 +330,7 @@ class WorldService:
         try:
             facts = await self._kb("snapshot", {"world": world})
             with self.store.transaction() as conn:
-                self.store.put_snapshot(conn, world, event_id, self.kb.rules_digest,
+                self.store.put_snapshot(conn, world, event_id, self._snapshot_key(),
                                         list(facts))
         except Exception:  # noqa: BLE001 - the events are stored; replay still works
             log.exception("snapshot of %s failed", world)

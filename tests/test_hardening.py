@@ -274,3 +274,22 @@ def test_a_query_whose_client_left_is_dropped(client: TestClient) -> None:
         raise AssertionError("the departed client's query was answered")
     busy.join()
     assert queued[0].cancelled()  # dropped, never run
+
+
+def test_stored_state_from_earlier_versions_still_loads(tmp_path: Path) -> None:
+    """A snapshot in the first format (a bare list) or unreadable, and an analysis whose
+    config a later bound refuses, do not stop a world from loading."""
+    from numeric.eigenspace.analysis import stored_config
+    from service.store import Store
+
+    store = Store(tmp_path / "s.sqlite3")
+    with store.transaction() as conn:
+        store.insert_world(conn, "w", {"name": "w"})
+        conn.execute("INSERT INTO snapshots VALUES ('w', 3, ?, 0)", ('["rec(a, b)"]',))
+    assert store.snapshot("w") == (3, "", ["rec(a, b)"])  # rules unknown: replayed
+    with store.transaction() as conn:
+        conn.execute("UPDATE snapshots SET facts = 'not json'")
+    assert store.snapshot("w") == (3, "", [])
+    store.close()
+    cfg = stored_config({"strategy": {"alphas_rad": [90.0]}, "seed": 4})
+    assert cfg.seed == 4 and len(cfg.strategy.alphas_rad) == 8  # the defaults

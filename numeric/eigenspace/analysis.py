@@ -15,7 +15,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from numeric.camera import Camera, CameraConfig
 from numeric.eigenspace.image_sets import ImageSet
@@ -81,6 +81,17 @@ class EigenspaceConfig(BaseModel):
                     "observations) reaches the target (simulator only: ignored for a "
                     "camera's images); null: the grid alone")
     seed: int = Field(0, ge=0)
+
+
+def stored_config(data: dict[str, object]) -> EigenspaceConfig:
+    """The config an analysis was learned with. Bounds added since (the movement
+    strategy's action lists) must not make a stored analysis unreadable: a part that no
+    longer validates falls back to its defaults."""
+    try:
+        return EigenspaceConfig.model_validate(data)
+    except ValidationError as e:
+        bad = {str(err["loc"][0]) for err in e.errors() if err["loc"]}
+        return EigenspaceConfig.model_validate({k: v for k, v in data.items() if k not in bad})
 
 
 @dataclass
@@ -166,7 +177,7 @@ class EigenspaceAnalysis:
                                 image_shape=tuple(meta["image_shape"]),  # type: ignore[arg-type]
                                 normalize_brightness=bool(meta["normalize_brightness"]))
         tr = Triplets(z["t_points"], z["t_dirs"], z["t_target"], z["t_area"])
-        return EigenspaceAnalysis(EigenspaceConfig.model_validate(meta["config"]), model, tr,
+        return EigenspaceAnalysis(stored_config(meta["config"]), model, tr,
                                   float(meta["c_a"]),
                                   None if meta["entry"] is None else EntryModel(*meta["entry"]),
                                   [list(s) for s in meta["sets"]], dict(meta["timings_s"]),

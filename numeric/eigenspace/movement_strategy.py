@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from typing import Annotated, Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from numeric.eigenspace.localization import Session
 from numeric.eigenspace.regions import EntryModel
@@ -45,6 +45,14 @@ class StrategyConfig(BaseModel):
                                                            float(np.pi), float(-np.pi / 2)],
                                    min_length=1, max_length=64)
     clearance_m: float = Field(0.3, ge=0.0, le=10.0)
+
+    @model_validator(mode="after")
+    def _grid_size(self) -> StrategyConfig:
+        n = len(self.alphas_rad) * len(self.lengths_m) * len(self.betas_rad)
+        if n > 4096:
+            raise ValueError(f"the action grid (alphas x lengths x betas) has {n} actions; "
+                             "at most 4096")
+        return self
     chunks: int = Field(4, ge=1, le=256, description="action-grid chunks for the executor")
 
     def actions(self) -> np.ndarray:

@@ -54,9 +54,12 @@ def main() -> None:
             with httpx.Client(base_url=srv.url, timeout=600) as c:
                 c.post("/worlds", json={"name": "bench", "template": "room_a"}).raise_for_status()
                 job = c.post("/worlds/bench/eigenspace", json={"learning_strategy": None})
+                job.raise_for_status()
                 loc = job.headers["location"]
-                while c.get(loc).json()["status"] not in ("done", "failed"):
+                while (status := c.get(loc).json()["status"]) in ("queued", "running"):
                     time.sleep(0.5)
+                if status != "done":
+                    raise SystemExit(f"learning ended {status}: {c.get(loc).json()}")
                 turn = c.post("/worlds/bench/camera", json={"pose": {"x": 3.0, "y": 5.0},
                                                             "turn": 72}).json()
             body = {"images_png": turn["images_png"]}
