@@ -128,17 +128,18 @@ run(params, Args, _{rule_probabilities:RPs, parameters:Ps}) :-
 %   as Prolog text.
 run(facts, Args, Facts) :-
     existing_world(Args, W), world_module(W, M),
-    findall(S, ( domain_fact(_, N/A),
-                 functor(H, N, A), M:H,
-                 format(string(S), "~k", [H]) ),
-            Facts).
+    fact_texts(M, _, Facts).
 
 %   {world}: the qualitative facts the world's events made (domain
 %   qualitative: rec, frec, lr, align, rea), as Prolog text -- a snapshot the
 %   service stores so that a restart need not replay every event.
 run(snapshot, Args, Facts) :-
     existing_world(Args, W), world_module(W, M),
-    findall(S, ( domain_fact(qualitative, N/A),
+    fact_texts(M, qualitative, Facts).
+
+%   The facts of Domain (any, if unbound) in world module M, as Prolog text.
+fact_texts(M, Domain, Facts) :-
+    findall(S, ( domain_fact(Domain, N/A),
                  functor(H, N, A), M:H,
                  format(string(S), "~k", [H]) ),
             Facts).
