@@ -166,8 +166,11 @@ def test_unknowns_and_limits(client: TestClient, learned: str) -> None:
                        ).status_code == 201
     assert_problem(client.post("/worlds/eig_empty/localize", json={"images": [[[0.5]]]}), 404,
                    "world")
-    assert_problem(client.get(f"/worlds/{learned}/localization-sessions/abc"), 404, "session")
-    assert_problem(client.get(f"/worlds/{learned}/eigenspace/jobs/abc"), 404, "job")
+    assert_problem(client.get(f"/worlds/{learned}/localization-sessions/abc"), 422, "sid")
+    assert_problem(client.get(f"/worlds/{learned}/localization-sessions/{'0' * 32}"), 404,
+                   "session")
+    assert_problem(client.get(f"/worlds/{learned}/eigenspace/jobs/abc"), 422, "job_id")
+    assert_problem(client.get(f"/worlds/{learned}/eigenspace/jobs/{'0' * 32}"), 404, "job")
     assert_problem(client.post(f"/worlds/{learned}/camera",
                                json={"pose": {"x": 1, "y": 1}, "turn": 100000}), 422, "turn")
     assert_problem(client.post(f"/worlds/{learned}/camera", content=b'{"pose": {"x": Infinity, '

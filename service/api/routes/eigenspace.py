@@ -8,7 +8,7 @@ import binascii
 from typing import Annotated, Any
 
 import numpy as np
-from fastapi import APIRouter, File, Form, Query, Response, UploadFile, status
+from fastapi import APIRouter, File, Form, Path, Query, Response, UploadFile, status
 from pydantic import ValidationError
 
 from numeric.eigenspace.analysis import EigenspaceConfig
@@ -40,6 +40,8 @@ from service.schemas.eigenspace import (
 from service.schemas.jobs import JobOut
 
 router = APIRouter(prefix="/worlds/{world}", tags=["eigenspace localization"])
+SessionId = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$", description="session id")]
+JobId = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$", description="job id")]
 
 
 def decode_turn(body: TurnIn, shape: tuple[int, int] | None = None) -> np.ndarray:
@@ -163,7 +165,7 @@ async def post_eigenspace_images(
 
 
 @router.get("/eigenspace/jobs/{job_id}", response_model=JobOut)
-async def get_job(world: WorldDep, job_id: str, eig: EigenspaceDep) -> dict[str, Any]:
+async def get_job(world: WorldDep, job_id: JobId, eig: EigenspaceDep) -> dict[str, Any]:
     """Progress of a learning job (stage, 0..1), its result (the analysis summary) when
     done, its error if failed; ``interrupted`` if the server stopped while it ran."""
     return eig.job(world, job_id)
@@ -224,12 +226,12 @@ async def post_session(world: WorldDep, eig: EigenspaceDep,
 
 
 @router.get("/localization-sessions/{sid}", response_model=SessionLocalizationOut)
-async def get_session(world: WorldDep, sid: str, eig: EigenspaceDep) -> dict[str, Any]:
+async def get_session(world: WorldDep, sid: SessionId, eig: EigenspaceDep) -> dict[str, Any]:
     return await eig.session(world, sid)
 
 
 @router.post("/localization-sessions/{sid}/stops", response_model=SessionLocalizationOut)
-async def post_stop(world: WorldDep, sid: str, body: StopIn,
+async def post_stop(world: WorldDep, sid: SessionId, body: StopIn,
                     eig: EigenspaceDep) -> dict[str, Any]:
     """One stop: a full turn of images plus the odometry since the previous stop."""
     motion = None if body.odometry is None else np.array(
@@ -240,7 +242,7 @@ async def post_stop(world: WorldDep, sid: str, body: StopIn,
 
 
 @router.get("/localization-sessions/{sid}/next-move", response_model=NextMoveOut)
-async def get_next_move(world: WorldDep, sid: str, eig: EigenspaceDep) -> dict[str, Any]:
+async def get_next_move(world: WorldDep, sid: SessionId, eig: EigenspaceDep) -> dict[str, Any]:
     """The movement strategy's action (alpha, l, beta) maximising Q(Z), and that Q(Z)."""
     return await eig.next_move(world, sid)
 

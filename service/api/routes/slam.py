@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Annotated, Any
 
 import numpy as np
-from fastapi import APIRouter, Query, Response, status
+from fastapi import APIRouter, Path, Query, Response, status
 
 from numeric.slam.logs import format_tum
 from service.deps import SlamDep, WorldDep
@@ -22,6 +22,7 @@ from service.schemas.slam import (
 )
 
 router = APIRouter(prefix="/worlds/{world}", tags=["SLAM"])
+RunId = Annotated[str, Path(pattern=r"^r[0-9a-f]{1,64}$", description="SLAM run id")]
 
 
 @router.post("/slam-runs", status_code=status.HTTP_201_CREATED, response_model=SlamRunOut)
@@ -40,33 +41,33 @@ async def get_runs(world: WorldDep, slam: SlamDep) -> list[dict[str, Any]]:
 
 
 @router.get("/slam-runs/{rid}", response_model=SlamRunOut)
-async def get_run(world: WorldDep, rid: str, slam: SlamDep) -> dict[str, Any]:
+async def get_run(world: WorldDep, rid: RunId, slam: SlamDep) -> dict[str, Any]:
     """Scans so far, keyframes, the current pose estimate."""
     return await slam.status(world, rid)
 
 
 @router.delete("/slam-runs/{rid}", status_code=status.HTTP_204_NO_CONTENT)
-async def delete_run(world: WorldDep, rid: str, slam: SlamDep) -> Response:
+async def delete_run(world: WorldDep, rid: RunId, slam: SlamDep) -> Response:
     await slam.delete(world, rid)
     return Response(status_code=status.HTTP_204_NO_CONTENT)
 
 
 @router.post("/slam-runs/{rid}/scans", response_model=SlamRunOut)
-async def post_scans(world: WorldDep, rid: str, body: ScansIn, slam: SlamDep) -> dict[str, Any]:
+async def post_scans(world: WorldDep, rid: RunId, body: ScansIn, slam: SlamDep) -> dict[str, Any]:
     """Stream up to 500 scans (each with its odometry) in increasing time order; the
     batch is all-or-nothing. Returns the run's status with the new pose."""
     return await slam.add_scans(world, rid, body.scans)
 
 
 @router.get("/slam-runs/{rid}/pose", response_model=SlamPoseOut)
-async def get_pose(world: WorldDep, rid: str, slam: SlamDep) -> dict[str, Any]:
+async def get_pose(world: WorldDep, rid: RunId, slam: SlamDep) -> dict[str, Any]:
     st = await slam.status(world, rid)
     return {"t": st["last_t"], "pose": st["pose"], "scans": st["scans"]}
 
 
 @router.get("/slam-runs/{rid}/trajectory", response_model=None, responses={200: {
     "model": TrajectoryOut, "content": {"text/plain": {"schema": {"type": "string"}}}}})
-async def get_trajectory(world: WorldDep, rid: str, slam: SlamDep,
+async def get_trajectory(world: WorldDep, rid: RunId, slam: SlamDep,
                          format: str = "json") -> Any:
     """Pose per scan; ``format=tum`` gives a TUM file (``t x y z qx qy qz qw``)."""
     t, p = await slam.trajectory(world, rid)
@@ -77,7 +78,7 @@ async def get_trajectory(world: WorldDep, rid: str, slam: SlamDep,
 
 @router.get("/slam-runs/{rid}/map.png", response_class=Response,
             responses={200: {"content": {"image/png": {}}}})
-async def get_map_png(world: WorldDep, rid: str, slam: SlamDep) -> Response:
+async def get_map_png(world: WorldDep, rid: RunId, slam: SlamDep) -> Response:
     """The map of the best hypothesis: free white, unknown grey, walls coloured by
     received intensity."""
     return Response((await slam.grid(world, rid)).to_png(), media_type="image/png")
@@ -85,7 +86,7 @@ async def get_map_png(world: WorldDep, rid: str, slam: SlamDep) -> Response:
 
 @router.get("/slam-runs/{rid}/map.pgm", response_class=Response,
             responses={200: {"content": {"image/x-portable-graymap": {}}}})
-async def get_map_pgm(world: WorldDep, rid: str, slam: SlamDep) -> Response:
+async def get_map_pgm(world: WorldDep, rid: RunId, slam: SlamDep) -> Response:
     """ROS map_server image (0 occupied, 254 free, 205 unknown)."""
     return Response((await slam.grid(world, rid)).to_pgm(),
                     media_type="image/x-portable-graymap")
@@ -93,14 +94,14 @@ async def get_map_pgm(world: WorldDep, rid: str, slam: SlamDep) -> Response:
 
 @router.get("/slam-runs/{rid}/map.yaml", response_class=Response,
             responses={200: {"content": {"application/yaml": {}}}})
-async def get_map_yaml(world: WorldDep, rid: str, slam: SlamDep) -> Response:
+async def get_map_yaml(world: WorldDep, rid: RunId, slam: SlamDep) -> Response:
     """ROS map_server metadata for map.pgm."""
     return Response((await slam.grid(world, rid)).to_yaml("map.pgm"),
                     media_type="application/yaml")
 
 
 @router.post("/slam-runs/{rid}/commit", response_model=CommitOut)
-async def post_commit(world: WorldDep, rid: str, slam: SlamDep) -> dict[str, Any]:
+async def post_commit(world: WorldDep, rid: RunId, slam: SlamDep) -> dict[str, Any]:
     """Make this run's map the world's map: keyframe poses, occupancy summary and
     enclosed unknown regions become facts; the grid is stored for the planners."""
     return await slam.commit(world, rid)
