@@ -303,14 +303,14 @@ eig_triplet_item(NP, D, eig_triplet(T, Ps, Ds, A), T, T1) :-
     field("triplets[~d].points", [T], FP),
     field("triplets[~d].directions_rad", [T], FD),
     field("triplets[~d].area_m2", [T], FA),
-    (   get_dict(points, D, Ps) -> true ; throw(chizu_error(missing(points), FP)) ),
+    dict_value(D, points, FP, Ps),
     (   is_list(Ps), length(Ps, 3) -> true ; throw(chizu_error(invalid_length(3), FP)) ),
     forall(member(P, Ps), index_in(P, NP, unknown_point, FP)),
     (   sort(Ps, [_, _, _]) -> true ; throw(chizu_error(duplicate_point, FP)) ),
-    (   get_dict(directions_rad, D, Ds0) -> true ; throw(chizu_error(missing(directions_rad), FD)) ),
+    dict_value(D, directions_rad, FD, Ds0),
     (   is_list(Ds0), length(Ds0, 3) -> true ; throw(chizu_error(invalid_length(3), FD)) ),
     maplist(finite_float(FD), Ds0, Ds),
-    (   get_dict(area_m2, D, A0) -> true ; throw(chizu_error(missing(area_m2), FA)) ),
+    dict_value(D, area_m2, FA, A0),
     finite_number(A0, FA),
     (   A0 >= 0 -> A is float(A0) ; throw(chizu_error(invalid_area(A0), FA)) ).
 

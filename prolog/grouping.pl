@@ -389,7 +389,7 @@ vp_step_item(D, vp_plan_step(I, G, X, Y, Th, T, O, P, Done), I, I1) :-
 
 vp_value(D, List, I, Key, F, V) :-
     field("~w[~d].~w", [List, I, Key], F),
-    (   get_dict(Key, D, V0) -> V = V0 ; throw(chizu_error(missing(Key), F)) ).
+    dict_value(D, Key, F, V).
 
 %   Candidate coordinates and R_max: finite and at most 1e15 in magnitude
 %   (grouping.pl squares distances).

@@ -25,8 +25,7 @@
 %!  arg_(+Key, +Dict, -Value) is det.
 %
 %   The argument Key; chizu_error(missing(Key), Key) if it is absent.
-arg_(Key, Dict, V) :-
-    (   get_dict(Key, Dict, V0) -> V = V0 ; throw(chizu_error(missing(Key), Key)) ).
+arg_(Key, Dict, V) :- dict_value(Dict, Key, Key, V).
 
 %!  dict_value(+Dict, +Key, +Field, -Value) is det.
 %

@@ -308,7 +308,7 @@ slam_info(Run, D, map_info(Run, Res, Free, Occ, Unk)) :-
 
 slam_info_value(D, Key, V) :-
     field("info.~w", [Key], F),
-    (   get_dict(Key, D, V0) -> true ; throw(chizu_error(missing(Key), F)) ),
+    dict_value(D, Key, F, V0),
     nonneg_float(F, V0, V).
 
 %   Region ids are list positions.
@@ -322,7 +322,7 @@ slam_region_item(Run, D, unknown_region(Run, I, X, Y, A), I, I1) :-
 
 slam_region_value(D, I, Key, F, V) :-
     field("regions[~d].~w", [I, Key], F),
-    (   get_dict(Key, D, V0) -> V = V0 ; throw(chizu_error(missing(Key), F)) ).
+    dict_value(D, Key, F, V).
 
 %   One loop closure [ScanA, ScanB, Score]: scan indices (JSON integers >= 0,
 %   not 1.0) with ScanA < ScanB, and a match score in [0, 1].
