@@ -25,3 +25,11 @@ class WorldSummary(BaseModel):
     walls: int
     objects: int
     events: int
+
+
+class PoseOut(BaseModel):
+    """A pose in the world frame (m, m, rad)."""
+
+    x: float
+    y: float
+    theta: float

@@ -8,6 +8,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, model_validator
 
 from numeric.camera import CameraConfig
+from service.schemas.common import PoseOut
 
 # -- eigenspace localization ---------------------------------------------------------------
 MAX_TURN_IMAGES = 360
@@ -88,12 +89,6 @@ class StateZ(BaseModel):
 
 
 LocalizationState = Annotated[StateX | StateY | StateZ, Field(discriminator="state")]
-
-
-class PoseOut(BaseModel):
-    x: float
-    y: float
-    theta: float
 
 
 class LocalizationCandidate(BaseModel):

@@ -8,6 +8,7 @@ from typing import Annotated
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, model_validator
 
 from numeric.slam.runner import SlamOptions
+from service.schemas.common import PoseOut
 
 #: the body of POST /slam-runs: the run's options (the CLI's too), whose estimator
 #: parameters carry the estimator configs' own bounds; ``SlamRunIn.to_config()`` gives
@@ -49,12 +50,6 @@ class ScansIn(BaseModel):
     scans: Annotated[list[ScanIn], Field(min_length=1, max_length=500)]
 
 
-class PoseEstimateOut(BaseModel):
-    x: float
-    y: float
-    theta: float
-
-
 class SlamRunOut(BaseModel):
     """A run: its options, scans and keyframes so far, the last stamp and pose."""
 
@@ -64,7 +59,7 @@ class SlamRunOut(BaseModel):
     scans: int
     keyframes: int
     last_t: float | None
-    pose: PoseEstimateOut | None
+    pose: PoseOut | None
 
 
 class SlamRunListed(BaseModel):
@@ -75,7 +70,7 @@ class SlamRunListed(BaseModel):
 
 class SlamPoseOut(BaseModel):
     t: float | None
-    pose: PoseEstimateOut | None
+    pose: PoseOut | None
     scans: int
 
 
