@@ -14,7 +14,9 @@ from numeric.errors import ChizuError
 from service.disconnect import ClientGone
 from service.kb import KbError
 
-TITLES = {404: "Not found", 409: "Conflict", 422: "Invalid input"}
+#: the problem title of each status (the problem's type is made from it)
+TITLES = {404: "Not found", 405: "Method not allowed", 409: "Conflict", 413: "Payload too large",
+          422: "Invalid input"}
 
 log = logging.getLogger(__name__)
 PROBLEM = "application/problem+json"
@@ -76,8 +78,7 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
-        title = {404: "Not found", 405: "Method not allowed", 413: "Payload too large"}.get(
-            exc.status_code, "HTTP error")
+        title = TITLES.get(exc.status_code, "HTTP error")
         # keep the exception's headers: a 405 names the allowed methods (Allow)
         return problem(exc.status_code, title, str(exc.detail), instance=request.url.path,
                        headers=getattr(exc, "headers", None))
@@ -170,7 +171,7 @@ class BodySizeLimit:
 
     @staticmethod
     async def _reject(scope: dict[str, Any], send: Any, limit: int) -> None:
-        resp = problem(413, "Payload too large", f"request body exceeds {limit} bytes",
+        resp = problem(413, TITLES[413], f"request body exceeds {limit} bytes",
                        instance=scope.get("path"), field="body")
         await resp(scope, None, send)  # type: ignore[arg-type]
 
