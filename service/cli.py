@@ -40,7 +40,8 @@ def _open_services():  # type: ignore[no-untyped-def]
     (:func:`service.container.open_services`)."""
     from service.container import open_services
 
-    return open_services(get_settings())
+    # the CLI's one request at a time needs no worker processes
+    return open_services(get_settings().model_copy(update={"workers": 0}))
 
 
 @app.command()

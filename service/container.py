@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from numeric.qualitative.survey import survey
 from numeric.simulator import ObserverConfig
 from numeric.world import WorldDescription
+from service.compute import ComputePool
 from service.eigenspace import EigenspaceService
 from service.jobs import Jobs
 from service.kb import KnowledgeBase
@@ -39,11 +40,13 @@ class Services:
     kb: KnowledgeBase
     worlds: WorldService
     jobs: Jobs
+    compute: ComputePool
     eigenspace: EigenspaceService
     slam: SlamService
     viewpoint: ViewpointService
 
     def close(self) -> None:
+        self.compute.close()
         self.kb.close()
         self.store.close()
 
@@ -78,11 +81,12 @@ def open_services(settings: Settings | None = None,
     except BaseException:
         store.close()
         raise
+    compute = ComputePool(settings.workers, settings.request_budget_s)
     try:
         worlds = WorldService(store, kb)
         jobs = Jobs(store)
-        services = Services(settings, store, kb, worlds, jobs,
-                            EigenspaceService(store, kb, worlds, jobs, executor,
+        services = Services(settings, store, kb, worlds, jobs, compute,
+                            EigenspaceService(store, kb, worlds, jobs, compute, executor,
                                               settings.max_learning_pixels),
                             SlamService(store, kb, worlds), ViewpointService(store, kb, worlds))
         counts = worlds.restore_all()
@@ -92,6 +96,7 @@ def open_services(settings: Settings | None = None,
         if demo:
             asyncio.run(ensure_demo(services))
     except BaseException:
+        compute.close()
         kb.close()
         store.close()
         raise

@@ -1,4 +1,6 @@
-"""Dependencies as Annotated aliases; heavy resources live on app.state (lifespan)."""
+"""Dependencies as Annotated aliases; heavy resources live on app.state (lifespan).
+The getters are ``async``: FastAPI runs a plain ``def`` dependency in a thread, a hop
+per dependency per request for a lookup."""
 
 from __future__ import annotations
 
@@ -16,27 +18,27 @@ from service.viewpoint import ViewpointService
 from service.worlds import WorldService
 
 
-def _worlds(request: Request) -> WorldService:
+async def _worlds(request: Request) -> WorldService:
     return request.app.state.worlds  # type: ignore[no-any-return]
 
 
-def _eigenspace(request: Request) -> EigenspaceService:
+async def _eigenspace(request: Request) -> EigenspaceService:
     return request.app.state.eigenspace  # type: ignore[no-any-return]
 
 
-def _slam(request: Request) -> SlamService:
+async def _slam(request: Request) -> SlamService:
     return request.app.state.slam  # type: ignore[no-any-return]
 
 
-def _viewpoint(request: Request) -> ViewpointService:
+async def _viewpoint(request: Request) -> ViewpointService:
     return request.app.state.viewpoint  # type: ignore[no-any-return]
 
 
-def _jobs(request: Request) -> Jobs:
+async def _jobs(request: Request) -> Jobs:
     return request.app.state.services.jobs  # type: ignore[no-any-return]
 
 
-def _kb(request: Request) -> KnowledgeBase:
+async def _kb(request: Request) -> KnowledgeBase:
     return request.app.state.kb  # type: ignore[no-any-return]
 
 

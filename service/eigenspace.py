@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from numeric.camera import Camera, CameraConfig
+from numeric.camera import CameraConfig
 from numeric.eigenspace.analysis import (
     EigenspaceAnalysis,
     EigenspaceConfig,
@@ -33,10 +33,8 @@ from numeric.eigenspace.image_sets import ImageSet
 from numeric.eigenspace.learning_strategy import learn_with_strategy
 from numeric.eigenspace.localization import (
     Session,
-    Vote,
     session_from_dict,
     session_to_dict,
-    turn_candidates,
 )
 from numeric.eigenspace.movement_strategy import (
     choose_action,
@@ -44,6 +42,15 @@ from numeric.eigenspace.movement_strategy import (
     session_belief,
 )
 from numeric.errors import InvalidInput, NotFound
+from service.compute import (
+    Cached,
+    ComputePool,
+    FirstStop,
+    blob_key,
+    camera_task,
+    stop_report,
+    turn_task,
+)
 from service.jobs import JobProgress, Jobs
 from service.kb import KnowledgeBase
 from service.store import Store
@@ -92,13 +99,16 @@ def check_source(config: EigenspaceConfig, from_images: bool) -> None:
 
 class EigenspaceService:
     def __init__(self, store: Store, kb: KnowledgeBase, worlds: WorldService, jobs: Jobs,
-                 executor: Executor | None = None,
+                 compute: ComputePool, executor: Executor | None = None,
                  max_learning_pixels: int = 200_000_000) -> None:
         self.store, self.kb, self.worlds, self.jobs = store, kb, worlds, jobs
+        #: decoding, projection and rendering run there (worker processes)
+        self.compute = compute
         #: a learning job renders at most this many pixels (the paper's room: 5 M)
         self.max_learning_pixels = max_learning_pixels
         self.executor = executor  # for the Monte Carlo strategy; None = in-process
         self._analyses: dict[str, EigenspaceAnalysis] = {}
+        self._blobs: dict[str, Cached] = {}  # the analyses as the compute workers get them
         self._session_lock = asyncio.Lock()
         worlds.on_delete.append(self._forget)
         worlds.register(ArtifactKind(
@@ -107,6 +117,7 @@ class EigenspaceService:
 
     def _forget(self, world: str) -> None:
         self._analyses.pop(world, None)
+        self._blobs.pop(world, None)
 
     def analysis(self, world: str) -> EigenspaceAnalysis:
         self.worlds.require(world)
@@ -116,7 +127,12 @@ class EigenspaceService:
             if blob is None:
                 raise NotFound(f"world {world!r} has no eigenspace yet; POST "
                                f"/worlds/{world}/eigenspace first", field="world")
-            a = self._analyses[world] = EigenspaceAnalysis.from_bytes(blob)
+            a = self._keep(world, EigenspaceAnalysis.from_bytes(blob), blob)
+        return a
+
+    def _keep(self, world: str, a: EigenspaceAnalysis, blob: bytes) -> EigenspaceAnalysis:
+        self._analyses[world] = a
+        self._blobs[world] = Cached(blob_key(blob), blob, EigenspaceAnalysis.from_bytes)
         return a
 
     # -- learning -----------------------------------------------------------------------
@@ -158,9 +174,10 @@ class EigenspaceService:
             a = await asyncio.to_thread(learn_with_strategy, w, config, progress, self.executor)
         else:
             a = await asyncio.to_thread(analyse_images, w, images, config, progress)
+        blob = a.to_bytes()
         async with self.worlds.write_artifact(world, ARTIFACT) as write:
-            await write.commit(a.to_bytes(), call=facts_call(world, a))
-            self._analyses[world] = a
+            await write.commit(blob, call=facts_call(world, a))
+            self._keep(world, a, blob)
         return a
 
     def summary(self, world: str) -> dict[str, Any]:
@@ -179,48 +196,30 @@ class EigenspaceService:
         return out
 
     # -- localization ---------------------------------------------------------------------
-    def _check_turn(self, a: EigenspaceAnalysis, images: np.ndarray) -> np.ndarray:
-        n = len(a.model.directions)
-        if images.ndim != 3 or len(images) != n:
-            raise InvalidInput(f"one full turn is {n} images (relative headings 2*pi*j/{n}); "
-                               f"got {len(images) if images.ndim else 0}", field="images")
-        return a.model.check_images(images)
-
     async def _transition(self, world: str, state: dict[str, Any], triplets: list[int],
                           unique: bool) -> dict[str, Any]:
         r = await self.kb.acall("eigenspace_transition", world=world, state=state,
                                 triplets=triplets, unique=unique)
         return dict(r)
 
-    def _report(self, a: EigenspaceAnalysis, st: SessionState, state: dict[str, Any],
-                outcome: str, vote: Vote | None = None) -> dict[str, Any]:
-        """The answer: state, outcome, pose (in state Z), candidates; ``vote`` is the
-        session's current vote when the caller has it already."""
-        s = st.session
-        vote = vote if vote is not None else s.vote(a.set_of())
-        cands = []
-        for cluster, best in list(zip(vote.clusters, s.representatives(vote), strict=True))[:10]:
-            p = s.current_pose(best)
-            cands.append({"pose": {"x": float(p[0]), "y": float(p[1]), "theta": float(p[2])},
-                          "votes": float(vote.votes[best]), "triplet": s.triplet[best],
-                          "members": len(cluster)})
-        pose = None
-        if state.get("state") == "z" and vote.winner is not None:
-            p = s.estimate(vote)
-            pose = {"x": float(p[0]), "y": float(p[1]), "theta": float(p[2])}
-        return {"state": state, "outcome": outcome, "pose": pose, "stops": s.stops,
-                "unique": vote.unique, "candidates": cands}
+    @staticmethod
+    def _answer(state: dict[str, Any], outcome: str, report: dict[str, Any]) -> dict[str, Any]:
+        """The answer: state, outcome, pose (in state Z), candidates (``report``:
+        :func:`service.compute.stop_report`)."""
+        pose = report["estimate"] if state.get("state") == "z" else None
+        return {"state": state, "outcome": outcome, "pose": pose, "stops": report["stops"],
+                "unique": report["unique"], "candidates": report["candidates"]}
 
-    async def localize(self, world: str, images: np.ndarray) -> dict[str, Any]:
-        """One stop from state X: state, pose (when Z) and candidates."""
-        a = self.analysis(world)
-        imgs = self._check_turn(a, images)
-        st = SessionState(world, Session(a.config.localization))
-        cands = await asyncio.to_thread(turn_candidates, a.regions, imgs)
-        st.session.add_stop(cands, a.config.regions.d_thd_m)
-        vote = st.session.vote(a.set_of())
-        r = await self._transition(world, st.state, st.session.stop_triplets(0), vote.unique)
-        return self._report(a, st, r["state"], r["outcome"], vote)
+    async def localize(self, world: str, turn: list[str] | np.ndarray) -> dict[str, Any]:
+        """One stop from state X: state, pose (when Z) and candidates. The turn is
+        decoded, matched, voted on and reported in a compute worker; the Fig. 4 rules
+        decide the state."""
+        self.analysis(world)
+        r1 = await self.compute.run_cached(turn_task, self._blobs[world], turn, True)
+        assert isinstance(r1, FirstStop)
+        r = await self._transition(world, {"state": "x"}, r1.session.stop_triplets(0),
+                                   r1.vote.unique)
+        return self._answer(r["state"], r["outcome"], r1.report)
 
     async def create_session(self, world: str) -> dict[str, Any]:
         a = self.analysis(world)
@@ -241,17 +240,19 @@ class EigenspaceService:
 
     async def session(self, world: str, sid: str) -> dict[str, Any]:
         st = self._session(world, sid)
-        out = self._report(self.analysis(world), st, st.state,
-                           st.history[-1]["outcome"] if st.history else "none")
+        vote = st.session.vote(self.analysis(world).set_of())
+        out = self._answer(st.state, st.history[-1]["outcome"] if st.history else "none",
+                           stop_report(st.session, vote))
         return {"id": sid, **out}
 
-    async def add_stop(self, world: str, sid: str, images: np.ndarray,
+    async def add_stop(self, world: str, sid: str, turn: list[str] | np.ndarray,
                        motion: np.ndarray | None) -> dict[str, Any]:
         """A stop: images of one full turn and the odometry (dx, dy, dtheta) since the
         previous stop's start, in that stop's frame."""
-        a = self.analysis(world)
-        imgs = self._check_turn(a, images)
-        cands = await asyncio.to_thread(turn_candidates, a.regions, imgs)
+        a = self.analysis(world)  # 404s before the work
+        self._session(world, sid)
+        cands = await self.compute.run_cached(turn_task, self._blobs[world], turn, False)
+        assert not isinstance(cands, FirstStop)
         async with self._session_lock:  # read-modify-write of one session at a time
             st = self._session(world, sid)
             if st.session.stops > 0 and motion is None:
@@ -266,7 +267,7 @@ class EigenspaceService:
             st.history.append({"stop": k, "outcome": r["outcome"], "state": r["state"]})
             with self.store.transaction() as conn:
                 self.store.put_session(conn, sid, world, st.to_dict())
-        return {"id": sid, **self._report(a, st, st.state, r["outcome"], vote)}
+        return {"id": sid, **self._answer(st.state, r["outcome"], stop_report(st.session, vote))}
 
     async def next_move(self, world: str, sid: str) -> dict[str, Any]:
         """The movement strategy's action (alpha, l, beta) and its Q(Z) (§3.5)."""
@@ -293,13 +294,13 @@ class EigenspaceService:
         return list(await self.kb.acall("eigenspace_covering", world=world, x=x, y=y))
 
     # -- camera -------------------------------------------------------------------------
-    def render(self, world: str, pose: np.ndarray, config: CameraConfig | None,
-               turn: int | None) -> np.ndarray:
-        w = self.worlds.model(world)
+    async def render(self, world: str, pose: np.ndarray, config: CameraConfig | None,
+                     turn: int | None, fmt: str = "png") -> dict[str, Any]:
+        """The simulated camera at ``pose`` (one image, or a full turn), rendered and
+        encoded in a compute worker: ``{"images_png": [...]}`` or ``{"images": [...]}``."""
+        self.worlds.require(world)
         if config is None:
             a = self._analyses.get(world)
             config = a.config.camera if a is not None else CameraConfig()
-        cam = Camera(w, config)
-        if turn is None:
-            return cam.render(pose)[None]
-        return cam.render_turn(pose[:2], float(pose[2]), turn)
+        return await self.compute.run_cached(camera_task, self.worlds.cached_model(world),
+                                             config, pose, turn, fmt)

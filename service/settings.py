@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from functools import lru_cache
 from pathlib import Path
 
@@ -23,6 +24,12 @@ class Settings(BaseSettings):
     kb_inference_limit: int = Field(200_000_000, gt=0)
     kb_query_time_limit_s: float = Field(2.0, gt=0, description="time limit of a client's "
                                          "own Prolog goals (POST /query)")
+    workers: int = Field(default_factory=lambda: os.cpu_count() or 1, ge=0, le=64,
+                         description="compute worker processes (image decoding, projection, "
+                         "rendering); 0 runs that work in threads of the server, unbounded")
+    request_budget_s: float = Field(30.0, gt=0, description="time budget of one request's "
+                                    "work in a compute worker; past it the worker is stopped "
+                                    "and the request answered 503")
     max_body_bytes: int = Field(8 * 1024 * 1024, gt=0)
     max_learning_pixels: int = Field(200_000_000, gt=0, description="pixels an eigenspace "
                                      "learning job may render (the paper's room: 5 M)")

@@ -27,6 +27,7 @@ from numeric.qualitative.drm import (
 )
 from numeric.world import World, WorldDescription
 from numeric.worlds import TEMPLATES, from_template
+from service.compute import Cached, blob_key, load_world
 from service.kb import KbError, KnowledgeBase
 from service.store import Store
 
@@ -281,6 +282,11 @@ class WorldService:
                 raise NotFound(f"world {name!r} does not exist", field="world")
             self._models[name] = World(WorldDescription.model_validate(row.description))
         return self._models[name]
+
+    def cached_model(self, name: str) -> Cached:
+        """World ``name`` as compute workers receive it (its description, by digest)."""
+        blob = self.model(name).description.model_dump_json().encode()
+        return Cached(blob_key(blob), blob, load_world)
 
     def summary(self, name: str) -> dict[str, Any]:
         w = self.model(name)

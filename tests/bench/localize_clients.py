@@ -1,17 +1,23 @@
-"""Localization throughput against concurrent clients, on a live `chizu serve`: room A
-learned at the paper's size, one full turn of 72 PNG images per request (rendered once
-by the service's camera), 1, 2 and 8 clients sending the same number of requests.
+"""Localization throughput against concurrent clients, on a live `chizu serve` with 1
+and with 2 compute workers (``CHIZU_WORKERS``): room A learned at the paper's size, one
+full turn of 72 PNG images per request (rendered once by the service's camera), 1, 2
+and 4 clients sending the same number of requests. The body is encoded once, so the
+clients (on the same machine) take little CPU from the server.
 
-    .venv/bin/python tests/bench/localize_clients.py [--requests 200] [--out bench-out]
+    .venv/bin/python tests/bench/localize_clients.py [--requests 300] [--out bench-out]
 
-Writes OUT/localize_clients.md: requests per second and p50 / p95 latency, and the
-speed-up over one client (the machine's cores bound it: 2 here).
+Writes OUT/localize_clients.md: requests per second and p50 / p95 latency per number of
+workers and clients, and the speed-up of 2 workers over 1 at each number of clients
+(the machine's cores bound it: 2 here, shared by the server's event loop, the
+workers and the clients).
 """
 
 from __future__ import annotations
 
 import argparse
 import concurrent.futures
+import json
+import os
 import statistics
 import sys
 import tempfile
@@ -21,15 +27,16 @@ from pathlib import Path
 import httpx
 
 
-def run(url: str, body: dict[str, object], clients: int, n: int) -> tuple[float, list[float]]:
+def run(url: str, body: bytes, clients: int, n: int) -> tuple[float, list[float]]:
     """(requests per second, latencies) of ``n`` requests from ``clients`` threads."""
     lat: list[float] = []
+    headers = {"content-type": "application/json"}
 
     def one(_: int) -> None:
         with httpx.Client(base_url=url, timeout=120) as c:
             for _ in range(n // clients):
                 t0 = time.perf_counter()
-                r = c.post("/worlds/bench/localize", json=body)
+                r = c.post("/worlds/bench/localize", content=body, headers=headers)
                 lat.append(time.perf_counter() - t0)
                 r.raise_for_status()
 
@@ -39,15 +46,39 @@ def run(url: str, body: dict[str, object], clients: int, n: int) -> tuple[float,
     return len(lat) / (time.perf_counter() - t0), lat
 
 
-def main() -> None:
+def cpu_s(pid: int) -> tuple[float, float]:
+    """CPU seconds (user + system) of process ``pid`` and of all its descendants (the
+    fork server and the compute workers), from /proc."""
+    tick = os.sysconf("SC_CLK_TCK")
+    stat: dict[int, tuple[int, float]] = {}
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                f = (d / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            stat[int(d.name)] = (int(f[1]), (int(f[11]) + int(f[12])) / tick)
+    kids: dict[int, list[int]] = {}
+    for p, (pp, _) in stat.items():
+        kids.setdefault(pp, []).append(p)
+    todo, desc = list(kids.get(pid, [])), 0.0
+    while todo:
+        p = todo.pop()
+        desc += stat[p][1]
+        todo += kids.get(p, [])
+    return stat[pid][1], desc
+
+
+Row = tuple[int, float, list[float], tuple[float, ...]]
+
+
+def serve_and_measure(workers: int, n: int) -> list[Row]:
+    """A fresh server with ``workers`` compute workers: (clients, req/s, latencies, CPU
+    ms per request of the server process, of its workers, of the clients)."""
     from tests.conftest import LiveServer
 
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--requests", type=int, default=200)
-    ap.add_argument("--out", default="bench-out")
-    args = ap.parse_args()
-    out = Path(args.out)
-    out.mkdir(exist_ok=True)
+    os.environ["CHIZU_WORKERS"] = str(workers)
+    rows = []
     with tempfile.TemporaryDirectory() as d:
         srv = LiveServer(Path(d) / "data")
         try:
@@ -62,23 +93,46 @@ def main() -> None:
                     raise SystemExit(f"learning ended {status}: {c.get(loc).json()}")
                 turn = c.post("/worlds/bench/camera", json={"pose": {"x": 3.0, "y": 5.0},
                                                             "turn": 72}).json()
-            body = {"images_png": turn["images_png"]}
-            run(srv.url, body, 1, 10)  # warm up
-            lines = ["# Localization throughput against concurrent clients (live server, "
-                     "room A, 72-image PNG turns)", "",
-                     "| clients | requests/s | p50 (ms) | p95 (ms) | vs 1 client |",
-                     "|---|---|---|---|---|"]
-            base = 0.0
-            for clients in (1, 2, 8):
-                rps, lat = run(srv.url, body, clients, args.requests)
-                base = base or rps
-                q = statistics.quantiles(lat, n=20)
-                lines.append(f"| {clients} | {rps:.1f} | {1e3 * statistics.median(lat):.1f} | "
-                             f"{1e3 * q[18]:.1f} | {rps / base:.2f}x |")
-                print(lines[-1], flush=True)
+            body = json.dumps({"images_png": turn["images_png"]}).encode()
+            run(srv.url, body, 2, 20)  # warm up (every worker caches the analysis)
+            for clients in (1, 2, 4):
+                c0, s0, w0 = time.process_time(), *cpu_s(srv.proc.pid)
+                rps, lat = run(srv.url, body, clients, n)
+                c1, s1, w1 = time.process_time(), *cpu_s(srv.proc.pid)
+                cpu = tuple(1e3 * v / len(lat) for v in (s1 - s0, w1 - w0, c1 - c0))
+                rows.append((clients, rps, lat, cpu))
+                print(f"workers {workers} clients {clients}: {rps:.1f} req/s", flush=True)
         finally:
             srv.stop()
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--requests", type=int, default=300)
+    ap.add_argument("--out", default="bench-out")
+    args = ap.parse_args()
+    out = Path(args.out)
+    out.mkdir(exist_ok=True)
+    res = {w: serve_and_measure(w, args.requests) for w in (1, 2)}
+    lines = ["# Localization throughput: compute workers x concurrent clients (live server, "
+             "room A, 72-image PNG turns)", "",
+             "| workers | clients | requests/s | p50 (ms) | p95 (ms) | 2 workers vs 1 | "
+             "CPU ms per request: server / workers / clients |",
+             "|---|---|---|---|---|---|---|"]
+    for w in (1, 2):
+        for (clients, rps, lat, cpu), row1 in zip(res[w], res[1], strict=True):
+            q = statistics.quantiles(lat, n=20)
+            lines.append(f"| {w} | {clients} | {rps:.1f} | {1e3 * statistics.median(lat):.1f} "
+                         f"| {1e3 * q[18]:.1f} | {rps / row1[1]:.2f}x | "
+                         + " / ".join(f"{v:.1f}" for v in cpu) + " |")
+    srv_, wrk, cli = res[2][-1][3]
+    lines += ["", f"With 2 cores shared by the server process, the workers and the clients, "
+              f"2 workers can give at most {2 * wrk / (srv_ + wrk + cli):.2f}x one worker's "
+              "throughput (2 cores over the CPU a request takes in all, against one core over "
+              "a worker's part)."]
     (out / "localize_clients.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
 
 
 if __name__ == "__main__":

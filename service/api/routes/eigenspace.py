@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import asyncio
-import base64
-import binascii
 from typing import Annotated, Any
 
 import numpy as np
-from fastapi import APIRouter, File, Form, Path, Query, Response, UploadFile, status
+from fastapi import APIRouter, File, Form, Path, Query, Request, Response, UploadFile, status
 from pydantic import ValidationError
 
 from numeric.eigenspace.analysis import EigenspaceConfig
@@ -16,13 +14,14 @@ from numeric.eigenspace.image_sets import (
     MAX_IMAGES,
     POSES_FILE,
     decode_image,
-    encode_png,
     parse_size,
     read_image_set,
     read_image_zip,
 )
 from numeric.errors import InvalidInput
+from service.compute import stack_turn
 from service.deps import EigenspaceDep, WorldDep
+from service.disconnect import unless_disconnected
 from service.eigenspace import check_source
 from service.schemas.eigenspace import (
     MAX_TURN_IMAGES,
@@ -44,39 +43,20 @@ SessionId = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$", description="session 
 JobId = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$", description="job id")]
 
 
-def decode_turn(body: TurnIn, shape: tuple[int, int] | None = None) -> np.ndarray:
-    """Images ``(n, H, W)`` from nested lists or base64 PNG; 4xx naming the field. A
-    PNG whose header is not ``shape`` (H, W) is refused before it is decoded."""
-    if body.images is not None:
-        shapes = {(len(im), len(im[0])) for im in body.images}
-        for i, im in enumerate(body.images):
-            if len({len(r) for r in im}) != 1:
-                raise InvalidInput(f"image {i} has rows of different lengths",
-                                   field=f"images[{i}]")
-        if len(shapes) != 1:
-            raise InvalidInput(f"all images must have the same size, got {sorted(shapes)}",
-                               field="images")
-        return np.asarray(body.images, dtype=float)
-    out = []
-    for i, s in enumerate(body.images_png or []):
-        try:
-            raw = base64.b64decode(s, validate=True)
-        except (binascii.Error, ValueError) as e:
-            raise InvalidInput(f"not base64: {e}", field=f"images_png[{i}]") from e
-        out.append(decode_image(f"images_png[{i}]", raw, formats=("PNG",),
-                                expect=None if shape is None else (shape[1], shape[0])))
-    return stack_turn(out, "images_png")
-
-
-def stack_turn(images: list[np.ndarray], field: str) -> np.ndarray:
-    """One turn ``(n, H, W)`` from decoded images, which must share one size."""
-    if len({a.shape for a in images}) != 1:
-        raise InvalidInput("all images must have the same size", field=field)
-    return np.stack(images)
-
-
-def png_b64(img: np.ndarray) -> str:
-    return base64.b64encode(encode_png(img, bits=8)).decode()
+def turn_payload(body: TurnIn) -> list[str] | np.ndarray:
+    """What the compute workers decode: the base64 PNGs as they came, or the nested lists
+    as an array ``(n, H, W)`` (checked here: rows of one length, images of one size)."""
+    if body.images is None:
+        return list(body.images_png or [])
+    shapes = {(len(im), len(im[0])) for im in body.images}
+    for i, im in enumerate(body.images):
+        if len({len(r) for r in im}) != 1:
+            raise InvalidInput(f"image {i} has rows of different lengths",
+                               field=f"images[{i}]")
+    if len(shapes) != 1:
+        raise InvalidInput(f"all images must have the same size, got {sorted(shapes)}",
+                           field="images")
+    return np.asarray(body.images, dtype=float)
 
 
 def parse_config(text: str | None) -> EigenspaceConfig:
@@ -187,11 +167,13 @@ async def get_covering(world: WorldDep, eig: EigenspaceDep,
 
 
 @router.post("/localize", response_model=LocalizationOut)
-async def post_localize(world: WorldDep, body: TurnIn, eig: EigenspaceDep) -> dict[str, Any]:
+async def post_localize(world: WorldDep, body: TurnIn, eig: EigenspaceDep,
+                        request: Request) -> dict[str, Any]:
     """One full turn of images -> state (X / Y / Z), pose when Z, candidates."""
-    shape = eig.analysis(world).model.image_shape  # 404 before decoding anything
-    turn = await asyncio.to_thread(decode_turn, body, shape)  # off the event loop
-    return await eig.localize(world, turn)
+    eig.analysis(world)  # 404 before decoding anything
+    turn = await asyncio.to_thread(turn_payload, body)
+    # decoded and matched in a compute worker, stopped if the client leaves
+    return await unless_disconnected(request, eig.localize(world, turn))
 
 
 @router.post("/localize/images", response_model=LocalizationOut)
@@ -232,13 +214,15 @@ async def get_session(world: WorldDep, sid: SessionId, eig: EigenspaceDep) -> di
 
 @router.post("/localization-sessions/{sid}/stops", response_model=SessionLocalizationOut)
 async def post_stop(world: WorldDep, sid: SessionId, body: StopIn,
-                    eig: EigenspaceDep) -> dict[str, Any]:
+                    eig: EigenspaceDep, request: Request) -> dict[str, Any]:
     """One stop: a full turn of images plus the odometry since the previous stop."""
     motion = None if body.odometry is None else np.array(
         [body.odometry.dx, body.odometry.dy, body.odometry.dtheta])
-    shape = eig.analysis(world).model.image_shape  # 404 before decoding anything
-    turn = await asyncio.to_thread(decode_turn, body, shape)  # off the event loop
-    return await eig.add_stop(world, sid, turn, motion)
+    eig.analysis(world)  # 404 before decoding anything
+    turn = await asyncio.to_thread(turn_payload, body)
+    # decoded and matched in a compute worker; a client that leaves stops it, and its
+    # stop is then not recorded (the session is written last, in one transaction)
+    return await unless_disconnected(request, eig.add_stop(world, sid, turn, motion))
 
 
 @router.get("/localization-sessions/{sid}/next-move", response_model=NextMoveOut)
@@ -248,15 +232,12 @@ async def get_next_move(world: WorldDep, sid: SessionId, eig: EigenspaceDep) -> 
 
 
 @router.post("/camera", response_model=CameraOut, response_model_exclude_unset=True)
-async def post_camera(world: WorldDep, body: CameraIn, eig: EigenspaceDep) -> dict[str, Any]:
+async def post_camera(world: WorldDep, body: CameraIn, eig: EigenspaceDep,
+                      request: Request) -> dict[str, Any]:
     """Render the simulated camera at a pose (one image, or a full turn): base64 PNG by
     default, nested lists with ``"format": "list"``."""
     pose = np.array([body.pose.x, body.pose.y, body.pose.theta])
-
-    def render() -> dict[str, Any]:  # rendering and encoding: off the event loop
-        imgs = eig.render(world, pose, body.camera, body.turn)
-        if body.format == "png":
-            return {"images_png": [png_b64(i) for i in imgs]}
-        return {"images": np.round(imgs, 4).tolist()}
-
-    return await asyncio.to_thread(render)
+    # rendered and encoded in a compute worker, within the request's time budget, and
+    # stopped if the client leaves
+    return await unless_disconnected(
+        request, eig.render(world, pose, body.camera, body.turn, body.format))

@@ -1,0 +1,276 @@
+"""The compute pool: a request's CPU-heavy work (image decoding, eigenspace projection,
+camera rendering) runs in worker processes, each task under a time budget, and is
+stopped when its client leaves.
+
+Why processes: Python code holds the GIL, so numeric work in threads serialises with
+the event loop and with each other -- localization did not scale past one core. Why
+pebble (``pebble.ProcessPool``): a task over its budget, or cancelled because its
+client disconnected, gets its worker process terminated and replaced; the standard
+library's pools can only wait for it.
+
+The workers are forked from a fork server (``multiprocessing`` "forkserver"), never
+from the server itself, whose Prolog engine runs threads that must not be forked. The
+task functions below import ``numeric`` only: no web, no Prolog in a worker.
+
+A worker caches what it was sent by key (an eigenspace analysis is 0.5-5 MB): a task
+is sent the key alone and answers :data:`MISS` when the worker has not seen it; the
+pool then sends it again with the bytes.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import binascii
+import concurrent.futures
+import contextlib
+import hashlib
+import logging
+import multiprocessing
+import os
+from collections import OrderedDict
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from multiprocessing import forkserver
+from typing import Any, TypeVar
+
+import numpy as np
+
+from numeric.camera import Camera, CameraConfig
+from numeric.eigenspace.analysis import EigenspaceAnalysis
+from numeric.eigenspace.image_sets import decode_image, encode_png
+from numeric.eigenspace.localization import Session, TurnCandidates, Vote, turn_candidates
+from numeric.errors import ChizuError, InvalidInput
+from numeric.world import World, WorldDescription
+
+log = logging.getLogger(__name__)
+T = TypeVar("T")
+
+MISS = "chizu-compute-cache-miss"  #: a task's answer when its worker lacks the cached bytes
+_CACHE_ENTRIES = 4
+_cache: OrderedDict[str, Any] = OrderedDict()  # per worker process
+
+
+class BudgetExceeded(ChizuError):
+    """The request's computation ran past its time budget and was stopped."""
+
+    status = 503
+
+
+class WorkerLost(ChizuError):
+    """The worker process running the request's computation died."""
+
+    status = 503
+
+
+def blob_key(blob: bytes) -> str:
+    """The cache key of a blob: its content digest."""
+    return hashlib.blake2b(blob, digest_size=16).hexdigest()
+
+
+@dataclass(frozen=True)
+class Cached:
+    """Bytes a worker keeps once it has seen them, and how it turns them into an
+    object (a module-level function, so that it pickles)."""
+
+    key: str
+    blob: bytes
+    load: Callable[[bytes], Any]
+
+
+def _cached(key: str, blob: bytes | None, load: Callable[[bytes], Any]) -> Any:
+    """The object for ``key`` in this worker, built from ``blob`` on first use; MISS if
+    the worker has not seen it and no bytes came with the task."""
+    if key in _cache:
+        _cache.move_to_end(key)
+        return _cache[key]
+    if blob is None:
+        return MISS
+    obj = _cache[key] = load(blob)
+    while len(_cache) > _CACHE_ENTRIES:
+        _cache.popitem(last=False)
+    return obj
+
+
+def _run_cached(fn: Callable[..., Any], key: str, blob: bytes | None,
+                load: Callable[[bytes], Any], args: tuple[Any, ...]) -> Any:
+    """Worker side of :meth:`ComputePool.run_cached`."""
+    obj = _cached(key, blob, load)
+    if isinstance(obj, str) and obj == MISS:
+        return MISS
+    return fn(obj, *args)
+
+
+@contextlib.contextmanager
+def _environ(**env: str) -> Iterator[None]:
+    """``os.environ`` with ``env`` added, for the processes started inside."""
+    old = {k: os.environ.get(k) for k in env}
+    os.environ.update(env)
+    try:
+        yield
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+class ComputePool:
+    """``workers`` processes (0: run tasks in a thread of this process, without a
+    budget, for the CLI) and a default budget per task, in seconds."""
+
+    def __init__(self, workers: int, budget_s: float) -> None:
+        self.workers, self.budget_s = workers, budget_s
+        self._pool: Any = None
+        if workers > 0:
+            import pebble
+
+            ctx = multiprocessing.get_context("forkserver")
+            # the fork server imports the numeric stack once; each worker forks from it.
+            # One BLAS thread per worker: the workers are the parallelism, and idle
+            # OpenBLAS threads spin, taking cores from the other workers.
+            ctx.set_forkserver_preload(["service.compute"])
+            with _environ(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1"):
+                forkserver.ensure_running()
+            self._pool = pebble.ProcessPool(max_workers=workers, context=ctx)
+
+    async def run(self, fn: Callable[..., T], *args: Any, budget_s: float | None = None) -> T:
+        """``fn(*args)`` in a worker, within ``budget_s`` (default: the pool's). Raises
+        :class:`BudgetExceeded` past the budget (the worker is stopped), the task's own
+        :class:`ChizuError`, or :class:`WorkerLost`. Cancelling the await (the client
+        left) stops the worker too."""
+        budget = self.budget_s if budget_s is None else budget_s
+        if self._pool is None:
+            return await asyncio.to_thread(fn, *args)
+        fut = self._pool.schedule(fn, args=args, timeout=budget)
+        try:
+            return await asyncio.wrap_future(fut)  # type: ignore[no-any-return]
+        except concurrent.futures.TimeoutError as e:
+            raise BudgetExceeded(f"the computation ran past its time budget of {budget:g} s "
+                                 "and was stopped; ask for less (fewer or smaller images, a "
+                                 "smaller problem)") from e
+        except concurrent.futures.CancelledError:
+            raise asyncio.CancelledError from None
+        except ChizuError:
+            raise
+        except Exception as e:  # pebble's ProcessExpired: the worker died (killed, OOM)
+            if type(e).__name__ == "ProcessExpired":
+                log.error("compute worker died: %s", e)
+                raise WorkerLost("the worker process computing this request died; try "
+                                 "again, with a smaller request if it happens again") from e
+            raise
+
+    async def run_cached(self, fn: Callable[..., T], cached: Cached, *args: Any,
+                         budget_s: float | None = None) -> T:
+        """``fn(obj, *args)`` where ``obj = cached.load(cached.blob)``, built once per
+        worker: the bytes travel only to a worker that has not seen them."""
+        if self._pool is None:
+            return await asyncio.to_thread(fn, cached.load(cached.blob), *args)
+        r = await self.run(_run_cached, fn, cached.key, None, cached.load, args,
+                           budget_s=budget_s)
+        if isinstance(r, str) and r == MISS:
+            r = await self.run(_run_cached, fn, cached.key, cached.blob, cached.load, args,
+                               budget_s=budget_s)
+        return r  # type: ignore[no-any-return]
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.stop()
+            self._pool.join(timeout=10)
+            self._pool = None
+
+
+# -- tasks (run in a worker; numeric only) -------------------------------------------------
+def decode_png_turn(images_png: list[str], shape: tuple[int, int] | None) -> np.ndarray:
+    """One turn ``(n, H, W)`` from base64 PNG images; a PNG whose header is not
+    ``shape`` (H, W) is refused before it is decoded; 422 naming the image."""
+    out = []
+    for i, s in enumerate(images_png):
+        try:
+            raw = base64.b64decode(s, validate=True)
+        except (binascii.Error, ValueError) as e:
+            raise InvalidInput(f"not base64: {e}", field=f"images_png[{i}]") from e
+        out.append(decode_image(f"images_png[{i}]", raw, formats=("PNG",),
+                                expect=None if shape is None else (shape[1], shape[0])))
+    return stack_turn(out, "images_png")
+
+
+def stack_turn(images: list[np.ndarray], field: str) -> np.ndarray:
+    """One turn ``(n, H, W)`` from decoded images, which must share one size."""
+    if len({a.shape for a in images}) != 1:
+        raise InvalidInput("all images must have the same size", field=field)
+    return np.stack(images)
+
+
+def check_turn(a: EigenspaceAnalysis, images: np.ndarray) -> np.ndarray:
+    """A full turn for analysis ``a``: as many images as it has directions, each of its
+    size, finite, in [0, 1]; 422 naming ``images`` otherwise."""
+    n = len(a.model.directions)
+    if images.ndim != 3 or len(images) != n:
+        raise InvalidInput(f"one full turn is {n} images (relative headings 2*pi*j/{n}); "
+                           f"got {len(images) if images.ndim else 0}", field="images")
+    return a.model.check_images(images)
+
+
+@dataclass(frozen=True)
+class FirstStop:
+    """A one-stop localization computed in a worker: the session, its vote and what
+    the answer reports of them (:func:`stop_report`)."""
+
+    session: Session
+    vote: Vote
+    report: dict[str, Any]
+
+
+def turn_task(a: EigenspaceAnalysis, turn: list[str] | np.ndarray,
+              first_stop: bool) -> TurnCandidates | FirstStop:
+    """One turn's region hits (Ohta et al. §3.4: project, region test); for a first
+    stop, the new session, its vote and the report. ``turn``: base64 PNGs, or images."""
+    imgs = decode_png_turn(turn, a.model.image_shape) if isinstance(turn, list) else turn
+    cands = turn_candidates(a.regions, check_turn(a, imgs))
+    if not first_stop:
+        return cands
+    s = Session(a.config.localization)
+    s.add_stop(cands, a.config.regions.d_thd_m)
+    vote = s.vote(a.set_of())
+    return FirstStop(s, vote, stop_report(s, vote))
+
+
+def stop_report(s: Session, vote: Vote) -> dict[str, Any]:
+    """What an answer says of a session's vote: up to 10 candidate poses (the best of
+    each cluster of agreeing hits, with its votes, triplet and cluster size), whether
+    the vote is unique, and the pose estimate (used when the state is Z)."""
+    cands = []
+    for cluster, best in list(zip(vote.clusters, s.representatives(vote), strict=True))[:10]:
+        p = s.current_pose(best)
+        cands.append({"pose": {"x": float(p[0]), "y": float(p[1]), "theta": float(p[2])},
+                      "votes": float(vote.votes[best]), "triplet": s.triplet[best],
+                      "members": len(cluster)})
+    est = None
+    if vote.winner is not None:
+        p = s.estimate(vote)
+        est = {"x": float(p[0]), "y": float(p[1]), "theta": float(p[2])}
+    return {"candidates": cands, "estimate": est, "unique": vote.unique, "stops": s.stops}
+
+
+def load_world(blob: bytes) -> World:
+    """A world model from its description's JSON (a :class:`Cached` loader)."""
+    return World(WorldDescription.model_validate_json(blob))
+
+
+def camera_task(world: World, config: CameraConfig, pose: np.ndarray, turn: int | None,
+                fmt: str) -> dict[str, Any]:
+    """Render the simulated camera (one image, or a turn) and encode it: base64 PNG, or
+    nested lists rounded to 1e-4."""
+    cam = Camera(world, config)
+    imgs = cam.render(pose)[None] if turn is None else cam.render_turn(pose[:2],
+                                                                       float(pose[2]), turn)
+    if fmt == "png":
+        return {"images_png": [png_b64(i) for i in imgs]}
+    return {"images": np.round(imgs, 4).tolist()}
+
+
+def png_b64(img: np.ndarray) -> str:
+    """A grey image in [0, 1] as base64 8-bit PNG."""
+    return base64.b64encode(encode_png(img, bits=8)).decode()
