@@ -7,6 +7,7 @@ import asyncio
 import os
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -48,7 +49,7 @@ def ident(obj: str) -> str:
 
 
 @pytest.fixture(scope="module")
-def pool() -> ComputePool:
+def pool() -> Iterator[ComputePool]:
     p = ComputePool(2, budget_s=5.0)
     yield p
     p.close()
