@@ -130,7 +130,7 @@ class ComputePool:
             # the fork server imports the numeric stack once; each worker forks from it.
             # One BLAS thread per worker: the workers are the parallelism, and idle
             # OpenBLAS threads spin, taking cores from the other workers.
-            ctx.set_forkserver_preload(["service.compute"])
+            ctx.set_forkserver_preload(["service.compute", "service.viewpoint_tasks"])
             with _environ(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1"):
                 forkserver.ensure_running()
             self._pool = pebble.ProcessPool(max_workers=workers, context=ctx)

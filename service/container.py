@@ -88,7 +88,8 @@ def open_services(settings: Settings | None = None,
         services = Services(settings, store, kb, worlds, jobs, compute,
                             EigenspaceService(store, kb, worlds, jobs, compute, executor,
                                               settings.max_learning_pixels),
-                            SlamService(store, kb, worlds), ViewpointService(store, kb, worlds))
+                            SlamService(store, kb, worlds),
+                            ViewpointService(store, kb, worlds, compute))
         counts = worlds.restore_all()
         runs = services.slam.restore_runs()
         log.info("restored from %s: %s, %d SLAM run(s)", settings.db_path,

@@ -107,3 +107,17 @@ def test_the_openapi_documents_every_error_as_a_problem() -> None:
                 assert list(resp["content"]) == ["application/problem+json"], (path, code)
                 assert resp["content"]["application/problem+json"]["schema"] == {
                     "$ref": "#/components/schemas/Problem"}, (path, code)
+
+
+def test_the_compute_workers_load_no_web_and_no_prolog() -> None:
+    """The modules the compute workers import (service.compute's tasks and
+    service.viewpoint_tasks) pull in numeric only: no web framework, no pyswip."""
+    import subprocess
+    import sys
+
+    code = ("import sys, service.compute, service.viewpoint_tasks; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in "
+            "('pyswip', 'fastapi', 'starlette', 'uvicorn') or m == 'service.kb'))")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
+                         text=True, check=True).stdout.strip()
+    assert out == "[]", out

@@ -13,7 +13,7 @@ import hashlib
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, model_validator
@@ -186,6 +186,17 @@ class PlannedGroup:
 
 
 @dataclass
+class Prepared:
+    """Step 1's result (:meth:`ViewpointPlanner.prepare`): the candidates, the grid's
+    unknown components, what the grouping is asked, and the time it took."""
+
+    cands: dict[str, Candidate]
+    comps: dict[int, UnknownComponent]
+    group_args: tuple[list[dict[str, Any]], list[dict[str, Any]], float | None]
+    prepare_ms: float
+
+
+@dataclass
 class PlanReport:
     """The planner's answer: groups, the best plan first, then the runner-ups."""
 
@@ -345,11 +356,25 @@ class ViewpointPlanner:
         rules), :meth:`value_and_verify` (each group's expected verification time,
         eqs. 5-10, and value, eqs. 15-17) and :meth:`solve` (the ordered plan
         maximising U = V - L(t), eq. 11). ``beliefs`` replace candidates' orientation
-        beliefs (the online loop's updates)."""
+        beliefs (the online loop's updates). The service runs it as :meth:`prepare`,
+        the grouping, and :meth:`finish`, the numeric parts in a worker process."""
+        prep = self.prepare(req, grid, beliefs)
+        t0 = time.perf_counter()
+        specs = grouper(*prep.group_args)
+        return self.finish(req, grid, prep, specs, 1e3 * (time.perf_counter() - t0))
+
+    def prepare(self, req: PlanRequest, grid: PlanningGrid,
+                beliefs: dict[str, np.ndarray] | None = None) -> Prepared:
+        """Step 1 (:meth:`candidates`) and what step 2's grouping is asked."""
         t0 = time.perf_counter()
         cands, comps = self.candidates(req, grid, beliefs)
-        t1 = time.perf_counter()
-        specs = self.group(req, grouper, cands, comps)
+        return Prepared(cands, comps, self.group_args(req, cands, comps),
+                        1e3 * (time.perf_counter() - t0))
+
+    def finish(self, req: PlanRequest, grid: PlanningGrid, prep: Prepared,
+               specs: list[GroupSpec], grouping_ms: float = 0.0) -> PlanReport:
+        """Steps 3 and 4 (:meth:`value_and_verify`, :meth:`solve`) for the groups."""
+        cands, comps = prep.cands, prep.comps
         t2 = time.perf_counter()
         verifier = Verifier(grid, req.speed_m_s, req.t_verify_s, req.clearance_m,
                             req.use_table, self.tables, self.viewpoint_sets)
@@ -364,10 +389,11 @@ class ViewpointPlanner:
             return plan_steps(plan, planned, cands, verifier, robot, exit_, req.speed_m_s,
                               distance)
 
+        local, glob = 1e3 * (t3 - t2), 1e3 * (t4 - t3)
         return PlanReport(planned, solution.plans, skipped, solution,
-                          {"prepare": 1e3 * (t1 - t0), "grouping": 1e3 * (t2 - t1),
-                           "local": 1e3 * (t3 - t2), "global": 1e3 * (t4 - t3),
-                           "total": 1e3 * (t4 - t0)},
+                          {"prepare": prep.prepare_ms, "grouping": grouping_ms,
+                           "local": local, "global": glob,
+                           "total": prep.prepare_ms + grouping_ms + local + glob},
                           self.tables.builds - builds, self.tables.hits - hits, steps_of)
 
     def candidates(self, req: PlanRequest, grid: PlanningGrid,
@@ -395,17 +421,18 @@ class ViewpointPlanner:
         return cands, {c.label: c for c in grid.unknown_components()}
 
     @staticmethod
-    def group(req: PlanRequest, grouper: Grouper, cands: dict[str, Candidate],
-              comps: dict[int, UnknownComponent]) -> list[GroupSpec]:
-        """Step 2 (§4.2): observation groups -- candidates that one look can verify
-        together, and each unknown region large enough -- decided by ``grouper`` (the
-        Prolog rules of prolog/grouping.pl in the service)."""
-        return grouper(
-            [{"id": c.id, "type": c.type, "x": float(c.xy[0]), "y": float(c.xy[1]),
-              "r_max": max(c.model.r_max, 1e-3)} for c in cands.values()],
-            [{"id": k, "x": float(c.centroid[0]), "y": float(c.centroid[1]),
-              "area_m2": c.area_m2} for k, c in comps.items()],
-            req.min_area_m2)
+    def group_args(req: PlanRequest, cands: dict[str, Candidate],
+                   comps: dict[int, UnknownComponent]
+                   ) -> tuple[list[dict[str, Any]], list[dict[str, Any]], float | None]:
+        """Step 2 (§4.2) is asked: observation groups -- candidates that one look can
+        verify together, and each unknown region large enough -- are decided by a
+        :data:`Grouper` (the Prolog rules of prolog/grouping.pl in the service) from
+        these candidates (with R_max), regions and minimum area."""
+        return ([{"id": c.id, "type": c.type, "x": float(c.xy[0]), "y": float(c.xy[1]),
+                  "r_max": max(c.model.r_max, 1e-3)} for c in cands.values()],
+                [{"id": k, "x": float(c.centroid[0]), "y": float(c.centroid[1]),
+                  "area_m2": c.area_m2} for k, c in comps.items()],
+                req.min_area_m2)
 
     def value_and_verify(self, req: PlanRequest, grid: PlanningGrid, specs: list[GroupSpec],
                          cands: dict[str, Candidate], comps: dict[int, UnknownComponent],
