@@ -84,11 +84,11 @@ def open_services(settings: Settings | None = None,
     compute = ComputePool(settings.workers, settings.request_budget_s)
     try:
         worlds = WorldService(store, kb)
-        jobs = Jobs(store)
+        jobs = Jobs(store, settings.job_budget_s)
         services = Services(settings, store, kb, worlds, jobs, compute,
                             EigenspaceService(store, kb, worlds, jobs, compute, executor,
                                               settings.max_learning_pixels),
-                            SlamService(store, kb, worlds),
+                            SlamService(store, kb, worlds, settings.request_budget_s),
                             ViewpointService(store, kb, worlds, compute))
         counts = worlds.restore_all()
         runs = services.slam.restore_runs()

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import threading
 import time
 import uuid
@@ -32,15 +33,23 @@ class JobCancelled(Exception):
     """Raised in a job's worker thread by its progress report once the job is cancelled."""
 
 
+class JobOverBudget(ChizuError):
+    """Raised in a job's worker thread by its progress report once its time is up."""
+
+    status = 503
+
+
 class JobProgress:
     """What a job's work reports through: ``progress(stage, fraction)``. Writes reach the
     store when the stage changes or every ``interval_s`` at most (the work may report
-    thousands of times); raises :class:`JobCancelled` once the job is cancelled."""
+    thousands of times); raises :class:`JobCancelled` once the job is cancelled and
+    :class:`JobOverBudget` once it has run for ``budget_s``."""
 
     def __init__(self, store: Store, jid: str, cancelled: threading.Event,
-                 interval_s: float = 0.5) -> None:
+                 interval_s: float = 0.5, budget_s: float = math.inf) -> None:
         self.store, self.jid, self.cancelled = store, jid, cancelled
-        self.interval_s = interval_s
+        self.interval_s, self.budget_s = interval_s, budget_s
+        self._deadline = time.monotonic() + budget_s
         self._stage: str | None = None
         self._written = 0.0
 
@@ -48,6 +57,10 @@ class JobProgress:
         if self.cancelled.is_set():
             raise JobCancelled(self.jid)
         now = time.monotonic()
+        if now > self._deadline:
+            raise JobOverBudget(f"the job ran past its time budget of {self.budget_s:g} s "
+                                f"(in stage {stage!r}) and was stopped; ask for less "
+                                "(e.g. a coarser learning grid)", field=None)
         if stage != self._stage or now - self._written >= self.interval_s:
             self._stage, self._written = stage, now
             self.store.update_job(self.jid, unfinished_only=True, stage=stage,
@@ -58,8 +71,11 @@ Work = Callable[[JobProgress], Awaitable[dict[str, Any]]]
 
 
 class Jobs:
-    def __init__(self, store: Store) -> None:
-        self.store = store
+    """Durable background jobs; each may run for ``budget_s`` (its progress reports stop
+    it past that)."""
+
+    def __init__(self, store: Store, budget_s: float = math.inf) -> None:
+        self.store, self.budget_s = store, budget_s
         self._tasks: dict[str, asyncio.Task[None]] = {}
         self._cancel: dict[str, threading.Event] = {}
         self._closing = False
@@ -93,7 +109,8 @@ class Jobs:
         status, fields = "failed", {}
         try:
             self.store.update_job(jid, status="running", stage="running")
-            result = await work(JobProgress(self.store, jid, self._cancel[jid]))
+            result = await work(JobProgress(self.store, jid, self._cancel[jid],
+                                            budget_s=self.budget_s))
             status, fields = "done", {"stage": "done", "progress": 1.0, "result": result}
         except (asyncio.CancelledError, JobCancelled):
             status = "interrupted" if self._closing else "cancelled"

@@ -30,6 +30,8 @@ class Settings(BaseSettings):
     request_budget_s: float = Field(30.0, gt=0, description="time budget of one request's "
                                     "work in a compute worker; past it the worker is stopped "
                                     "and the request answered 503")
+    job_budget_s: float = Field(3600.0, gt=0, description="time budget of a background job "
+                                "(eigenspace learning); past it the job fails")
     max_body_bytes: int = Field(8 * 1024 * 1024, gt=0)
     max_learning_pixels: int = Field(200_000_000, gt=0, description="pixels an eigenspace "
                                      "learning job may render (the paper's room: 5 M)")

@@ -19,6 +19,8 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import math
+import time
 import uuid
 from dataclasses import dataclass, field
 from typing import Any
@@ -29,6 +31,7 @@ from numeric.errors import InvalidInput, NotFound
 from numeric.occupancy import OccupancyMap, build_occupancy
 from numeric.scan import Scan, beam_angles
 from numeric.slam.runner import Slam, SlamOptions, create
+from service.compute import BudgetExceeded
 from service.kb import KnowledgeBase
 from service.schemas.slam import ScanIn
 from service.store import Store
@@ -81,8 +84,11 @@ class Run:
 
 
 class SlamService:
-    def __init__(self, store: Store, kb: KnowledgeBase, worlds: WorldService) -> None:
+    def __init__(self, store: Store, kb: KnowledgeBase, worlds: WorldService,
+                 budget_s: float = 30.0) -> None:
         self.store, self.kb, self.worlds = store, kb, worlds
+        #: a batch of scans is processed for at most this long (then it stops between scans)
+        self.budget_s = budget_s
         self.runs: dict[str, Run] = {}
         worlds.on_delete.append(self._forget)
         worlds.register(ArtifactKind(FACTS_ARTIFACT, "slam_facts", "slam",
@@ -153,15 +159,31 @@ class SlamService:
             if run.scans + len(scans) > MAX_SCANS_PER_RUN:
                 raise InvalidInput(f"a run holds at most {MAX_SCANS_PER_RUN} scans",
                                    field="scans")
+            first = run.scans
             with self.store.transaction() as conn:
-                self.store.append_slam_scans(conn, rid, run.scans,
-                                             [s.model_dump() for s in items])
-            await asyncio.to_thread(self._process, run, scans)
+                self.store.append_slam_scans(conn, rid, first, [s.model_dump() for s in items])
+            deadline = time.monotonic() + self.budget_s
+            try:
+                await asyncio.to_thread(self._process, run, scans, deadline)
+            finally:
+                if run.scans < first + len(scans):  # stopped midway: the store follows
+                    with self.store.transaction() as conn:
+                        self.store.drop_slam_scans_from(conn, rid, run.scans)
+            done = run.scans - first
+            if done < len(scans):
+                raise BudgetExceeded(
+                    f"the batch ran past its time budget of {self.budget_s:g} s: its first "
+                    f"{done} of {len(scans)} scans were processed and are kept; send "
+                    f"scans[{done}:] again (smaller batches)", field="scans")
             return run.status()
 
     @staticmethod
-    def _process(run: Run, scans: list[Scan]) -> None:
-        for s in scans:
+    def _process(run: Run, scans: list[Scan], deadline: float = math.inf) -> None:
+        """Feed ``scans`` to the run's method, stopping between scans past ``deadline``
+        (time.monotonic; the first scan always runs, so every batch moves on)."""
+        for i, s in enumerate(scans):
+            if i and time.monotonic() > deadline:
+                return
             run.slam.process(s)
             run.scans += 1
             run.last_t = s.t

@@ -242,6 +242,11 @@ class Store:
                          [(rid, first_seq + i, json.dumps(s, allow_nan=False))
                           for i, s in enumerate(scans)])
 
+    @staticmethod
+    def drop_slam_scans_from(conn: sqlite3.Connection, rid: str, first_seq: int) -> None:
+        """Forget run ``rid``'s scans from ``first_seq`` on (a batch stopped midway)."""
+        conn.execute("DELETE FROM slam_scans WHERE run = ? AND seq >= ?", (rid, first_seq))
+
     def slam_runs(self) -> list[tuple[str, str, dict[str, Any]]]:
         with self._lock:
             rows = self._conn.execute(

@@ -329,3 +329,28 @@ def test_run_options_take_the_estimators_bounds(client: TestClient, world: str) 
     r = client.post(f"/worlds/{world}/slam-runs", content=b'{"sigma_z": Infinity}',
                     headers={"content-type": "application/json"})
     assert r.status_code == 422, r.text
+
+
+def test_a_batch_past_its_budget_keeps_what_it_processed(client: TestClient, world: str) -> None:
+    """A batch stops between scans once its time budget is spent: 503 naming how many
+    scans were processed; those stay (in memory and in the store, so a restart replays
+    the same), the rest are forgotten and can be sent again."""
+    r = client.post(f"/worlds/{world}/slam-runs", json={"method": "gated"})
+    rid = r.json()["id"]
+    base = f"/worlds/{world}/slam-runs/{rid}"
+    slam = client.app.state.slam  # type: ignore[attr-defined]
+    store = client.app.state.store  # type: ignore[attr-defined]
+    budget = slam.budget_s
+    slam.budget_s = 1e-9  # only the first scan of a batch fits
+    try:
+        r = client.post(base + "/scans", json={"scans": [scan_json(i) for i in range(5)]})
+    finally:
+        slam.budget_s = budget
+    assert r.status_code == 503, r.text
+    assert r.headers["content-type"] == "application/problem+json"
+    assert r.json()["field"] == "scans" and "first 1 of 5" in r.json()["detail"]
+    assert client.get(base).json()["scans"] == 1
+    assert len(store.slam_scans(rid)) == 1
+    r = client.post(base + "/scans", json={"scans": [scan_json(i) for i in range(1, 5)]})
+    assert r.status_code == 200 and r.json()["scans"] == 5, r.text
+    assert len(store.slam_scans(rid)) == 5

@@ -141,3 +141,40 @@ def test_a_job_cancelled_before_it_starts_is_cancelled(tmp_path: Path) -> None:
 
     assert asyncio.run(scenario()) == ("cancelled", "done")
     store.close()
+
+
+def test_a_job_past_its_budget_fails_and_says_why(tmp_path: Path) -> None:
+    """A job that reports progress past its time budget is stopped there: it ends
+    failed with the reason, and the world can start another."""
+    import asyncio
+
+    from service.jobs import Jobs
+    from service.store import Store
+
+    store = Store(tmp_path / "s.sqlite3")
+    with store.transaction() as conn:
+        store.insert_world(conn, "w", {"name": "w"})
+    jobs = Jobs(store, budget_s=0.2)
+    steps: list[int] = []
+
+    def slow(progress: Any) -> dict[str, Any]:
+        for i in range(100):
+            progress("learning", i / 100)
+            steps.append(i)
+            time.sleep(0.02)
+        return {"ok": True}
+
+    async def scenario() -> dict[str, Any]:
+        async def work(progress: Any) -> dict[str, Any]:
+            return await asyncio.to_thread(slow, progress)
+
+        jid = jobs.start("w", "k", work)["id"]
+        while jobs.get(jid)["status"] in ("queued", "running"):
+            await asyncio.sleep(0.02)
+        return jobs.get(jid)
+
+    job = asyncio.run(scenario())
+    assert job["status"] == "failed", job
+    assert "time budget of 0.2 s" in job["error"]["detail"]
+    assert len(steps) < 50  # stopped, not run to the end
+    store.close()
