@@ -55,11 +55,43 @@ handle_(In, _{ok:true, result:Result}) :-
     get_dict(inference_limit, Req, N),
     atom_string(Op, OpText),
     (   operation(Op) -> true ; throw(chizu_error(unknown_op(OpText))) ),
-    call_with_time_limit(
-        T, call_with_inference_limit(once(run(Op, Args, Result)), N, Det)),
+    Goal = call_with_inference_limit(once(run(Op, Args, Result)), N, Det),
+    (   get_dict(cancellable, Req, true)
+    ->  call_with_time_limit(T, with_cancel_checks(Goal))
+    ;   call_with_time_limit(T, Goal)
+    ),
     (   Det == inference_limit_exceeded
     ->  throw(chizu_error(limit(inferences)))
     ;   true
+    ).
+
+%!  with_cancel_checks(:Goal) is semidet.
+%
+%   Goal, asking the bridge every 0.1 s whether the job was cancelled (its client
+%   left): chizu_cancelled/0 is a foreign predicate the Python bridge registers;
+%   if it succeeds, the job stops with chizu_error(cancelled).  Without the
+%   bridge (swipl on its own) the check never fires.
+with_cancel_checks(Goal) :-
+    setup_call_cleanup(arm_cancel_check, Goal, disarm_cancel_check).
+
+arm_cancel_check :-
+    alarm(0.1, cancel_check, Id, [remove(true)]),
+    nb_setval(chizu_cancel_alarm, Id).
+
+disarm_cancel_check :-
+    (   nb_current(chizu_cancel_alarm, Id), Id \== none
+    ->  remove_alarm(Id), nb_setval(chizu_cancel_alarm, none)
+    ;   true
+    ).
+
+cancel_check :-
+    nb_setval(chizu_cancel_alarm, none),
+    % the bridge defines it at run time (foreign): built here, so that the load
+    % check does not report an undefined predicate when Prolog runs without it
+    Check =.. [chizu_cancelled],
+    (   catch(api:Check, error(existence_error(_, _), _), fail)
+    ->  throw(chizu_error(cancelled))
+    ;   arm_cancel_check
     ).
 
 %!  operation(?Op) is nondet.

@@ -63,6 +63,12 @@ def install(app: FastAPI) -> None:
         errors = []
         for e in exc.errors():
             loc = tuple(e.get("loc", ()))
+            if e.get("type") == "json_invalid":  # loc is ("body", character offset)
+                where = f" at character {loc[-1]}" if loc and isinstance(loc[-1], int) else ""
+                why = (e.get("ctx") or {}).get("error", "")
+                errors.append({"field": "body", "message": f"not valid JSON{where}"
+                               + (f": {why}" if why else "")})
+                continue
             # model-level validators report their own field in the message
             errors.append({"field": _loc(loc), "message": str(e.get("msg", ""))})
         first = errors[0] if errors else {"field": None, "message": "invalid request"}

@@ -42,6 +42,15 @@ class KbStartupError(RuntimeError):
 
 
 _STOP = object()
+#: each engine thread's "the running job was cancelled" flag, by thread ident
+_CANCEL_FLAGS: dict[int, threading.Event] = {}
+_CANCEL_CB: Any = None  # the registered chizu_cancelled/0 callback (one per process)
+
+
+def _engine_cancelled() -> int:
+    """chizu_cancelled/0: 1 if the calling engine thread's running job was cancelled."""
+    flag = _CANCEL_FLAGS.get(threading.get_ident())
+    return 1 if flag is not None and flag.is_set() else 0
 
 
 class KnowledgeBase:
@@ -62,6 +71,10 @@ class KnowledgeBase:
             p.name.encode() + p.read_bytes()
             for p in sorted(self.prolog_dir.glob("*.pl")))).hexdigest()[:16]
         self._jobs: queue.Queue[Any] = queue.Queue()
+        # the job on the engine and whether its caller gave up on it (chizu_cancelled/0)
+        self._running: Future[str] | None = None
+        self._cancel_lock = threading.Lock()
+        self._cancelled = threading.Event()
         self._ready: Future[None] = Future()
         self._thread = threading.Thread(target=self._run, name="chizu-prolog", daemon=True)
         self._thread.start()
@@ -76,6 +89,7 @@ class KnowledgeBase:
             if pl.PL_thread_self() == -1:  # Prolog was initialised by an earlier engine thread
                 if pl.PL_thread_attach_engine(None) < 0:
                     raise KbStartupError("cannot attach a Prolog engine to this thread")
+            self._register_cancel_check()
             self._load_rules()
             self._handle = pl.PL_predicate(b"handle", 2, b"api")
         except BaseException as e:  # noqa: BLE001 — reported to the constructor
@@ -86,14 +100,38 @@ class KnowledgeBase:
         while True:
             job = self._jobs.get()
             if job is _STOP:
+                _CANCEL_FLAGS.pop(threading.get_ident(), None)
                 return
             request, fut = job
             if not fut.set_running_or_notify_cancel():
                 continue
+            with self._cancel_lock:
+                self._running = fut
+                self._cancelled.clear()
             try:
                 fut.set_result(self._call(request))
             except BaseException as e:  # noqa: BLE001 — handed to the caller
                 fut.set_exception(e)
+            finally:
+                with self._cancel_lock:
+                    self._running = None
+
+    def _register_cancel_check(self) -> None:
+        """api:chizu_cancelled/0, a foreign predicate that succeeds once the running
+        job's caller has called :meth:`cancel` (asked by api.pl's periodic check).
+        Prolog is one per process and so is the predicate: it looks up the calling
+        engine thread's flag (tests open several knowledge bases in one process)."""
+        _CANCEL_FLAGS[threading.get_ident()] = self._cancelled
+        global _CANCEL_CB
+        if _CANCEL_CB is not None:
+            return
+        cb = ctypes.CFUNCTYPE(ctypes.c_int)(_engine_cancelled)
+        reg = self._pl._lib.PL_register_foreign_in_module
+        reg.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_int, ctypes.c_void_p,
+                        ctypes.c_int]
+        if not reg(b"api", b"chizu_cancelled", 0, ctypes.cast(cb, ctypes.c_void_p), 0):
+            raise KbStartupError("cannot register api:chizu_cancelled/0")
+        _CANCEL_CB = cb  # kept alive: Prolog holds the pointer
 
     def _load_rules(self) -> None:
         """consult load.pl's load_checked/1; raise on any load error or warning."""
@@ -161,8 +199,10 @@ class KnowledgeBase:
     # -- callers -------------------------------------------------------------------
     def _request(self, op: str, args: dict[str, Any]) -> bytes:
         limit = self.query_time_limit_s if op == "query" else self.time_limit_s
+        # a client's own goal stops when its client leaves (cancel, api.pl's checks)
         return json.dumps({"op": op, "args": args, "time_limit_s": limit,
-                           "inference_limit": self.inference_limit},
+                           "inference_limit": self.inference_limit,
+                           "cancellable": op == "query"},
                           # UTF-8 as it is: Prolog's JSON reader takes the \ud83d\ude00
                           # escape of a character outside the BMP for two code points
                           allow_nan=False, ensure_ascii=False).encode("utf-8")
@@ -190,8 +230,22 @@ class KnowledgeBase:
         return self._unwrap(self.submit(op, **args).result())
 
     async def acall(self, op: str, **args: Any) -> Any:
-        """Awaitable call for async endpoints."""
-        return self._unwrap(await asyncio.wrap_future(self.submit(op, **args)))
+        """Awaitable call for async endpoints; cancelling the await drops the job if it
+        is still queued and stops it if it is a running client goal (``query``)."""
+        fut = self.submit(op, **args)
+        try:
+            return self._unwrap(await asyncio.wrap_future(fut))
+        except asyncio.CancelledError:
+            self.cancel(fut)
+            raise
+
+    def cancel(self, fut: Future[str]) -> None:
+        """Give up on a submitted job: a queued one is dropped (the engine skips it), a
+        running cancellable one stops at its next check (within 0.1 s)."""
+        fut.cancel()
+        with self._cancel_lock:
+            if self._running is fut:
+                self._cancelled.set()
 
     @property
     def engine_thread(self) -> threading.Thread:

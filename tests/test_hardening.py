@@ -11,7 +11,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from service.kb import KnowledgeBase
+from service.kb import KbError, KnowledgeBase
 from tests.test_api_eigenspace import SMALL, wait_job
 
 PROBLEM = "application/problem+json"
@@ -293,3 +293,31 @@ def test_stored_state_from_earlier_versions_still_loads(tmp_path: Path) -> None:
     store.close()
     cfg = stored_config({"strategy": {"alphas_rad": [90.0]}, "seed": 4})
     assert cfg.seed == 4 and len(cfg.strategy.alphas_rad) == 8  # the defaults
+
+
+def test_a_running_query_whose_client_left_is_stopped(client: TestClient) -> None:
+    """A client goal already running when its client leaves stops at its next check
+    (every 0.1 s) instead of holding the one engine to its time limit (2 s)."""
+    import asyncio
+    import time
+
+    kb = client.app.state.services.kb  # type: ignore[attr-defined]
+    slow = "reachable(A, B, P, M), reachable(C, D, Q, N), reachable(E, F, R, O), fail"
+
+    async def leave_early() -> float:
+        task = asyncio.ensure_future(kb.acall("query", world="demo", goal=slow,
+                                              max_solutions=1))
+        await asyncio.sleep(0.3)  # running on the engine
+        t0 = time.perf_counter()
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        await kb.acall("worlds")  # waits for the engine to be free
+        return time.perf_counter() - t0
+
+    freed_after = asyncio.run(leave_early())
+    assert freed_after < 1.0, freed_after  # not the 1.7 s left of its limit
+    # and a goal nobody cancels still runs to its limit
+    try:
+        kb.call("query", world="demo", goal=slow, max_solutions=1)
+    except KbError as e:
+        assert e.type == "limit", e

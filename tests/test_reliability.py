@@ -51,18 +51,21 @@ def with_value(body: dict[str, Any], path: list[str | int], raw: str) -> bytes:
     return json.dumps(b).replace(f'"{marker}"', raw).encode()
 
 
-CASES = ["nan", "inf", "-inf", "string", "empty", "array", "null_body", "huge"]
+CASES = ["nan", "inf", "-inf", "string", "numeric_string", "true", "empty", "array",
+         "null_body", "not_json", "huge"]
 
 
 @pytest.mark.parametrize("case", CASES)
 def test_bad_input_table(client: TestClient, endpoints: Any, case: str) -> None:
     for path, body, num in endpoints:
+        # "12" and true were taken for numbers (pydantic's lax mode): JSON types are strict
         raw = {"nan": "NaN", "inf": "Infinity", "-inf": "-Infinity",
-               "string": '"twelve"'}.get(case)
+               "string": '"twelve"', "numeric_string": '"12"', "true": "true"}.get(case)
         if raw is not None:
             content = with_value(body, num, raw)
         else:
             content = {"empty": b"", "array": b"[]", "null_body": b"null",
+                       "not_json": json.dumps(body).encode()[:-1],
                        "huge": b'{"x": "' + b"a" * (9 << 20) + b'"}'}[case]
         r = client.post(path, content=content, headers={"content-type": "application/json"})
         want = 413 if case == "huge" else 422
@@ -72,6 +75,8 @@ def test_bad_input_table(client: TestClient, endpoints: Any, case: str) -> None:
         assert field, (path, case, r.text[:300])
         if raw is not None:  # the field named is the number's own
             assert str(num[-1]) in field, (path, case, field)
+        if case == "not_json":
+            assert field == "body" and "not valid JSON" in r.json()["detail"], r.text
     assert client.get("/health").status_code == 200
 
 
@@ -120,3 +125,20 @@ def test_every_list_in_a_request_is_capped_in_the_schema(client: TestClient) -> 
     assert r.status_code == 422 and r.json()["field"] == "strategy.alphas_rad[0]", r.text
     r = client.post("/worlds/rel_room/eigenspace", json={"strategy": {"lengths_m": []}})
     assert r.status_code == 422 and r.json()["field"] == "strategy.lengths_m", r.text
+
+
+def test_json_types_are_strict(client: TestClient, endpoints: Any) -> None:
+    """An integer field takes a JSON integer only (not 2.0, not "2"); a number field a
+    JSON number (an integer is fine); a pose's array still fills its tuple."""
+    grid = {"width": 2, "height": 1, "resolution_m": 0.5, "data": [0, 0]}
+    base = {**plan_body(), "grid": grid}
+    ok = client.post("/worlds/rel_room/viewpoint-plan", json=base)
+    assert ok.status_code == 200, ok.text
+    for bad, field in [({"width": 2.0}, "grid.width"), ({"data": [0, 50.5]}, "grid.data[1]"),
+                       ({"data": [0, "12"]}, "grid.data[1]"),
+                       ({"resolution_m": "0.5"}, "grid.resolution_m")]:
+        r = client.post("/worlds/rel_room/viewpoint-plan",
+                        json={**base, "grid": {**grid, **bad}})
+        assert r.status_code == 422 and r.json()["field"] == field, (bad, r.text[:300])
+    r = client.post("/worlds/rel_room/viewpoint-plan", json={**base, "robot": [1, "1", 0]})
+    assert r.status_code == 422 and r.json()["field"] == "robot[1]", r.text[:300]

@@ -19,6 +19,7 @@ from numeric.eigenspace.image_sets import (
     read_image_zip,
 )
 from numeric.errors import InvalidInput
+from service.api.strict import StrictJsonRoute
 from service.compute import stack_turn
 from service.deps import EigenspaceDep, WorldDep
 from service.disconnect import unless_disconnected
@@ -38,7 +39,8 @@ from service.schemas.eigenspace import (
 )
 from service.schemas.jobs import JobOut
 
-router = APIRouter(prefix="/worlds/{world}", tags=["eigenspace localization"])
+router = APIRouter(prefix="/worlds/{world}", tags=["eigenspace localization"],
+                   route_class=StrictJsonRoute)
 SessionId = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$", description="session id")]
 JobId = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$", description="job id")]
 

@@ -2,10 +2,11 @@ import asyncio
 
 from fastapi import APIRouter
 
+from service.api.strict import StrictJsonRoute
 from service.deps import KbDep, WorldsDep
 from service.schemas.common import Health
 
-router = APIRouter(tags=["health"])
+router = APIRouter(tags=["health"], route_class=StrictJsonRoute)
 
 #: how long /health waits for the engine to answer before it reports it busy: the
 #: engine is one thread, and a legal request may hold it up to its time limit

@@ -7,10 +7,11 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Path, Query
 
 from numeric.world import ID_PATTERN
+from service.api.strict import StrictJsonRoute
 from service.deps import JobsDep
 from service.schemas.jobs import JobOut
 
-router = APIRouter(prefix="/jobs", tags=["jobs"])
+router = APIRouter(prefix="/jobs", tags=["jobs"], route_class=StrictJsonRoute)
 JobId = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$", description="job id")]
 Status = Literal["queued", "running", "done", "failed", "cancelled", "interrupted"]
 

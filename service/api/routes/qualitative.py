@@ -7,6 +7,7 @@ from fastapi import APIRouter, Query, Request, status
 from numeric.errors import InvalidInput
 from numeric.observation import Observation
 from numeric.world import ID_PATTERN
+from service.api.strict import StrictJsonRoute
 from service.deps import WorldDep, WorldsDep
 from service.disconnect import unless_disconnected
 from service.kb import KbError
@@ -24,7 +25,8 @@ from service.schemas.qualitative import (
     StepOut,
 )
 
-router = APIRouter(prefix="/worlds/{world}", tags=["qualitative navigation"])
+router = APIRouter(prefix="/worlds/{world}", tags=["qualitative navigation"],
+                   route_class=StrictJsonRoute)
 LandmarkQ = Annotated[str, Query(pattern=ID_PATTERN)]
 
 

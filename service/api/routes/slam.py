@@ -8,6 +8,7 @@ import numpy as np
 from fastapi import APIRouter, Path, Query, Response, status
 
 from numeric.slam.logs import format_tum
+from service.api.strict import StrictJsonRoute
 from service.deps import SlamDep, WorldDep
 from service.schemas.slam import (
     CommitOut,
@@ -21,7 +22,7 @@ from service.schemas.slam import (
     WorldMapOut,
 )
 
-router = APIRouter(prefix="/worlds/{world}", tags=["SLAM"])
+router = APIRouter(prefix="/worlds/{world}", tags=["SLAM"], route_class=StrictJsonRoute)
 RunId = Annotated[str, Path(pattern=r"^r[0-9a-f]{1,64}$", description="SLAM run id")]
 
 

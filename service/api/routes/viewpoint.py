@@ -6,10 +6,12 @@ from typing import Any
 
 from fastapi import APIRouter
 
+from service.api.strict import StrictJsonRoute
 from service.deps import ViewpointDep, WorldDep
 from service.schemas.viewpoint import ViewpointGroupsOut, ViewpointPlanIn, ViewpointPlanOut
 
-router = APIRouter(prefix="/worlds/{world}", tags=["viewpoint planning"])
+router = APIRouter(prefix="/worlds/{world}", tags=["viewpoint planning"],
+                   route_class=StrictJsonRoute)
 
 
 @router.post("/viewpoint-plan", response_model=ViewpointPlanOut,

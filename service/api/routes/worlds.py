@@ -1,10 +1,11 @@
 from fastapi import APIRouter, status
 
 from numeric.world import WorldDescription
+from service.api.strict import StrictJsonRoute
 from service.deps import WorldDep, WorldsDep
 from service.schemas.common import WorldSummary
 
-router = APIRouter(prefix="/worlds", tags=["worlds"])
+router = APIRouter(prefix="/worlds", tags=["worlds"], route_class=StrictJsonRoute)
 
 
 @router.get("", response_model=list[WorldSummary])

@@ -1,0 +1,73 @@
+"""JSON bodies are validated strictly: a number must be a JSON number, a string a JSON
+string, an integer a JSON integer.
+
+FastAPI decodes a body with ``json.loads`` and validates the Python objects in
+pydantic's lax mode, so ``"x": "12"`` passed as the number 12 and ``"width": 4.0`` as
+the integer 4. Strict mode in Python mode is not usable instead: it refuses a list
+where the model declares a tuple (poses, odometry). A :class:`StrictJsonRoute`'s
+endpoint first validates the raw body once more, as JSON in strict mode (pydantic's
+JSON mode: arrays fill tuples, strings never fill numbers). It runs after the route's
+dependencies and FastAPI's own validation, so an unknown world is still a 404 before
+the body is looked at; a strict error is the usual 422 problem naming the field.
+"""
+
+from __future__ import annotations
+
+import functools
+import inspect
+from collections.abc import Callable
+from typing import Any
+
+from fastapi import Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.routing import APIRoute
+from pydantic import TypeAdapter, ValidationError
+
+
+async def check_strict_json(request: Request, adapter: TypeAdapter[Any]) -> None:
+    """422 (RequestValidationError) unless the JSON body is valid in strict mode."""
+    if request.headers.get("content-type", "").split(";")[0].strip() != "application/json":
+        return
+    raw = await request.body()  # kept by the request: read once
+    if not raw:
+        return
+    try:
+        adapter.validate_json(raw, strict=True)
+    except ValidationError as e:
+        errs = e.errors(include_url=False)
+        raise RequestValidationError([{**x, "loc": ("body", *x["loc"])} for x in errs],
+                                     body=raw) from None
+
+
+class StrictJsonRoute(APIRoute):
+    def __init__(self, path: str, endpoint: Callable[..., Any], **kwargs: Any) -> None:
+        holder: dict[str, TypeAdapter[Any]] = {}
+        if inspect.iscoroutinefunction(endpoint):
+            endpoint = _checking(endpoint, holder)
+        super().__init__(path, endpoint, **kwargs)
+        field = self.body_field
+        if field is not None and field.field_info.annotation is not None:
+            holder["adapter"] = TypeAdapter(field.field_info.annotation)
+
+
+def _checking(endpoint: Callable[..., Any], holder: dict[str, TypeAdapter[Any]]
+              ) -> Callable[..., Any]:
+    """``endpoint`` checking the request's body first: through its own ``Request``
+    parameter, or one more it is given (FastAPI passes the request to one parameter)."""
+    sig = inspect.signature(endpoint, eval_str=True)
+    own = [p.name for p in sig.parameters.values() if p.annotation is Request]
+    name = own[0] if own else "strict_json_request_"
+
+    @functools.wraps(endpoint)
+    async def checked(*args: Any, **kwargs: Any) -> Any:
+        request = kwargs[name] if own else kwargs.pop(name)
+        adapter = holder.get("adapter")
+        if adapter is not None:
+            await check_strict_json(request, adapter)
+        return await endpoint(*args, **kwargs)
+
+    if not own:
+        extra = inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, annotation=Request)
+        checked.__signature__ = sig.replace(  # type: ignore[attr-defined]
+            parameters=[*sig.parameters.values(), extra])
+    return checked
