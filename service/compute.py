@@ -40,6 +40,12 @@ from numeric.camera import Camera, CameraConfig
 from numeric.eigenspace.analysis import EigenspaceAnalysis
 from numeric.eigenspace.image_sets import decode_image, encode_png
 from numeric.eigenspace.localization import Session, TurnCandidates, Vote, turn_candidates
+from numeric.eigenspace.movement_strategy import (
+    Decision,
+    choose_action,
+    initial_samples,
+    session_belief,
+)
 from numeric.errors import ChizuError, InvalidInput
 from numeric.world import World, WorldDescription
 
@@ -92,13 +98,15 @@ def _cached(key: str, blob: bytes | None, load: Callable[[bytes], Any]) -> Any:
     return obj
 
 
-def _run_cached(fn: Callable[..., Any], key: str, blob: bytes | None,
-                load: Callable[[bytes], Any], args: tuple[Any, ...]) -> Any:
+def _run_cached(fn: Callable[..., Any], keys: tuple[str, ...],
+                blobs: tuple[bytes, ...] | None, loads: tuple[Callable[[bytes], Any], ...],
+                args: tuple[Any, ...]) -> Any:
     """Worker side of :meth:`ComputePool.run_cached`."""
-    obj = _cached(key, blob, load)
-    if isinstance(obj, str) and obj == MISS:
+    objs = [_cached(k, None if blobs is None else b, load)
+            for k, b, load in zip(keys, blobs or (None,) * len(keys), loads, strict=True)]
+    if any(isinstance(o, str) and o == MISS for o in objs):
         return MISS
-    return fn(obj, *args)
+    return fn(*objs, *args)
 
 
 @contextlib.contextmanager
@@ -161,16 +169,17 @@ class ComputePool:
                                  "again, with a smaller request if it happens again") from e
             raise
 
-    async def run_cached(self, fn: Callable[..., T], cached: Cached, *args: Any,
-                         budget_s: float | None = None) -> T:
-        """``fn(obj, *args)`` where ``obj = cached.load(cached.blob)``, built once per
-        worker: the bytes travel only to a worker that has not seen them."""
+    async def run_cached(self, fn: Callable[..., T], cached: Cached | tuple[Cached, ...],
+                         *args: Any, budget_s: float | None = None) -> T:
+        """``fn(*objs, *args)`` where each ``obj = c.load(c.blob)`` of ``cached`` is built
+        once per worker: the bytes travel only to a worker that has not seen them."""
+        cs = cached if isinstance(cached, tuple) else (cached,)
         if self._pool is None:
-            return await asyncio.to_thread(fn, cached.load(cached.blob), *args)
-        r = await self.run(_run_cached, fn, cached.key, None, cached.load, args,
-                           budget_s=budget_s)
+            return await asyncio.to_thread(fn, *(c.load(c.blob) for c in cs), *args)
+        keys, loads = tuple(c.key for c in cs), tuple(c.load for c in cs)
+        r = await self.run(_run_cached, fn, keys, None, loads, args, budget_s=budget_s)
         if isinstance(r, str) and r == MISS:
-            r = await self.run(_run_cached, fn, cached.key, cached.blob, cached.load, args,
+            r = await self.run(_run_cached, fn, keys, tuple(c.blob for c in cs), loads, args,
                                budget_s=budget_s)
         return r  # type: ignore[no-any-return]
 
@@ -257,6 +266,19 @@ def stop_report(s: Session, vote: Vote) -> dict[str, Any]:
 def load_world(blob: bytes) -> World:
     """A world model from its description's JSON (a :class:`Cached` loader)."""
     return World(WorldDescription.model_validate_json(blob))
+
+
+def next_move_task(a: EigenspaceAnalysis, world: World, session: Session,
+                   candidate_set: int | None) -> Decision:
+    """The movement strategy's next action (Maeda & Shirai §3.5): where the robot may be
+    now and its state belief, then the action of the grid maximising Q(Z) (eq. 8)."""
+    cfg = a.config.strategy
+    layout = a.layout(world)
+    # samples of where stop 0 may have been (used while the state is X)
+    samples0 = initial_samples(world.sample_free, cfg.n_samples,
+                               np.random.default_rng(a.config.seed + 11))
+    now, belief = session_belief(session, layout, samples0, candidate_set)
+    return choose_action(now, belief, layout, cfg)
 
 
 def camera_task(world: World, config: CameraConfig, pose: np.ndarray, turn: int | None,

@@ -36,11 +36,6 @@ from numeric.eigenspace.localization import (
     session_from_dict,
     session_to_dict,
 )
-from numeric.eigenspace.movement_strategy import (
-    choose_action,
-    initial_samples,
-    session_belief,
-)
 from numeric.errors import InvalidInput, NotFound
 from service.compute import (
     Cached,
@@ -48,6 +43,7 @@ from service.compute import (
     FirstStop,
     blob_key,
     camera_task,
+    next_move_task,
     stop_report,
     turn_task,
 )
@@ -270,21 +266,16 @@ class EigenspaceService:
         return {"id": sid, **self._answer(st.state, r["outcome"], stop_report(st.session, vote))}
 
     async def next_move(self, world: str, sid: str) -> dict[str, Any]:
-        """The movement strategy's action (alpha, l, beta) and its Q(Z) (§3.5)."""
-        a = self.analysis(world)
+        """The movement strategy's action (alpha, l, beta) and its Q(Z) (§3.5),
+        computed in a compute worker."""
+        self.analysis(world)
         st = self._session(world, sid)
-        w = self.worlds.model(world)
         if st.state.get("state") == "z":
             return {"state": st.state, "action": None, "q_z": 1.0}
-        cfg = a.config.strategy
-        layout = a.layout(w)
-        # samples of where stop 0 may have been (used while the state is X)
-        samples0 = initial_samples(w.sample_free, cfg.n_samples,
-                                   np.random.default_rng(a.config.seed + 11))
         m = st.state.get("set")
-        now, belief = session_belief(st.session, layout, samples0,
-                                     m if isinstance(m, int) else None)
-        dec = await asyncio.to_thread(choose_action, now, belief, layout, cfg, self.executor)
+        dec = await self.compute.run_cached(
+            next_move_task, (self._blobs[world], self.worlds.cached_model(world)),
+            st.session, m if isinstance(m, int) else None)
         return {"state": st.state,
                 "action": {"alpha_rad": float(dec.action[0]), "l_m": float(dec.action[1]),
                            "beta_rad": float(dec.action[2])}, "q_z": dec.q_z}

@@ -12,6 +12,13 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 PROLOG_DIR = Path(__file__).resolve().parent.parent / "prolog"
 
 
+def default_workers() -> int:
+    """One compute worker per core this process may run on, but one (at least one)."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
+        os.cpu_count() or 1)
+    return max(1, cores - 1)
+
+
 class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="CHIZU_")
 
@@ -24,9 +31,11 @@ class Settings(BaseSettings):
     kb_inference_limit: int = Field(200_000_000, gt=0)
     kb_query_time_limit_s: float = Field(2.0, gt=0, description="time limit of a client's "
                                          "own Prolog goals (POST /query)")
-    workers: int = Field(default_factory=lambda: os.cpu_count() or 1, ge=0, le=64,
+    workers: int = Field(default_factory=lambda: default_workers(), ge=0, le=64,
                          description="compute worker processes (image decoding, projection, "
-                         "rendering); 0 runs that work in threads of the server, unbounded")
+                         "rendering, planning); default: one per core but one, which the "
+                         "event loop and the Prolog engine use; 0 runs that work in threads "
+                         "of the server, without budgets")
     request_budget_s: float = Field(30.0, gt=0, description="time budget of one request's "
                                     "work in a compute worker; past it the worker is stopped "
                                     "and the request answered 503")

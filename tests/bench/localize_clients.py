@@ -21,10 +21,40 @@ import os
 import statistics
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
 import httpx
+
+
+class HealthProbe:
+    """``GET /health`` every 50 ms from its own thread while a block runs: latencies."""
+
+    def __init__(self, url: str) -> None:
+        self.url, self.lat = url, []  # type: ignore[var-annotated]
+        self._stop = threading.Event()
+        self._t = threading.Thread(target=self._run)
+
+    def _run(self) -> None:
+        with httpx.Client(base_url=self.url, timeout=60) as c:
+            while not self._stop.is_set():
+                t0 = time.perf_counter()
+                c.get("/health").raise_for_status()
+                self.lat.append(time.perf_counter() - t0)
+                time.sleep(0.05)
+
+    def __enter__(self) -> HealthProbe:
+        self._t.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._t.join()
+
+    def summary(self) -> str:
+        return (f"p50 {1e3 * statistics.median(self.lat):.1f} ms, max "
+                f"{1e3 * max(self.lat):.1f} ms over {len(self.lat)}")
 
 
 def run(url: str, body: bytes, clients: int, n: int) -> tuple[float, list[float]]:
@@ -78,6 +108,7 @@ def serve_and_measure(workers: int, n: int) -> list[Row]:
     from tests.conftest import LiveServer
 
     os.environ["CHIZU_WORKERS"] = str(workers)
+    os.environ["CHIZU_REQUEST_BUDGET_S"] = "3"  # the big render below runs into it
     rows = []
     with tempfile.TemporaryDirectory() as d:
         srv = LiveServer(Path(d) / "data")
@@ -97,14 +128,27 @@ def serve_and_measure(workers: int, n: int) -> list[Row]:
             run(srv.url, body, 2, 20)  # warm up (every worker caches the analysis)
             for clients in (1, 2, 4):
                 c0, s0, w0 = time.process_time(), *cpu_s(srv.proc.pid)
-                rps, lat = run(srv.url, body, clients, n)
+                with HealthProbe(srv.url) as probe:
+                    rps, lat = run(srv.url, body, clients, n)
                 c1, s1, w1 = time.process_time(), *cpu_s(srv.proc.pid)
+                HEALTH[f"{workers} worker(s), {clients} localizing client(s)"] = probe.summary()
                 cpu = tuple(1e3 * v / len(lat) for v in (s1 - s0, w1 - w0, c1 - c0))
                 rows.append((clients, rps, lat, cpu))
                 print(f"workers {workers} clients {clients}: {rps:.1f} req/s", flush=True)
+            if workers == 1:  # one request at its budget: a 24-image 256 x 256 render
+                with HealthProbe(srv.url) as probe, httpx.Client(base_url=srv.url,
+                                                                timeout=600) as c:
+                    r = c.post("/worlds/bench/camera", json={
+                        "pose": {"x": 3.0, "y": 5.0}, "turn": 24,
+                        "camera": {"width_px": 256, "height_px": 256, "supersample": 4}})
+                HEALTH[f"a camera render running to its budget ({r.status_code})"] = \
+                    probe.summary()
         finally:
             srv.stop()
     return rows
+
+
+HEALTH: dict[str, str] = {}  # what GET /health took meanwhile
 
 
 def main() -> None:
@@ -130,7 +174,8 @@ def main() -> None:
     lines += ["", f"With 2 cores shared by the server process, the workers and the clients, "
               f"2 workers can give at most {2 * wrk / (srv_ + wrk + cli):.2f}x one worker's "
               "throughput (2 cores over the CPU a request takes in all, against one core over "
-              "a worker's part)."]
+              "a worker's part).", "", "`GET /health` every 50 ms meanwhile:", ""]
+    lines += [f"- {k}: {v}" for k, v in HEALTH.items()]
     (out / "localize_clients.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -228,9 +228,11 @@ async def post_stop(world: WorldDep, sid: SessionId, body: StopIn,
 
 
 @router.get("/localization-sessions/{sid}/next-move", response_model=NextMoveOut)
-async def get_next_move(world: WorldDep, sid: SessionId, eig: EigenspaceDep) -> dict[str, Any]:
-    """The movement strategy's action (alpha, l, beta) maximising Q(Z), and that Q(Z)."""
-    return await eig.next_move(world, sid)
+async def get_next_move(world: WorldDep, sid: SessionId, eig: EigenspaceDep,
+                        request: Request) -> dict[str, Any]:
+    """The movement strategy's action (alpha, l, beta) maximising Q(Z), and that Q(Z)
+    (computed in a compute worker, stopped if the client leaves)."""
+    return await unless_disconnected(request, eig.next_move(world, sid))
 
 
 @router.post("/camera", response_model=CameraOut, response_model_exclude_unset=True)
