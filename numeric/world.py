@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Annotated
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, FiniteFloat, model_validator
@@ -24,6 +24,11 @@ Id = Annotated[str, Field(pattern=ID_PATTERN, description="id: ^[a-z][a-zA-Z0-9_
 Point = tuple[FiniteFloat, FiniteFloat]
 Probability = Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
 
+#: the built-in worlds (numeric/worlds.py TEMPLATES; a test keeps the two in step)
+TemplateName = Literal["corridor", "loop", "demo", "office", "room_a", "room_b",
+                       "summary_room", "fig11a", "fig11b", "room_c", "room_d",
+                       "twin_hexagon"]
+
 MAX_WALLS = 20_000
 MAX_LANDMARKS = 5_000
 MAX_OBJECTS = 2_000
@@ -35,7 +40,8 @@ def _known_texture(name: str) -> str:
     return name
 
 
-Texture = Annotated[str, Field(max_length=64, description="a built-in texture id"),
+Texture = Annotated[str, Field(max_length=64, description="a built-in texture id",
+                               json_schema_extra={"enum": list(TEXTURE_NAMES)}),
                     AfterValidator(_known_texture)]
 Brightness = Annotated[float, Field(
     gt=0.0, le=4.0, allow_inf_nan=False,
@@ -120,7 +126,7 @@ class WorldDescription(BaseModel):
     walls: Annotated[list[Wall], Field(max_length=MAX_WALLS)] = []
     landmarks: Annotated[list[Landmark], Field(max_length=MAX_LANDMARKS)] = []
     objects: Annotated[list[WorldObject], Field(max_length=MAX_OBJECTS)] = []
-    template: Id | None = None
+    template: TemplateName | None = None
     rule_probabilities: Annotated[dict[Id, Probability], Field(max_length=64)] = {}
     parameters: Annotated[dict[Id, Annotated[float, Field(ge=0, allow_inf_nan=False)]],
                           Field(max_length=64)] = {}

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import re
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -85,9 +86,13 @@ def install(app: FastAPI) -> None:
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         title = TITLES.get(exc.status_code, "HTTP error")
-        # keep the exception's headers: a 405 names the allowed methods (Allow)
+        headers = getattr(exc, "headers", None)
+        if exc.status_code == 405:  # Allow: every method of the path, not of one route
+            allowed = allowed_methods(app, request.url.path)
+            if allowed:
+                headers = {**(headers or {}), "Allow": ", ".join(allowed)}
         return problem(exc.status_code, title, str(exc.detail), instance=request.url.path,
-                       headers=getattr(exc, "headers", None))
+                       headers=headers)
 
     @app.exception_handler(ChizuError)
     async def _chizu(request: Request, exc: ChizuError) -> JSONResponse:
@@ -208,12 +213,29 @@ _REASONS = {400: "Bad request", 404: "Not found (the field names what)",
             503: "The knowledge base is unavailable or over its limit"}
 
 
+def allowed_methods(app: FastAPI, path: str) -> list[str]:
+    """The methods the OpenAPI documents for ``path`` (HEAD with GET). Starlette's 405
+    names only the methods of the first route that matched the path, while a path's
+    GET and POST (or DELETE) are separate routes."""
+    table = getattr(app.state, "allowed_methods", None)
+    if table is None:
+        table = []
+        for template, ops in app.openapi().get("paths", {}).items():
+            rx = re.compile("^" + re.sub(r"\\\{[^/]+?\\\}", "[^/]+", re.escape(template)) + "$")
+            methods = sorted(m.upper() for m in ops)
+            if "GET" in methods:
+                methods.append("HEAD")
+            table.append((rx, methods))
+        app.state.allowed_methods = table
+    return next((m for rx, m in table if rx.match(path)), [])
+
+
 def document_problems(app: FastAPI) -> None:
     """Make the OpenAPI tell the truth about errors: every operation's 4xx/5xx answers
     are ``application/problem+json`` (PROBLEM_SCHEMA), not FastAPI's default
     ``HTTPValidationError`` JSON; 404 wherever the path names something, 409 where a
-    name or a job can clash (CONFLICTS), 413 wherever there is a body, 422 everywhere,
-    503 for the engine."""
+    name or a job can clash (CONFLICTS), 400 (unparseable) and 413 wherever there is a
+    body, 422 everywhere, 503 for the engine and the compute budget."""
     from fastapi.openapi.utils import get_openapi
 
     def openapi() -> dict[str, Any]:
@@ -234,7 +256,7 @@ def document_problems(app: FastAPI) -> None:
                 if (method, path) in CONFLICTS:
                     codes.add(409)
                 if "requestBody" in op:
-                    codes.add(413)
+                    codes |= {400, 413}  # a body that cannot be parsed at all; too big
                 for code in sorted(codes):
                     op.setdefault("responses", {})[str(code)] = {
                         "description": _REASONS[code], "content": ref}

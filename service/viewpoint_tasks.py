@@ -91,7 +91,8 @@ def plan_json(report: PlanReport, plan: Plan, req: PlanRequest | None = None
     out = {"groups": report.names(plan),
            # the ids of /viewpoint-groups and the Prolog facts (vp_group/3), same order
            "group_ids": [report.groups[i].spec.id for i in plan.order], "value": plan.value,
-           "t_move_s": plan.t_move, "t_obs_s": plan.t_obs, "expected_time_s": plan.time,
+           "t_move_s": _num(plan.t_move), "t_obs_s": _num(plan.t_obs),
+           "expected_time_s": _num(plan.time),
            "loss": _num(plan.loss), "utility": _num(plan.utility),
            "feasible": ok, "status": "feasible" if ok else "infeasible", "reason": None}
     if not ok:

@@ -17,7 +17,7 @@ from typing import Any
 
 import networkx as nx
 
-from numeric.errors import Conflict, NotFound
+from numeric.errors import Conflict, InvalidInput, NotFound
 from numeric.observation import Observation, observation_quantities
 from numeric.qualitative.drm import (
     DrmPath,
@@ -39,8 +39,8 @@ def resolve_description(desc: WorldDescription) -> WorldDescription:
     if desc.template is None:
         return desc
     if desc.template not in TEMPLATES:
-        raise NotFound(f"unknown template {desc.template!r}; built-ins: {sorted(TEMPLATES)}",
-                       field="template")
+        raise InvalidInput(f"unknown template {desc.template!r}; built-ins: "
+                           f"{sorted(TEMPLATES)}", field="template")
     base = from_template(desc.template, desc.name)
     return base.model_copy(update={
         "walls": base.walls + desc.walls,

@@ -60,8 +60,9 @@ def test_duplicate_world_409(client: TestClient) -> None:
     assert_problem(client.post("/worlds", json={"name": "dup"}), 409, "name")
 
 
-def test_unknown_template_404(client: TestClient) -> None:
-    assert_problem(client.post("/worlds", json={"name": "t1", "template": "nosuch"}), 404,
+def test_unknown_template_422(client: TestClient) -> None:
+    """A template name outside the schema's enum is a body error (it was a 404)."""
+    assert_problem(client.post("/worlds", json={"name": "t1", "template": "nosuch"}), 422,
                    "template")
 
 

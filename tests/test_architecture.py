@@ -121,3 +121,14 @@ def test_the_compute_workers_load_no_web_and_no_prolog() -> None:
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
                          text=True, check=True).stdout.strip()
     assert out == "[]", out
+
+
+def test_the_schema_names_every_built_in_world() -> None:
+    """WorldDescription.template's schema enum is the TEMPLATES table (a client generator
+    sees which names exist)."""
+    import typing
+
+    from numeric.world import TemplateName
+    from numeric.worlds import TEMPLATES
+
+    assert set(typing.get_args(TemplateName)) == set(TEMPLATES)

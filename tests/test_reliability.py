@@ -128,13 +128,18 @@ def test_every_list_in_a_request_is_capped_in_the_schema(client: TestClient) -> 
 
 
 def test_json_types_are_strict(client: TestClient, endpoints: Any) -> None:
-    """An integer field takes a JSON integer only (not 2.0, not "2"); a number field a
-    JSON number (an integer is fine); a pose's array still fills its tuple."""
+    """An integer field takes a number without a fraction (2 or 2.0, as JSON Schema's
+    "integer"; not 2.5, "2" or true); a number field a JSON number; a pose's array
+    still fills its tuple."""
     grid = {"width": 2, "height": 1, "resolution_m": 0.5, "data": [0, 0]}
     base = {**plan_body(), "grid": grid}
     ok = client.post("/worlds/rel_room/viewpoint-plan", json=base)
     assert ok.status_code == 200, ok.text
-    for bad, field in [({"width": 2.0}, "grid.width"), ({"data": [0, 50.5]}, "grid.data[1]"),
+    # 2.0 is an integer to JSON Schema (no fraction), so it is taken
+    ok2 = client.post("/worlds/rel_room/viewpoint-plan",
+                      json={**base, "grid": {**grid, "width": 2.0}})
+    assert ok2.status_code == 200, ok2.text
+    for bad, field in [({"width": True}, "grid.width"), ({"data": [0, 50.5]}, "grid.data[1]"),
                        ({"data": [0, "12"]}, "grid.data[1]"),
                        ({"resolution_m": "0.5"}, "grid.resolution_m")]:
         r = client.post("/worlds/rel_room/viewpoint-plan",

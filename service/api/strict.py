@@ -1,10 +1,10 @@
 """JSON bodies are validated strictly: a number must be a JSON number, a string a JSON
-string, an integer a JSON integer.
+string, an integer a number without a fraction (JSON Schema's "integer": 2 or 2.0).
 
 FastAPI decodes a body with ``json.loads`` and validates the Python objects in
-pydantic's lax mode, so ``"x": "12"`` passed as the number 12 and ``"width": 4.0`` as
-the integer 4. Strict mode in Python mode is not usable instead: it refuses a list
-where the model declares a tuple (poses, odometry). A :class:`StrictJsonRoute`'s
+pydantic's lax mode, so ``"x": "12"`` passed as the number 12 and ``true`` as 1.
+Strict mode in Python mode is not usable instead: it refuses a list where the model
+declares a tuple (poses, odometry). A :class:`StrictJsonRoute`'s
 endpoint first validates the raw body once more, as JSON in strict mode (pydantic's
 JSON mode: arrays fill tuples, strings never fill numbers). It runs after the route's
 dependencies and FastAPI's own validation, so an unknown world is still a 404 before
@@ -34,9 +34,14 @@ async def check_strict_json(request: Request, adapter: TypeAdapter[Any]) -> None
     try:
         adapter.validate_json(raw, strict=True)
     except ValidationError as e:
-        errs = e.errors(include_url=False)
-        raise RequestValidationError([{**x, "loc": ("body", *x["loc"])} for x in errs],
-                                     body=raw) from None
+        # JSON Schema's "integer" is any number without a fraction: 2.0 is one (FastAPI's
+        # lax pass then takes it as 2); "2", true and 2.5 are not
+        errs = [x for x in e.errors(include_url=False)
+                if not (x["type"] == "int_type" and isinstance(x["input"], float)
+                        and x["input"].is_integer())]
+        if errs:
+            raise RequestValidationError([{**x, "loc": ("body", *x["loc"])} for x in errs],
+                                         body=raw) from None
 
 
 class StrictJsonRoute(APIRoute):

@@ -31,10 +31,14 @@ class TurnIn(BaseModel):
     (counter-clockwise from the robot's heading): as nested lists ``images`` [n][H][W]
     or as base64 PNG files ``images_png`` (8-bit grey), exactly one of the two."""
 
-    model_config = ConfigDict(extra="forbid")
-    images: Annotated[list[Image], Field(min_length=1, max_length=MAX_TURN_IMAGES)] | None = None
+    # exactly one of the two, and neither is null: so the schema says (oneOf)
+    model_config = ConfigDict(extra="forbid", json_schema_extra={
+        "oneOf": [{"required": ["images"]}, {"required": ["images_png"]}]})
+    images: Annotated[list[Image], Field(min_length=1, max_length=MAX_TURN_IMAGES)] = Field(
+        default=None)  # type: ignore[assignment,arg-type]
     images_png: Annotated[list[Annotated[str, Field(max_length=1_000_000)]],
-                          Field(min_length=1, max_length=MAX_TURN_IMAGES)] | None = None
+                          Field(min_length=1, max_length=MAX_TURN_IMAGES)] = Field(
+        default=None)  # type: ignore[assignment,arg-type]
 
     @model_validator(mode="after")
     def _exactly_one(self) -> TurnIn:

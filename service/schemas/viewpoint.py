@@ -65,9 +65,10 @@ class PlanSummaryOut(BaseModel):
     groups: list[str]
     group_ids: list[int]
     value: float
-    t_move_s: float
-    t_obs_s: float
-    expected_time_s: float
+    # null: infinite (a group the robot cannot reach on the grid)
+    t_move_s: float | None
+    t_obs_s: float | None
+    expected_time_s: float | None
     loss: float | None
     utility: float | None
     feasible: bool

@@ -117,8 +117,9 @@ async def post_eigenspace_images(
             description=f"or {POSES_FILE} (file,x,y,theta[,role]: m, m, rad; role learn "
                         "or calibrate) ...")] = None,
         images: Annotated[list[UploadFile] | None, File(
-            description="... and the PNG/JPEG files it names, up to 1000 parts",
-            max_length=1000)] = None,
+            description="... and the PNG/JPEG files it names, up to 995 parts (the form's "
+                        "1000 parts hold the others too)",
+            max_length=995)] = None,
         size: Annotated[str | None, Form(description="resize every image to WIDTHxHEIGHT "
                                          "px, e.g. 64x32")] = None,
         config: Annotated[str | None, Form(description="EigenspaceConfig as JSON "
