@@ -205,7 +205,11 @@ PROBLEM_SCHEMA: dict[str, Any] = {
 }
 #: the operations that answer 409 (a name taken, a job already running or ended)
 CONFLICTS = {("post", "/worlds"), ("post", "/worlds/{world}/eigenspace"),
-             ("post", "/worlds/{world}/eigenspace/images"), ("delete", "/jobs/{job_id}")}
+             ("post", "/worlds/{world}/eigenspace/images"), ("delete", "/jobs/{job_id}"),
+             # a run's map or commit before it has scans
+             *(("get", f"/worlds/{{world}}/slam-runs/{{rid}}/map.{ext}")
+               for ext in ("png", "pgm", "yaml")),
+             ("post", "/worlds/{world}/slam-runs/{rid}/commit")}
 _REASONS = {400: "Bad request", 404: "Not found (the field names what)",
             409: "Conflict with the current state", 413: "Payload too large",
             422: "Invalid input (the field names it)",

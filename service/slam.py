@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from numeric.errors import InvalidInput, NotFound
+from numeric.errors import Conflict, InvalidInput, NotFound
 from numeric.occupancy import OccupancyMap, build_occupancy
 from numeric.scan import Scan, beam_angles
 from numeric.slam.runner import Slam, SlamOptions, create
@@ -197,7 +197,7 @@ class SlamService:
         run = await self._run(world, rid)
         async with run.lock:
             if run.scans == 0:
-                raise InvalidInput("the run has no scans yet", field="run")
+                raise Conflict("the run has no scans yet: post scans first", field="run")
             key = (run.scans, run.slam.aligned)
             if run._map is None or run._map[0] != key:
                 g = await asyncio.to_thread(build_occupancy, run.slam.keyframes.frames,

@@ -144,7 +144,7 @@ def test_unknowns(client: TestClient, world: str) -> None:
                        json={"particles": 0}).status_code == 422
     rid = client.post(f"/worlds/{world}/slam-runs", json={"method": "icp"}).json()["id"]
     r = client.get(f"/worlds/{world}/slam-runs/{rid}/map.png")
-    assert r.status_code == 422  # no scans yet
+    assert r.status_code == 409  # no scans yet: a state, not a bad request
     assert client.delete(f"/worlds/{world}/slam-runs/{rid}").status_code == 204
     assert client.get(f"/worlds/{world}/slam-runs/{rid}").status_code == 404
     assert client.get("/worlds/demo/map").status_code == 404  # nothing committed
