@@ -70,9 +70,20 @@ def path(world: str, source: str = typer.Argument(..., metavar="FROM"),
 
 
 @app.command()
-def repl(world: str) -> None:
-    """Open swipl with the rule files and WORLD's facts loaded; try ?- reachable(a, c, P, M)."""
+def repl(world: str,
+         live: bool = typer.Option(False, "--live", help="query the running service's own "
+                                   "knowledge base (read-only, its limits) instead of a "
+                                   "copy of WORLD's facts"),
+         url: str = typer.Option("http://127.0.0.1:8000", help="the service (with --live)"),
+         allow_remote: bool = typer.Option(False, help="let --live query a service that is "
+                                           "not on this machine")) -> None:
+    """Open swipl with the rule files and WORLD's facts loaded (try ?- reachable(a, c, P,
+    M).), or with --live a prompt on the running service's knowledge base."""
     from numeric.errors import NotFound
+
+    if live:
+        _live_repl(world, url, allow_remote)
+        return
 
     swipl = shutil.which("swipl")
     if swipl is None:
@@ -95,6 +106,38 @@ def repl(world: str) -> None:
     argv = [swipl, "-g", "repl:main", load, "--", f"--world={world}", f"--facts={name}"]
     sys.stdout.flush()
     os.execv(swipl, argv)
+
+
+def _live_repl(world: str, url: str, allow_remote: bool) -> None:
+    import httpx
+
+    from service.live_repl import LiveRepl, ReplError, check_local
+
+    try:
+        import readline  # noqa: F401 -- line editing and history for input()
+
+        history = Path.home() / ".chizu_history"
+        if history.exists():
+            readline.read_history_file(history)
+    except (ImportError, OSError):
+        history = None  # type: ignore[assignment]
+    try:
+        check_local(url, allow_remote)
+        with httpx.Client(base_url=url, timeout=httpx.Timeout(60.0, connect=5.0)) as client:
+            r = LiveRepl(client, world)
+            r.check_world()
+            console.print(f"% live on {world} at {url}: the service's own knowledge base, "
+                          "read-only; ';' next answer, Enter stop, ctrl-C cancel, halt. leave")
+            r.run(input)
+    except (ReplError, httpx.HTTPError) as e:
+        console.print(f"[red]{e}[/red]")
+        raise typer.Exit(2) from None
+    finally:
+        if history is not None:
+            try:
+                readline.write_history_file(history)
+            except OSError:
+                pass
 
 
 def _slam_outputs(out: Path, times, poses, grid) -> None:  # type: ignore[no-untyped-def]
