@@ -41,6 +41,7 @@ bench: install
 	$(PY) tests/bench/viewpoint.py
 	$(PY) tests/bench/restart.py
 	$(PY) tests/bench/localize_clients.py
+	$(PY) tests/bench/slam_batch.py
 
 lint: install
 	$(VENV)/bin/ruff check numeric service tests

@@ -9,7 +9,7 @@ import shutil
 import sys
 import tempfile
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -193,6 +193,74 @@ def slam(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .bag (or b
     console.print(f"{opts.method}: {len(data)} scans ({data.duration_s:.0f} s of log) in "
                   f"{res.seconds:.1f} s = {data.duration_s / max(res.seconds, 1e-9):.1f}x real "
                   f"time; wrote {out}/trajectory.tum, map.png, map.pgm, map.yaml")
+
+
+@app.command("slam-batch")
+def slam_batch(logs: Annotated[list[str], typer.Argument(help="CARMEN .clf/.log or ROS .bag "
+                                                         "files")],
+               grid: str = typer.Option(None, help="parameter grid, YAML or JSON: a key's "
+                                        "list is its values (method, particles, alpha, "
+                                        "proposal, seed, ...); default: rbpf, 512 particles"),
+               out: str = typer.Option("slam-batch-out", help="output directory"),
+               scheduler: str = typer.Option(None, envvar="CHIZU_DASK_SCHEDULER",
+                                             help="a Dask scheduler, tcp://host:8786"),
+               local_workers: int = typer.Option(0, min=0, help="start a Dask cluster of N "
+                                                 "worker processes here (0: run in-process)"),
+               max_range: float = typer.Option(40.0, min=0.1, help="usable range (m)"),
+               limit: int = typer.Option(0, min=0, help="only the first N scans (0: all)")
+               ) -> None:
+    """SLAM over every LOG with every parameter set of the grid, each run evaluated on
+    its log's reference relations (<log>.relations, or the folder's one .relations);
+    writes OUT/results.csv, results.md and one TUM trajectory per run."""
+    import csv
+    import json as json_
+
+    import yaml
+    from rich.table import Table
+
+    from numeric.errors import InvalidInput
+    from numeric.slam.batch import run_batch, tasks_for
+    from numeric.slam.logs import write_tum
+    from service.executors import batch_executor
+
+    try:
+        spec = yaml.safe_load(Path(grid).read_text()) if grid else {}
+        if not isinstance(spec, dict):
+            raise InvalidInput("the grid must be a mapping of parameter -> value(s)",
+                               field="grid")
+        tasks = tasks_for(logs, spec, max_range, limit or None)
+    except (OSError, yaml.YAMLError, InvalidInput) as e:
+        console.print(f"[red]{e}[/red]")
+        raise typer.Exit(2) from None
+    where = scheduler or (f"{local_workers} local Dask workers" if local_workers else
+                          "this process")
+    with console.status(f"{len(tasks)} runs on {where}"), \
+            batch_executor(scheduler, local_workers) as ex:
+        results = run_batch(tasks, ex)
+    dest = Path(out)
+    dest.mkdir(parents=True, exist_ok=True)
+    rows = [r.row() for r in results]
+    with (dest / "results.csv").open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows({**r, "options": json_.dumps(r["options"])} for r in rows)
+    t = Table("log", "options", "scans", "x real time", "trans (m)", "loop (m)", "rot (deg)")
+    md = ["| log | options | scans | x real time | trans (m) | loop (m) | rot (deg) |",
+          "|---|---|---|---|---|---|---|"]
+    for i, r in enumerate(results):
+        import numpy as np
+
+        tr = np.asarray(r.trajectory)
+        write_tum(dest / f"{i:03d}-{Path(r.log).stem}.tum", tr[:, 0], tr[:, 1:])
+        cells = [Path(r.log).name, json_.dumps(r.options), str(r.scans),
+                 f"{r.log_s / max(r.seconds, 1e-9):.1f}",
+                 *("-" if v is None else f"{v:.3f}" for v in (r.trans_m, r.loop_trans_m,
+                                                               r.rot_deg))]
+        t.add_row(*cells)
+        md.append("| " + " | ".join(cells) + " |")
+    (dest / "results.md").write_text("\n".join(md) + "\n")
+    console.print(t)
+    console.print(f"wrote {out}/results.csv, results.md and {len(results)} trajectories")
 
 
 @app.command("slam-eval")
@@ -446,9 +514,27 @@ def eigen_learn(world: Annotated[str, typer.Argument(help="stored world")],
                     help="after the grid, add learning points by the learning strategy "
                          "(§4.2) until P(Z within 5 stops) >= 0.9 (simulator only; "
                          "--config sets its learning_strategy parameters); "
-                         "--no-strategy: the grid alone")] = True) -> None:
+                         "--no-strategy: the grid alone")] = True,
+                scheduler: Annotated[str | None, typer.Option(
+                    envvar="CHIZU_DASK_SCHEDULER",
+                    help="run the learning strategy's Monte Carlo evaluation on this Dask "
+                         "scheduler, tcp://host:8786")] = None,
+                local_workers: Annotated[int, typer.Option(
+                    min=0, help="... or on a Dask cluster of N worker processes started "
+                                "here")] = 0) -> None:
     """Learn WORLD's eigenspace and store it (the service and the REPL see it). A WORLD
     not stored yet but named like a template (e.g. room_a) is created from it."""
+    from service.executors import batch_executor
+
+    cfg = _eigen_config(config)
+    if not strategy:
+        cfg = cfg.model_copy(update={"learning_strategy": None})
+    with batch_executor(scheduler, local_workers) as ex:
+        _eigen_learn(world, images, size, cfg, ex)
+
+
+def _eigen_learn(world: str, images: Path | None, size: str | None, cfg: Any,
+                 executor: Any) -> None:
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from numeric.eigenspace.image_sets import parse_size, read_image_folder
@@ -456,11 +542,9 @@ def eigen_learn(world: Annotated[str, typer.Argument(help="stored world")],
     from numeric.world import WorldDescription
     from numeric.worlds import TEMPLATES
 
-    cfg = _eigen_config(config)
-    if not strategy:
-        cfg = cfg.model_copy(update={"learning_strategy": None})
     services = _open_services()
     eig = services.eigenspace
+    eig.executor = executor  # the learning strategy's Monte Carlo runs there (None: here)
     try:
         if eig.store.world(world) is None and world in TEMPLATES:
             asyncio.run(eig.worlds.create(WorldDescription(name=world, template=world)))
