@@ -112,6 +112,46 @@ def ray_crossings(points: ArrayLike, seg_a: FloatArray, seg_b: FloatArray) -> ND
     return np.asarray(np.sum(straddle & (x_at > px), axis=1), dtype=np.intp)
 
 
+def inside_outline(points: ArrayLike, seg_a: FloatArray, seg_b: FloatArray) -> NDArray[np.bool_]:
+    """Even-odd inside test that tolerates open inner walls: odd crossings towards any of
+    +x, -x, +y, -y. A closed outline gives the same parity in every direction; a partition
+    wall (a segment whose ends touch other walls, as between the rooms of an office) flips
+    the parity only on its own side, so a room is inside when some direction misses it. A
+    closed obstacle (a pillar) is even in every direction: outside."""
+    p = np.atleast_2d(np.asarray(points, dtype=float))
+    out = np.zeros(len(p), dtype=bool)
+    for rot in (np.eye(2), -np.eye(2), np.array([[0.0, 1.0], [-1.0, 0.0]]),
+                np.array([[0.0, -1.0], [1.0, 0.0]])):
+        out |= ray_crossings(p @ rot.T, seg_a @ rot.T, seg_b @ rot.T) % 2 == 1
+    return out
+
+
+def enclosed_cells(seg_a: FloatArray, seg_b: FloatArray, resolution_m: float,
+                   max_cells: int = 4_000_000) -> tuple[FloatArray, float, NDArray[np.bool_]]:
+    """Cells no path from outside the segments' bounding box reaches without crossing a
+    segment (a flood fill over a raster of the segments, 4-connected, scipy.ndimage):
+    ``(origin (2,), resolution, mask (H, W))`` indexed ``[iy, ix]``. The resolution is
+    coarsened until the raster has at most ``max_cells`` cells; gaps narrower than a
+    cell are closed."""
+    from scipy import ndimage
+
+    pts = np.vstack([seg_a, seg_b])
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    res = float(max(resolution_m, np.sqrt(np.prod(hi - lo + 1e-9) / max_cells)))
+    lo = lo - 2 * res
+    shape = (int(np.ceil((hi[1] - lo[1]) / res)) + 3, int(np.ceil((hi[0] - lo[0]) / res)) + 3)
+    wall = np.zeros(shape, dtype=bool)
+    for a, b in zip(seg_a, seg_b, strict=True):
+        n = max(2, int(np.ceil(np.hypot(*(b - a)) / (0.3 * res))) + 1)
+        q = a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)
+        ij = np.floor((q - lo) / res).astype(int)
+        wall[ij[:, 1], ij[:, 0]] = True
+    labels, _ = ndimage.label(~wall)
+    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    outside = np.isin(labels, border[border > 0])
+    return lo, res, ~outside
+
+
 def compose(pose: ArrayLike, delta: ArrayLike) -> FloatArray:
     """``pose (+) delta`` for poses (..., 3): ``delta`` is expressed in ``pose``'s frame."""
     p, d = np.asarray(pose, dtype=float), np.asarray(delta, dtype=float)

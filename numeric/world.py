@@ -16,7 +16,7 @@ import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, FiniteFloat, model_validator
 
 from numeric.errors import InvalidInput
-from numeric.geometry import point_segment_distance, ray_crossings
+from numeric.geometry import enclosed_cells, inside_outline, point_segment_distance, ray_crossings
 from numeric.textures import TEXTURE_NAMES
 
 ID_PATTERN = r"^[a-z][a-zA-Z0-9_]{0,63}$"
@@ -27,7 +27,7 @@ Probability = Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
 #: the built-in worlds (numeric/worlds.py TEMPLATES; a test keeps the two in step)
 TemplateName = Literal["corridor", "loop", "demo", "office", "room_a", "room_b",
                        "summary_room", "fig11a", "fig11b", "room_c", "room_d",
-                       "twin_hexagon"]
+                       "twin_hexagon", "mission"]
 
 MAX_WALLS = 20_000
 MAX_LANDMARKS = 5_000
@@ -221,9 +221,35 @@ class World:
         xy = np.atleast_2d(np.asarray(xy, dtype=float))
         near = point_segment_distance(xy, surf.a, surf.b).min(axis=1, initial=np.inf)
         walls = ~np.isfinite(surf.top_m)
-        inside = ray_crossings(xy, surf.a[walls], surf.b[walls]) % 2 == 1
         in_object = ray_crossings(xy, surf.a[~walls], surf.b[~walls]) % 2 == 1
-        return np.asarray((near >= clearance_m) & inside & ~in_object)
+        return np.asarray((near >= clearance_m) & self.inside(xy) & ~in_object)
+
+    def inside(self, xy: np.ndarray) -> np.ndarray:
+        """True for positions ``(M, 2)`` inside the building: enclosed by the walls (no
+        path from outside without crossing one) and inside their outline by the even-odd
+        rule in some axis direction, so rooms between partition walls count and the
+        inside of a closed pillar does not (:func:`numeric.geometry.inside_outline`). A
+        building whose outer walls leave a gap encloses nothing: then the even-odd rule
+        alone decides."""
+        xy = np.atleast_2d(np.asarray(xy, dtype=float))
+        walls = ~np.isfinite(self.surfaces.top_m)
+        a, b = self.surfaces.a[walls], self.surfaces.b[walls]
+        out = inside_outline(xy, a, b)
+        lo, res, enclosed = self._enclosed
+        if enclosed.any():
+            ij = np.floor((xy - lo) / res).astype(int)
+            ok = ((ij >= 0) & (ij < np.array(enclosed.shape[::-1]))).all(axis=1)
+            hit = np.zeros(len(xy), dtype=bool)
+            hit[ok] = enclosed[ij[ok, 1], ij[ok, 0]]
+            out &= hit
+        return out
+
+    @cached_property
+    def _enclosed(self) -> tuple[np.ndarray, float, np.ndarray]:
+        walls = ~np.isfinite(self.surfaces.top_m)
+        if not walls.any():
+            return np.zeros(2), 1.0, np.zeros((1, 1), dtype=bool)
+        return enclosed_cells(self.surfaces.a[walls], self.surfaces.b[walls], 0.05)
 
     @cached_property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:

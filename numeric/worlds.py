@@ -239,6 +239,30 @@ def loop_corridor(name: str = "loop", outer_m: tuple[float, float] = (24.0, 14.0
     return WorldDescription(name=name, walls=outer + inner, objects=boxes)
 
 
+#: The mission world's layout (:func:`mission_world`): the goal landmark in the corridor,
+#: the goal room's door (a point just inside it) and its extent (lower and upper corner).
+MISSION_GOAL = "c1"
+MISSION_DOOR = (9.0, 2.6)
+MISSION_ROOM = ((6.0, 2.0), (12.0, 8.0))
+
+
+def mission_world(name: str = "mission") -> WorldDescription:
+    """The end-to-end mission's office: a corridor with two rooms on each side (the demo
+    office, smaller), three candidate objects of the built-in types and a cabinet that
+    hides part of the north-east room -- the goal room, whose door is :data:`MISSION_DOOR`
+    behind the corridor landmark :data:`MISSION_GOAL`."""
+    d = office_world(name=name, rooms_per_side=2)
+    (x0, y0), (x1, y1) = MISSION_ROOM
+    walls = [*d.walls, Wall(a=(x0 + 2.6, y0 + 3.4), b=(x0 + 4.6, y0 + 3.4), texture="text",
+                            reflectivity=0.4)]
+    objects = [WorldObject(id=i, type=t, x=x, y=y, theta=th, size_m=(0.4, 0.3, 0.5),
+                           texture="coffee")
+               for i, t, x, y, th in (("mug", "A", x0 + 1.2, y0 + 4.6, 0.5),
+                                      ("kettle", "B", x0 + 4.8, y0 + 2.2, 2.0),
+                                      ("box", "A", x0 + 3.6, y0 + 4.7, 1.2))]
+    return d.model_copy(update={"walls": walls, "objects": objects})
+
+
 TEMPLATES: dict[str, Callable[[str], WorldDescription]] = {
     "corridor": stripe_corridor,
     "loop": loop_corridor,
@@ -252,6 +276,7 @@ TEMPLATES: dict[str, Callable[[str], WorldDescription]] = {
     "room_c": room_c,
     "room_d": room_d,
     "twin_hexagon": twin_hexagon,
+    "mission": mission_world,
 }
 
 

@@ -203,7 +203,7 @@ snapshot_fact(Text, F, I, I1) :-
 run(clear_facts, Args, _{world:W, domain:D}) :-
     existing_world(Args, W),
     arg_(domain, Args, DT),
-    (   string(DT), atom_string(D, DT), memberchk(D, [slam, eigenspace, viewpoint])
+    (   string(DT), atom_string(D, DT), memberchk(D, [slam, eigenspace, viewpoint, mission])
     ->  true
     ;   throw(chizu_error(unknown_domain(DT), domain))
     ),

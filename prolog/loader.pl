@@ -17,7 +17,8 @@ user:message_hook(Term, Kind, _) :-
     fail.
 
 %!  chizu_modules(-Files) is det.
-chizu_modules([world, params, qualitative, drm, eigenspace, slam, grouping, query, api, repl]).
+chizu_modules([world, params, qualitative, drm, eigenspace, slam, grouping, mission, query,
+               api, repl]).
 
 %!  load_checked(+Dir) is det.
 %

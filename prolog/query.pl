@@ -20,6 +20,8 @@
         (grouping.pl), world filled in: vp_candidate/5,
         observation_group/3, same_group/2, joinable/2, candidate_group/2,
         unknown_group_area/2, plan_step/4 (the last plan's steps)
+      - the last mission's record (mission.pl), world filled in:
+        mission_step/3, mission_pose/3, mission_path/2, mission_outcome/1
       - comparison: =, \=, ==, \==, and <, >, =<, >=, =:= on numbers or
         variables only (no arithmetic expressions, so no arithmetic bombs)
       - member/2, memberchk/2
@@ -37,6 +39,7 @@
 :- use_module(eigenspace).
 :- use_module(slam).
 :- use_module(grouping).
+:- use_module(mission).
 :- use_module(json_args).
 :- multifile api:run/3.
 
@@ -141,6 +144,10 @@ relation_goal(W, joinable(A, B), grouping:joinable(W, A, B)).
 relation_goal(W, candidate_group(C, G), grouping:candidate_group(W, C, G)).
 relation_goal(W, unknown_group_area(G, A), grouping:unknown_group_area(W, G, A)).
 relation_goal(W, plan_step(K, G, P, T), grouping:plan_step(W, K, G, P, T)).
+relation_goal(W, mission_step(S, What, R), M:mission_step(S, What, R)) :- world_module(W, M).
+relation_goal(W, mission_pose(X, Y, Th), mission:mission_pose(W, X, Y, Th)).
+relation_goal(W, mission_path(Ls, P), mission:mission_path(W, Ls, P)).
+relation_goal(W, mission_outcome(O), mission:mission_outcome(W, O)).
 
 comparison(G) :-
     G =.. [Op, _, _],

@@ -29,6 +29,10 @@
             observation_group/3,    % ?G, ?Kind, ?Members
             same_group/2,           % ?A, ?B
             plan_step/4,            % ?K, ?G, ?Pose, ?Times
+            mission_step/3,         % ?S, ?What, ?Result
+            mission_pose/3,         % -X, -Y, -Th
+            mission_path/2,         % -Landmarks, -P
+            mission_outcome/1,      % -Outcome
             main/0
           ]).
 :- use_module(library(main), [argv_options/3]).
@@ -38,6 +42,7 @@
 :- use_module(eigenspace, []).
 :- use_module(slam, []).
 :- use_module(grouping, []).
+:- use_module(mission, []).
 
 :- dynamic current_world/1.
 
@@ -99,6 +104,13 @@ closes_loop(A, B) :- w(W), slam:closes_loop(W, A, B).
 observation_group(G, Kind, Members) :- w(W), grouping:observation_group(W, G, Kind, Members).
 same_group(A, B) :- w(W), grouping:same_group(W, A, B).
 plan_step(K, G, Pose, Times) :- w(W), grouping:plan_step(W, K, G, Pose, Times).
+
+%   The last mission (mission.pl), e.g.
+%   ?- mission_step(S, What, Result).   ?- mission_outcome(O).
+mission_step(S, What, R) :- w(W), world_module(W, M), M:mission_step(S, What, R).
+mission_pose(X, Y, Th) :- w(W), mission:mission_pose(W, X, Y, Th).
+mission_path(Ls, P) :- w(W), mission:mission_path(W, Ls, P).
+mission_outcome(O) :- w(W), mission:mission_outcome(W, O).
 
 %!  main is det.
 %

@@ -10,7 +10,16 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI
 
 from service import errors
-from service.api.routes import eigenspace, health, jobs, qualitative, slam, viewpoint, worlds
+from service.api.routes import (
+    eigenspace,
+    health,
+    jobs,
+    mission,
+    qualitative,
+    slam,
+    viewpoint,
+    worlds,
+)
 from service.container import ensure_demo, open_services
 from service.settings import Settings, get_settings
 
@@ -52,6 +61,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(eigenspace.router)
     app.include_router(slam.router)
     app.include_router(viewpoint.router)
+    app.include_router(mission.router)
     app.include_router(jobs.router)
     errors.install(app)
     errors.document_problems(app)

@@ -15,6 +15,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from numeric.viewpoint.planner import BUILTIN_OBJECT_TYPES
 from service.settings import get_settings
 
 app = typer.Typer(help="chizu: hybrid symbolic-numeric planner for mobile robots.",
@@ -312,9 +313,7 @@ def slam_sim(template: str = typer.Argument("corridor", help="built-in world"),
     console.print(f"wrote {out} ({len(log)} scans) and {out}.truth.tum")
 
 
-DEFAULT_TYPES = [{"name": "A", "value": 50, "mean_count": 1.0},
-                 {"name": "B", "value": 100, "mean_count": 0.5},
-                 {"name": "C", "value": 80, "mean_count": 0.5}]
+DEFAULT_TYPES = BUILTIN_OBJECT_TYPES
 
 
 def _world_description(name: str):  # type: ignore[no-untyped-def]
@@ -463,6 +462,89 @@ def summarise(world: str = typer.Argument(..., help="stored world or template, e
                f"{world}: {loss}, t_limit {time_limit:g} s, took {run.elapsed_s:.1f} s")
     console.print(summary)
     console.print(f"wrote {outdir / 'run.json'} and {outdir / 'run.png'}")
+
+
+@app.command()
+def mission(world: str = typer.Argument("mission", help="stored world, or a template to "
+                                        "create it from (default: the mission world)"),
+            out_dir: str = typer.Option("mission", "--out", help="directory for the figure, the "
+                                     "log and the per-seed results"),
+            seed: int = typer.Option(0, min=0, help="first seed"),
+            seeds: int = typer.Option(1, min=1, max=1000, help="runs, seeds seed..seed+N-1"),
+            slam_method: str = typer.Option("graph", help="graph | gated | rbpf"),
+            time_limit: float = typer.Option(90.0, "--time-limit", min=1.0,
+                                             help="the goal room's summary (s)"),
+            goal: str = typer.Option(None, help="goal landmark (default: the mission "
+                                     "world's)"),
+            ) -> None:
+    """One robot, one knowledge base: wake up lost, localize (eigenspace), reach the
+    nearest landmark, follow the DRM path to the goal while mapping (SLAM), then plan
+    viewpoints and verify the objects in the goal room. Each run's steps become
+    mission_step/3 facts of WORLD (the last run's stay: `chizu repl WORLD`); writes
+    mission.png (the first run), mission.json (every record) and results.csv."""
+    import csv
+    import json
+
+    from pydantic import ValidationError
+
+    from numeric.errors import ChizuError
+    from numeric.world import WorldDescription
+    from numeric.worlds import TEMPLATES
+    from service.mission import MissionConfig, mission_figure
+
+    try:
+        base = MissionConfig(slam_method=slam_method, time_limit_s=time_limit,  # type: ignore[arg-type]
+                             **({"goal": goal} if goal else {}))
+    except ValidationError as e:
+        err = e.errors()[0]
+        console.print(f"[red]{'.'.join(map(str, err['loc']))}: {err['msg']}[/red]")
+        raise typer.Exit(2) from None
+    services = _open_services()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    records, rows = [], []
+    try:
+        if services.store.world(world) is None:
+            if world not in TEMPLATES:
+                console.print(f"[red]no world {world!r} and no such template[/red]")
+                raise typer.Exit(2)
+            asyncio.run(services.worlds.create(WorldDescription(name=world, template=world)))
+            console.print(f"created world {world!r} from its template")
+        for k in range(seeds):
+            cfg = base.model_copy(update={"seed": seed + k})
+
+            def progress(stage: str, frac: float) -> None:
+                if "stop" not in stage:
+                    console.print(f"  {frac:4.0%} {stage}")
+
+            run = asyncio.run(services.mission.run(world, cfg, progress if seeds == 1
+                                                   else None))
+            ev = run.steps[-1]["result"]
+            last = next((s for s in run.steps if s["result"].get("ok") is False), None)
+            rows.append({"seed": cfg.seed, "success": run.success,
+                         "failed_at": last["what"] if last else "",
+                         "localization_error_m": ev.get("localization_error_m", ""),
+                         "objects_verified": ev.get("objects_verified", 0),
+                         "false_verified": ev.get("false_verified", 0),
+                         "wall_time_s": round(run.elapsed_s, 2)})
+            records.append(run.result())
+            console.print(f"seed {cfg.seed}: {'[green]succeeded' if run.success else '[red]failed'}"
+                          f"[/] {rows[-1]}")
+            if k == 0:
+                mission_figure(run, services.worlds.model(world), str(out / "mission.png"))
+    except ChizuError as e:
+        console.print(f"[red]{e.field}: {e}[/red]")
+        raise typer.Exit(2) from None
+    finally:
+        services.close()
+    (out / "mission.json").write_text(json.dumps(records, indent=1))
+    with open(out / "results.csv", "w", newline="") as f:
+        wr = csv.DictWriter(f, fieldnames=list(rows[0]))
+        wr.writeheader()
+        wr.writerows(rows)
+    ok = sum(r["success"] for r in rows)
+    console.print(f"success {ok}/{len(rows)} ({ok / len(rows):.0%}); wrote {out}/mission.png, "
+                  "mission.json, results.csv")
 
 
 eigen = typer.Typer(help="Eigenspace localization: learn from the simulator or a camera's "

@@ -22,6 +22,7 @@ from service.compute import ComputePool
 from service.eigenspace import EigenspaceService
 from service.jobs import Jobs
 from service.kb import KnowledgeBase
+from service.mission import MissionService
 from service.settings import Settings, get_settings
 from service.slam import SlamService
 from service.store import Store
@@ -44,6 +45,7 @@ class Services:
     eigenspace: EigenspaceService
     slam: SlamService
     viewpoint: ViewpointService
+    mission: MissionService
 
     def close(self) -> None:
         self.compute.close()
@@ -85,11 +87,13 @@ def open_services(settings: Settings | None = None,
     try:
         worlds = WorldService(store, kb)
         jobs = Jobs(store, settings.job_budget_s)
-        services = Services(settings, store, kb, worlds, jobs, compute,
-                            EigenspaceService(store, kb, worlds, jobs, compute, executor,
-                                              settings.max_learning_pixels),
-                            SlamService(store, kb, worlds, settings.request_budget_s),
-                            ViewpointService(store, kb, worlds, compute))
+        eigenspace = EigenspaceService(store, kb, worlds, jobs, compute, executor,
+                                       settings.max_learning_pixels)
+        slam = SlamService(store, kb, worlds, settings.request_budget_s)
+        viewpoint = ViewpointService(store, kb, worlds, compute)
+        services = Services(settings, store, kb, worlds, jobs, compute, eigenspace, slam,
+                            viewpoint,
+                            MissionService(kb, worlds, jobs, eigenspace, slam, viewpoint))
         counts = worlds.restore_all()
         runs = services.slam.restore_runs()
         log.info("restored from %s: %s, %d SLAM run(s)", settings.db_path,

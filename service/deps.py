@@ -12,6 +12,7 @@ from numeric.world import ID_PATTERN
 from service.eigenspace import EigenspaceService
 from service.jobs import Jobs
 from service.kb import KnowledgeBase
+from service.mission import MissionService
 from service.settings import Settings, get_settings
 from service.slam import SlamService
 from service.viewpoint import ViewpointService
@@ -38,6 +39,10 @@ async def _jobs(request: Request) -> Jobs:
     return request.app.state.services.jobs  # type: ignore[no-any-return]
 
 
+async def _mission(request: Request) -> MissionService:
+    return request.app.state.services.mission  # type: ignore[no-any-return]
+
+
 async def _kb(request: Request) -> KnowledgeBase:
     return request.app.state.kb  # type: ignore[no-any-return]
 
@@ -49,6 +54,7 @@ EigenspaceDep = Annotated[EigenspaceService, Depends(_eigenspace)]
 SlamDep = Annotated[SlamService, Depends(_slam)]
 ViewpointDep = Annotated[ViewpointService, Depends(_viewpoint)]
 JobsDep = Annotated[Jobs, Depends(_jobs)]
+MissionDep = Annotated[MissionService, Depends(_mission)]
 
 
 async def _existing_world(world: Annotated[str, Path(pattern=ID_PATTERN, description="world id")],

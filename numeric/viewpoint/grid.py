@@ -165,7 +165,7 @@ def room_mask(world: World, resolution_m: float, wall_margin_m: float = 0.1) -> 
     xy = _cell_centres(lo, shape, resolution_m).reshape(-1, 2)
     surf = world.surfaces
     walls = ~np.isfinite(surf.top_m)
-    inside = ray_crossings(xy, surf.a[walls], surf.b[walls]) % 2 == 1
+    inside = world.inside(xy)
     near = point_segment_distance(xy, surf.a[walls], surf.b[walls]).min(axis=1, initial=np.inf)
     return np.asarray((inside & (near >= wall_margin_m)).reshape(shape))
 

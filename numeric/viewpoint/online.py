@@ -110,8 +110,13 @@ class Summariser:
 
     def __init__(self, world: World, object_types: list[ObjectType], grouper: Grouper,
                  config: SummaryConfig, door: np.ndarray,
-                 planner: ViewpointPlanner | None = None) -> None:
+                 planner: ViewpointPlanner | None = None,
+                 area: tuple[tuple[float, float], tuple[float, float]] | None = None) -> None:
+        """``area``: the room's lower and upper corner when the world holds more than the
+        room (an office floor): the room mask keeps only the cells inside it, so the plan
+        explores this room, not the building."""
         self.world = world
+        self.area = area
         self.types = object_types
         self.grouper = grouper
         self.cfg = config
@@ -140,6 +145,12 @@ class Summariser:
             new.append(o.id)
         return new
 
+    def detect(self, xy: np.ndarray) -> dict[str, tuple[str, np.ndarray]]:
+        """The candidates colour detection finds from ``xy``: id -> (type, position)."""
+        cands: dict[str, tuple[str, np.ndarray]] = {}
+        self._detect(np.asarray(xy, dtype=float), cands)
+        return cands
+
     def _false_candidates(self, grid: PlanningGrid, cands: dict[str, tuple[str, np.ndarray]],
                           ) -> None:
         free = np.argwhere((grid.state == FREE) & (grid.clearance > 0.8))
@@ -149,6 +160,19 @@ class Summariser:
             i, j = free[self.rng.integers(len(free))]
             cands[f"false{k + 1}"] = (self.types[k % len(self.types)].name,
                                       grid.centres(np.array(i), np.array(j)))
+
+    def _scanned(self, scans: np.ndarray) -> PlanningGrid:
+        """The grid of the scans so far (:func:`scanned_grid`), within :attr:`area`."""
+        grid = scanned_grid(self.world, scans)
+        if self.area is None:
+            return grid
+        (x0, y0), (x1, y1) = self.area
+        i, j = np.indices(grid.state.shape)
+        c = grid.centres(i.ravel(), j.ravel())
+        within = ((c[:, 0] >= x0) & (c[:, 0] <= x1) & (c[:, 1] >= y0)
+                  & (c[:, 1] <= y1)).reshape(grid.state.shape)
+        room = grid.room if grid.room is not None else np.ones_like(within)
+        return PlanningGrid(grid.grid, room & within)
 
     # -- motion -----------------------------------------------------------------------
     def _route(self, grid: PlanningGrid, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -173,7 +197,7 @@ class Summariser:
         cfg = self.cfg
         pose = np.array([*self.door, np.pi / 2])
         scans = look_around(self.door)
-        grid = scanned_grid(self.world, scans)
+        grid = self._scanned(scans)
         # unknown cells a search could not see into: not a region to explore again
         given_up = np.zeros(grid.state.shape, dtype=bool)
         cands: dict[str, tuple[str, np.ndarray]] = {}
@@ -258,7 +282,7 @@ class Summariser:
                 move(e)
                 scans = np.vstack([scans, look_around(e)])
                 t += cfg.t_search_s
-                grid = scanned_grid(self.world, scans)
+                grid = self._scanned(scans)
                 found = self._detect(e, cands)
                 # a search that revealed less than a region worth exploring gives the
                 # rest up: from its reachable entry points nothing more can be seen, and

@@ -52,6 +52,14 @@ Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 
 
+#: the built-in object types A, B, C (value, mean count per room; appearance fitted to the
+#: simulator's measurements), as the CLI, the benchmarks and the mission use them
+BUILTIN_OBJECT_TYPES: list[dict[str, Any]] = [
+    {"name": "A", "value": 50, "mean_count": 1.0},
+    {"name": "B", "value": 100, "mean_count": 0.5},
+    {"name": "C", "value": 80, "mean_count": 0.5}]
+
+
 class ObjectType(BaseModel):
     """A known object type: value V_obj (eq. 16), mean count per room n_bar (eqs. 10, 17)
     and its appearance -- fitted parameters, measurement tables to fit, or (for the

@@ -1,0 +1,37 @@
+"""The end-to-end mission (service.mission): start one as a job, read the last record."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter, Response, status
+
+from service.api.strict import StrictJsonRoute
+from service.deps import MissionDep, WorldDep
+from service.mission import MissionConfig
+from service.schemas.jobs import JobOut
+from service.schemas.mission import MissionRecordOut
+
+router = APIRouter(prefix="/worlds/{world}", tags=["mission"], route_class=StrictJsonRoute)
+
+
+@router.post("/missions", status_code=status.HTTP_202_ACCEPTED, response_model=JobOut)
+async def post_mission(world: WorldDep, config: MissionConfig, mission: MissionDep,
+                       response: Response) -> dict[str, Any]:
+    """Run the end-to-end mission in the simulator, in this world's knowledge base: wake
+    up lost and localize (eigenspace), reach the nearest landmark, follow the DRM's most
+    probable path to the goal landmark while mapping (laser SLAM, committed), then plan
+    viewpoints and verify the candidate objects in the goal room under the time limit.
+    Learns the world's eigenspace and surveys its landmarks first if it has none. Runs as
+    a job: poll ``Location``; its result is the record (also the ``mission_step/3``
+    facts, ``GET .../mission``)."""
+    job = mission.start(world, config)
+    response.headers["Location"] = f"/jobs/{job['id']}"
+    return job
+
+
+@router.get("/mission", response_model=MissionRecordOut)
+async def get_mission(world: WorldDep, mission: MissionDep) -> dict[str, Any]:
+    """The world's last mission record, step by step (empty if none ran); the same rows
+    as the knowledge base's ``mission_step(S, What, Result)`` facts."""
+    return mission.record(world)

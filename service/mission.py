@@ -1,0 +1,581 @@
+"""One robot, one knowledge base: the end-to-end mission in the simulator.
+
+A simulated robot wakes up lost in a world and runs the four methods through the same
+service calls a client makes, so every result lands in the world's knowledge base:
+
+1. **localize** -- a full turn of camera images per stop, sent to an eigenspace session
+   (Maeda & Shirai, §3: candidate regions, the Fig. 4 state rules in Prolog), the
+   movement strategy's next move (§3.5) driven with noisy odometry, until state Z;
+2. **nearest_landmark / reach_landmark** -- the estimated pose names the nearest
+   landmark in line of sight, and the robot homes on it (the DRM paper's §6: reach a
+   landmark first);
+3. **drm_path / navigate** -- the DRM's most probable path to the goal landmark (eq. 4)
+   is followed by the qualitative navigation methods (move1-3, §6); each arc the robot
+   completes is reported as a ``reached`` event, as a robot teaching the DRM would;
+4. **slam_map** -- the laser scans taken on the way (odometry in the frame of the
+   localized pose) go to a SLAM run (graph SLAM by default) whose map is committed: its
+   unknown regions become facts;
+5. **enter_room / viewpoint_plan / verify** -- at the goal room's door the candidate
+   objects seen from there are planned for (Masuzawa & Miura: groups by the Prolog
+   rules, on the committed map) and the online loop (§7.3) verifies them under the
+   time limit.
+
+After every step the whole record so far is asserted as ``mission_step(S, What,
+Result)`` facts (prolog/mission.pl) and stored with the world, so ``chizu repl WORLD``
+and ``/query`` see it. A last ``evaluation`` step compares with the simulator's ground
+truth (never read by the robot). :func:`mission_figure` draws the run.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, FiniteFloat
+
+from numeric.camera import Camera
+from numeric.eigenspace.analysis import EigenspaceConfig
+from numeric.eigenspace.learning import LearningConfig
+from numeric.errors import InvalidInput, NotFound
+from numeric.geometry import compose, line_of_sight, relative, wrap_angle
+from numeric.laser import Laser
+from numeric.occupancy import FREE, OCCUPIED, OccupancyMap
+from numeric.qualitative.navigation import NavConfig, execute_step, home_on
+from numeric.qualitative.survey import survey
+from numeric.simulator import LandmarkObserver, ObserverConfig, OdometryConfig, Robot
+from numeric.slam.runner import SlamOptions
+from numeric.viewpoint.online import Summariser, SummaryConfig, SummaryRun
+from numeric.viewpoint.planner import (
+    BUILTIN_OBJECT_TYPES,
+    CandidateIn,
+    GroupSpec,
+    ObjectType,
+    PlanRequest,
+)
+from numeric.world import Id, World
+from numeric.worlds import MISSION_DOOR, MISSION_GOAL, MISSION_ROOM
+from service.eigenspace import EigenspaceService
+from service.jobs import JobProgress, Jobs
+from service.kb import KnowledgeBase
+from service.schemas.slam import ScanIn
+from service.slam import SlamService
+from service.viewpoint import SCENE_ARTIFACT, ViewpointService
+from service.worlds import ArtifactKind, WorldService
+
+log = logging.getLogger(__name__)
+MISSION_ARTIFACT = "mission"
+MISSION_JOB = "mission"
+Point = tuple[FiniteFloat, FiniteFloat]
+
+
+def mission_eigenspace() -> EigenspaceConfig:
+    """The eigenspace the mission learns when the world has none: the paper's camera and
+    directions on a 1 m grid (an office's walls hide most of a 2 m grid's triplets from
+    each other), no learning strategy."""
+    return EigenspaceConfig(learning=LearningConfig(spacing_m=1.0), learning_strategy=None)
+
+
+class MissionConfig(BaseModel):
+    """What one mission run is asked to do; the defaults fit the built-in ``mission``
+    world (its goal landmark, door and goal room)."""
+
+    model_config = ConfigDict(extra="forbid")
+    goal: Id = Field(MISSION_GOAL, description="the landmark to reach")
+    door: Point = Field(MISSION_DOOR, description="a point just inside the goal room's door")
+    room: tuple[Point, Point] = Field(MISSION_ROOM,
+                                      description="the goal room's lower and upper corner")
+    start: tuple[Point, Point] | None = Field(
+        None, description="where the robot may wake up (lower, upper corner); null: "
+                          "anywhere in the free space")
+    seed: int = Field(0, ge=0, le=2**31 - 1)
+    max_stops: int = Field(10, ge=1, le=50, description="localization stops at most")
+    camera_noise: float = Field(0.02, ge=0.0, le=1.0, description="pixel noise sigma")
+    slam_method: Literal["graph", "gated", "rbpf"] = "graph"
+    time_limit_s: float = Field(90.0, gt=0.0, le=3600.0, allow_inf_nan=False,
+                                description="the goal room's summary (L1: hard)")
+    loss: Literal["L1", "L2", "L3"] = "L1"
+    eigenspace: EigenspaceConfig = Field(
+        default_factory=mission_eigenspace,
+        description="learned if the world has no eigenspace yet")
+    odometry: OdometryConfig = OdometryConfig()
+    observer: ObserverConfig = ObserverConfig(bearing_noise_rad=0.02, distance_noise_m=0.05)
+
+
+class MissionFailed(Exception):
+    """A step could not be done; the record says which (``ok = false``)."""
+
+
+@dataclass
+class TracedRobot(Robot):
+    """The simulator's robot, moving in small increments (at most ``max_step_m`` and
+    ``max_turn_rad``, as a base controller at 10 Hz would) and keeping every (true pose,
+    odometry pose) after one -- what the laser scans are taken at."""
+
+    max_step_m: float = 0.1
+    max_turn_rad: float = 0.2
+    trace: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    tracing: bool = False
+
+    def _keep(self) -> None:
+        if self.tracing:
+            self.trace.append((self.pose.copy(), self.odom_pose.copy()))
+
+    def turn(self, angle_rad: float) -> None:
+        n = max(1, math.ceil(abs(angle_rad) / self.max_turn_rad))
+        for _ in range(n):
+            super().turn(angle_rad / n)
+            self._keep()
+
+    def forward(self, distance_m: float) -> bool:
+        n = max(1, math.ceil(abs(distance_m) / self.max_step_m))
+        for _ in range(n):
+            if not super().forward(distance_m / n):
+                return False
+            self._keep()
+        return True
+
+
+@dataclass
+class MissionRun:
+    """What happened: the record (the facts' rows), the truth for the figure."""
+
+    world: str
+    config: MissionConfig
+    steps: list[dict[str, Any]] = field(default_factory=list)
+    truth_path: list[np.ndarray] = field(default_factory=list)
+    stops: list[dict[str, Any]] = field(default_factory=list)
+    slam_path: np.ndarray | None = None
+    landmarks: list[str] = field(default_factory=list)
+    summary: SummaryRun | None = None
+    map: OccupancyMap | None = None
+    success: bool = False
+    elapsed_s: float = 0.0
+
+    def result(self) -> dict[str, Any]:
+        return {"world": self.world, "seed": self.config.seed, "success": self.success,
+                "elapsed_s": self.elapsed_s, "steps": self.steps}
+
+
+def _plain(v: Any) -> Any:
+    """A JSON value of a step's result (numpy scalars and arrays made plain)."""
+    if isinstance(v, np.ndarray):
+        return [_plain(x) for x in v.tolist()]
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return round(float(v), 6)
+    return str(v)
+
+
+def scan_in(scan: Any) -> ScanIn:
+    """A simulated :class:`numeric.scan.Scan` as a client would post it."""
+    return ScanIn(t=scan.t, ranges=np.round(scan.ranges, 4).tolist(),
+                  intensities=np.round(scan.intensities, 1).tolist(),
+                  angle_min=float(scan.angles[0]),
+                  angle_increment=float(scan.angles[1] - scan.angles[0]),
+                  range_min=scan.min_range_m, range_max=scan.max_range_m,
+                  odom=tuple(float(v) for v in scan.odom))
+
+
+class MissionService:
+    """Runs missions on a world through the domain services (one knowledge base)."""
+
+    def __init__(self, kb: KnowledgeBase, worlds: WorldService, jobs: Jobs,
+                 eigenspace: EigenspaceService, slam: SlamService,
+                 viewpoint: ViewpointService) -> None:
+        self.kb, self.worlds, self.jobs = kb, worlds, jobs
+        self.eigenspace, self.slam, self.viewpoint = eigenspace, slam, viewpoint
+        worlds.register(ArtifactKind(
+            MISSION_ARTIFACT, "mission_steps", "mission",
+            lambda world, blob: {"world": world, "steps": json.loads(blob)["steps"]}))
+
+    def start(self, world: str, config: MissionConfig) -> dict[str, Any]:
+        """A durable job (:mod:`service.jobs`) running one mission; its result is
+        :meth:`MissionRun.result`."""
+        self.check(world, config)
+
+        async def work(progress: JobProgress) -> dict[str, Any]:
+            run = await self.run(world, config, lambda what, frac: progress(what, frac))
+            return run.result()
+
+        return self.jobs.start(world, MISSION_JOB, work)
+
+    def record(self, world: str) -> dict[str, Any]:
+        """The world's last mission record as stored (the facts' rows)."""
+        self.worlds.require(world)
+        blob = self.worlds.store.artifact(world, MISSION_ARTIFACT)
+        steps = json.loads(blob)["steps"] if blob is not None else []
+        return {"world": world, "steps": steps}
+
+    def check(self, world: str, config: MissionConfig) -> None:
+        """404 / 422 before any work: the world, the goal landmark, the room and door."""
+        w = self.worlds.model(world)
+        if config.goal not in w.landmark_index:
+            raise NotFound(f"landmark {config.goal!r} has no position in world {world!r}",
+                           field="goal")
+        (x0, y0), (x1, y1) = config.room
+        if not (x0 < x1 and y0 < y1):
+            raise InvalidInput("room: the lower corner must be below and left of the upper",
+                               field="room")
+        if not (x0 <= config.door[0] <= x1 and y0 <= config.door[1] <= y1):
+            raise InvalidInput("door: the point must lie inside the room", field="door")
+        if not w.is_free(np.array(config.door), 0.2)[0]:
+            raise InvalidInput("door: the point is not in the free space", field="door")
+
+    async def run(self, world: str, config: MissionConfig,
+                  progress: Callable[[str, float], None] | None = None) -> MissionRun:
+        """Run the mission (see the module's docstring); a failed step ends it early with
+        ``ok = false`` in its record, and the evaluation says what was reached."""
+        self.check(world, config)
+        report = progress or (lambda what, frac: None)
+        t0 = time.perf_counter()
+        run = MissionRun(world, config)
+        w = self.worlds.model(world)
+        rng = np.random.default_rng(config.seed)
+        robot: TracedRobot | None = None
+        est: np.ndarray | None = None
+        try:
+            await self._prepare(run, w, report)
+            robot = self._wake_up(w, config, rng)
+            run.truth_path.append(robot.pose.copy())
+            est = await self._localize(run, w, robot, rng, report)
+            robot.tracing = True
+            odom0 = robot.odom_pose.copy()
+            observer = LandmarkObserver(w, config.observer, rng)
+            nav = NavConfig()
+            await self._navigate(run, w, robot, observer, nav, est, report)
+            await self._map(run, w, robot, est, odom0, rng, report)
+            await self._summarise(run, w, robot, report)
+        except MissionFailed as e:
+            log.info("mission on %s (seed %d) stopped: %s", world, config.seed, e)
+        if robot is not None:
+            run.truth_path.extend(p for p, _ in robot.trace)
+        run.elapsed_s = time.perf_counter() - t0
+        await self._evaluate(run, w, est)
+        report("done", 1.0)
+        return run
+
+    # -- the record -------------------------------------------------------------------
+    async def _record(self, run: MissionRun, what: str, **result: Any) -> None:
+        run.steps.append({"step": len(run.steps), "what": what,
+                          "result": {k: _plain(v) for k, v in result.items()}})
+        blob = json.dumps({"world": run.world, "steps": run.steps}).encode()
+        async with self.worlds.write_artifact(run.world, MISSION_ARTIFACT) as write:
+            await write.commit(blob, call={"world": run.world, "steps": run.steps})
+
+    async def _fail(self, run: MissionRun, what: str, why: str, **result: Any) -> None:
+        await self._record(run, what, ok=False, reason=why, **result)
+        raise MissionFailed(f"{what}: {why}")
+
+    # -- 0: what the world needs ------------------------------------------------------
+    async def _prepare(self, run: MissionRun, w: World,
+                       report: Callable[[str, float], None]) -> None:
+        await self._record(run, "survey", **await self._ensure_drm(run.world, w))
+        try:
+            self.eigenspace.analysis(run.world)
+        except NotFound:
+            report("learning the eigenspace", 0.02)
+            t = time.perf_counter()
+            a = await self.eigenspace.learn(run.world, run.config.eigenspace)
+            await self._record(run, "learn_eigenspace", learning_points=len(a.model.points),
+                               triplets=len(a.triplets), seconds=time.perf_counter() - t,
+                               ok=True)
+
+    async def _ensure_drm(self, world: str, w: World) -> dict[str, Any]:
+        """The DRM needs observations from the landmarks: a survey in the simulator
+        (one panoramic observation per landmark) if the world has none yet."""
+        drm = await self.worlds.drm(world)
+        if drm["edges"]:
+            return {"observations": 0, "edges": len(drm["edges"]), "ok": True}
+        obs = survey(w, ObserverConfig(bearing_noise_rad=0.01, distance_noise_m=0.02), seed=0)
+        for o in obs:
+            await self.worlds.observe(world, o)
+        drm = await self.worlds.drm(world)
+        return {"observations": len(obs), "edges": len(drm["edges"]), "ok": True}
+
+    # -- 1: wake up lost and localize -------------------------------------------------
+    @staticmethod
+    def _wake_up(w: World, config: MissionConfig, rng: np.random.Generator) -> TracedRobot:
+        for _ in range(1000):
+            xy = w.sample_free(1, rng, clearance_m=0.5)[0]
+            if config.start is None or (
+                    config.start[0][0] <= xy[0] <= config.start[1][0]
+                    and config.start[0][1] <= xy[1] <= config.start[1][1]):
+                break
+        else:
+            raise InvalidInput("start: no free space in the region", field="start")
+        pose = np.array([xy[0], xy[1], rng.uniform(-np.pi, np.pi)])
+        return TracedRobot(world=w, pose=pose, odometry=config.odometry, rng=rng)
+
+    async def _localize(self, run: MissionRun, w: World, robot: TracedRobot,
+                        rng: np.random.Generator,
+                        report: Callable[[str, float], None]) -> np.ndarray:
+        a = self.eigenspace.analysis(run.world)
+        cam = Camera(w, a.config.camera.model_copy(update={"noise_sigma":
+                                                           run.config.camera_noise}), rng=rng)
+        n = len(a.model.directions)
+        sid = (await self.eigenspace.create_session(run.world))["id"]
+        prev: np.ndarray | None = None
+        for k in range(run.config.max_stops):
+            report(f"localizing: stop {k + 1}", 0.05 + 0.25 * k / run.config.max_stops)
+            imgs = await asyncio.to_thread(cam.render_turn, robot.pose[:2], robot.pose[2], n)
+            motion = None if prev is None else relative(prev, robot.odom_pose)
+            ans = await self.eigenspace.add_stop(run.world, sid, imgs, motion)
+            run.stops.append({"truth": robot.pose.copy(), "answer": ans})
+            state = ans["state"]["state"]
+            if state == "z" and ans["pose"] is not None:
+                p = ans["pose"]
+                est = np.array([p["x"], p["y"], p["theta"]], dtype=float)
+                await self._record(run, "localize", session=sid, stops=k + 1, state="z",
+                                   x=est[0], y=est[1], theta=est[2], ok=True)
+                return est
+            move = await self.eigenspace.next_move(run.world, sid)
+            act = move["action"]
+            prev = robot.odom_pose.copy()
+            if act is not None:
+                await asyncio.to_thread(self._drive, robot, act)
+            run.truth_path.append(robot.pose.copy())
+        await self._fail(run, "localize", f"no unique pose after {run.config.max_stops} stops",
+                         session=sid, stops=run.config.max_stops, state=state)
+        raise AssertionError  # unreachable: _fail raises
+
+    @staticmethod
+    def _drive(robot: TracedRobot, act: dict[str, float]) -> None:
+        """The movement strategy's action (alpha, l, beta): turn, drive (stopping in front
+        of a wall), turn."""
+        robot.turn(act["alpha_rad"])
+        robot.forward(act["l_m"])
+        robot.collided = False
+        robot.turn(act["beta_rad"])
+
+    # -- 2-3: the nearest landmark, the DRM path, navigation ---------------------------
+    async def _navigate(self, run: MissionRun, w: World, robot: TracedRobot,
+                        observer: LandmarkObserver, nav: NavConfig, est: np.ndarray,
+                        report: Callable[[str, float], None]) -> None:
+        report("reaching the nearest landmark", 0.35)
+        d = np.hypot(*(w.landmark_xy - est[:2]).T)
+        seen = line_of_sight(est[:2], w.landmark_xy, w.wall_a, w.wall_b)
+        if not seen.any():
+            await self._fail(run, "nearest_landmark", "no landmark in line of sight of the "
+                             "estimated pose", x=est[0], y=est[1])
+        i = int(np.argmin(np.where(seen, d, np.inf)))
+        start = w.landmark_ids[i]
+        await self._record(run, "nearest_landmark", x=est[0], y=est[1], landmark=start,
+                           distance_m=d[i], ok=True)
+        ok = await asyncio.to_thread(home_on, robot, observer, start, nav)
+        await self._record(run, "reach_landmark", landmark=start, ok=ok,
+                           travelled_m=robot.travelled_m)
+        if not ok:
+            raise MissionFailed(f"could not reach {start}")
+        path = await self.worlds.path(run.world, start, run.config.goal)
+        if path is None:
+            await self._fail(run, "drm_path", "the DRM has no path", **{"from": start},
+                             to=run.config.goal)
+        assert path is not None
+        run.landmarks = path.nodes
+        await self._record(run, "drm_path", **{"from": start}, to=run.config.goal,
+                           landmarks=path.nodes, methods=[s.method for s in path.steps],
+                           probability=path.probability, ok=True)
+        report("following the DRM path", 0.45)
+        t0 = robot.travelled_m
+        for k, s in enumerate(path.steps):
+            if not await asyncio.to_thread(execute_step, robot, observer, s, nav):
+                reason = "collision" if robot.collided else f"{s.method} to {s.target} failed"
+                await self._fail(run, "navigate", reason, arcs_done=k, arcs=len(path.steps),
+                                 travelled_m=robot.travelled_m - t0)
+            await self.worlds.reached(run.world, path.nodes[k], s.target)
+        await self._record(run, "navigate", arcs=len(path.steps),
+                           travelled_m=robot.travelled_m - t0, at=run.config.goal, ok=True)
+
+    # -- 4: the map ---------------------------------------------------------------------
+    async def _map(self, run: MissionRun, w: World, robot: TracedRobot, est: np.ndarray,
+                   odom0: np.ndarray, rng: np.random.Generator,
+                   report: Callable[[str, float], None]) -> None:
+        """The laser scans of the way (odometry in the localized pose's frame) into a
+        SLAM run, then committed: the world's map and its unknown regions."""
+        report("mapping", 0.6)
+        laser = Laser(w)
+
+        def take() -> list[ScanIn]:
+            return [scan_in(laser.scan(0.1 * (k + 1), truth,
+                                       compose(est, relative(odom0, odom)), rng))
+                    for k, (truth, odom) in enumerate(robot.trace)]
+
+        scans = await asyncio.to_thread(take)
+        if len(scans) < 2:
+            await self._fail(run, "slam_map", "the robot did not move", scans=len(scans))
+        status = await self.slam.create(run.world, SlamOptions(method=run.config.slam_method))
+        rid = status["id"]
+        for i in range(0, len(scans), 200):
+            await self.slam.add_scans(run.world, rid, scans[i:i + 200])
+        c = await self.slam.commit(run.world, rid)
+        times, poses = await self.slam.trajectory(run.world, rid)
+        run.slam_path = np.asarray(poses)
+        run.map = await self.slam.grid(run.world, rid)
+        await self._record(run, "slam_map", slam_run=rid, method=run.config.slam_method,
+                           scans=len(scans), loop_closures=c["loop_closures"],
+                           unknown_regions=len(c["unknown_regions"]),
+                           free_m2=c["map"]["free_m2"], ok=True)
+
+    # -- 5: the goal room ---------------------------------------------------------------
+    async def _summarise(self, run: MissionRun, w: World, robot: TracedRobot,
+                         report: Callable[[str, float], None]) -> None:
+        cfg = run.config
+        door = np.array(cfg.door, dtype=float)
+        heading = float(np.arctan2(*(door - robot.pose[:2])[::-1]))
+        robot.turn(float(wrap_angle(heading - robot.pose[2])))
+        ok = await asyncio.to_thread(robot.forward, float(np.hypot(*(door - robot.pose[:2]))))
+        await self._record(run, "enter_room", door=door, ok=ok)
+        if not ok:
+            raise MissionFailed("could not enter the room")
+        report("planning viewpoints", 0.75)
+        types = [ObjectType.model_validate(t) for t in BUILTIN_OBJECT_TYPES]
+        scene: dict[str, Any] = {}
+        summariser = Summariser(w, types, self._grouper(run.world, scene),
+                                SummaryConfig(time_limit_s=cfg.time_limit_s, loss=cfg.loss,
+                                              seed=cfg.seed),
+                                door, area=cfg.room)
+        # the candidates seen from the door, planned for on the committed map
+        seen = summariser.detect(door)
+        req = PlanRequest(robot=(float(door[0]), float(door[1]), float(np.pi / 2)),
+                          exit=(float(door[0]), float(door[1])),
+                          time_limit_s=cfg.time_limit_s, loss=cfg.loss, object_types=types,
+                          candidates=[CandidateIn(id=c, type=t, x=float(xy[0]),
+                                                  y=float(xy[1]))
+                                      for c, (t, xy) in seen.items()])
+        plan = await self.viewpoint.plan(run.world, req)
+        best = plan["plan"]
+        await self._record(run, "viewpoint_plan", candidates=sorted(seen),
+                           grid=plan["grid"]["source"], groups=best["groups"],
+                           expected_time_s=best["expected_time_s"] or -1.0,
+                           utility=best["utility"] or 0.0, feasible=best["feasible"],
+                           ok=True)
+        report("verifying candidates", 0.8)
+        summary = await asyncio.to_thread(summariser.run)
+        run.summary = summary
+        s = summary.summary(w)
+        await self._record(run, "verify", verified=s["verified"], rejected=s["rejected"],
+                           unverified=s["unverified"], elapsed_s=s["elapsed_s"],
+                           explored_fraction=s["explored_fraction"], plans=s["steps"],
+                           time_limit_s=cfg.time_limit_s, ok=True)
+        if scene:  # the loop's last scene, stored as a plan's is
+            async with self.worlds.write_artifact(run.world, SCENE_ARTIFACT) as write:
+                await write.commit(json.dumps(scene).encode(), call=scene)
+
+    def _grouper(self, world: str, scene: dict[str, Any]) -> Callable[..., list[GroupSpec]]:
+        """The online loop's grouping by the world's Prolog rules (called from the loop's
+        thread); ``scene`` keeps the last call's arguments, to be stored afterwards."""
+
+        def group(cands: list[dict[str, Any]], regions: list[dict[str, Any]],
+                  min_area: float | None) -> list[GroupSpec]:
+            args = {"world": world, "candidates": cands, "regions": regions,
+                    "min_area_m2": min_area}
+            reply = self.kb.call("viewpoint_groups", **args)
+            scene.clear()
+            scene.update(args)
+            return [GroupSpec(int(g["id"]), str(g["kind"]), tuple(g["members"]))
+                    for g in reply["groups"]]
+
+        return group
+
+    # -- the judgement ------------------------------------------------------------------
+    async def _evaluate(self, run: MissionRun, w: World, est: np.ndarray | None) -> None:
+        """Against the simulator's truth: the localization error at the stop that gave
+        the pose, whether the goal was reached, how many real objects were verified and
+        whether a false one was. Success: all steps done, the pose within 0.5 m and 30
+        degrees, and at least one real object verified with no false one."""
+        done = {s["what"] for s in run.steps if s["result"].get("ok") is not False}
+        res: dict[str, Any] = {"steps_done": len(run.steps)}
+        loc_ok = False
+        if est is not None and run.stops:
+            truth = run.stops[-1]["truth"]
+            err = float(np.hypot(*(est[:2] - truth[:2])))
+            herr = abs(float(wrap_angle(est[2] - truth[2])))
+            loc_ok = err <= 0.5 and herr <= np.deg2rad(30)
+            res.update(localization_error_m=err, heading_error_rad=herr)
+        objects = {o.id for o in w.description.objects}
+        found = 0
+        false_found = 0
+        if run.summary is not None:
+            found = len(objects & set(run.summary.verified))
+            false_found = len(set(run.summary.verified) - objects)
+        res.update(objects=len(objects), objects_verified=found,
+                   false_verified=false_found, wall_time_s=run.elapsed_s)
+        run.success = bool(loc_ok and "verify" in done and found >= 1 and false_found == 0)
+        res["success"] = run.success
+        await self._record(run, "evaluation", **res)
+
+
+
+def mission_figure(run: MissionRun, world: World, path_png: str) -> None:
+    """One figure of a run: the committed SLAM map, the walls, the true path and SLAM's,
+    the localization stops (truth and the estimate), the DRM path's landmarks, the goal
+    room's summary path and the objects verified."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, 9))
+    if run.map is not None:
+        g = run.map
+        img = np.full(g.state.shape, 0.75)
+        img[g.state == FREE] = 1.0
+        img[g.state == OCCUPIED] = 0.0
+        x0, y0 = g.origin
+        x1 = x0 + g.state.shape[0] * g.resolution_m
+        y1 = y0 + g.state.shape[1] * g.resolution_m
+        ax.imshow(img.T, origin="lower", extent=(x0, x1, y0, y1), cmap="gray", vmin=0, vmax=1)
+    for a, b in zip(world.wall_a, world.wall_b, strict=True):
+        ax.plot([a[0], b[0]], [a[1], b[1]], "-", color="0.55", lw=0.8)
+    if run.truth_path:
+        p = np.array(run.truth_path)
+        ax.plot(p[:, 0], p[:, 1], "-", color="tab:blue", lw=1.2, label="true path")
+        ax.plot(p[0, 0], p[0, 1], "o", color="tab:blue", ms=9, mfc="white", label="woke up")
+    if run.slam_path is not None and len(run.slam_path):
+        ax.plot(run.slam_path[:, 0], run.slam_path[:, 1], "--", color="tab:orange", lw=1.2,
+                label=f"SLAM ({run.config.slam_method})")
+    for k, st in enumerate(run.stops):
+        t = st["truth"]
+        ax.plot(t[0], t[1], "x", color="black", ms=8, label="stops (truth)" if k == 0 else None)
+        pose = st["answer"].get("pose")
+        if pose is not None:
+            ax.quiver(pose["x"], pose["y"], np.cos(pose["theta"]), np.sin(pose["theta"]),
+                      color="tab:red", scale=25, width=0.006, label="localized pose")
+    if run.landmarks:
+        xy = np.array([world.landmark_position(lm) for lm in run.landmarks])
+        ax.plot(xy[:, 0], xy[:, 1], "o-", color="tab:green", lw=2, alpha=0.6,
+                label="DRM path")
+        for lm, (x, y) in zip(run.landmarks, xy, strict=True):
+            ax.annotate(lm, (x, y), textcoords="offset points", xytext=(5, 5), fontsize=8)
+    if run.summary is not None:
+        s = np.array(run.summary.path)
+        ax.plot(s[:, 0], s[:, 1], "-", color="tab:purple", lw=1.2, label="room summary")
+        for k, (cid, xy) in enumerate(run.summary.verified.items()):
+            ax.plot(xy[0], xy[1], "o", ms=12, mfc="none", mec="tab:green", mew=2,
+                    label="verified" if k == 0 else None)
+            ax.annotate(cid, (float(xy[0]), float(xy[1])), textcoords="offset points",
+                        xytext=(6, -10), fontsize=8)
+    for o in world.description.objects:
+        ax.plot(o.x, o.y, "s", color="black", ms=4)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    outcome = "succeeded" if run.success else "failed"
+    ax.set_title(f"mission on {run.world}, seed {run.config.seed}: {outcome} "
+                 f"({len(run.steps)} steps, {run.elapsed_s:.1f} s)")
+    ax.legend(loc="upper left", fontsize=8, framealpha=0.9)
+    fig.tight_layout()
+    fig.savefig(path_png, dpi=110)
+    plt.close(fig)
