@@ -1,0 +1,153 @@
+"""The end-to-end mission, small: one run through the REST job on the mission world (a
+coarse eigenspace so the test learns in seconds), its record as facts, bad input."""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from numeric.world import World
+from numeric.worlds import MISSION_ROOM, mission_world, office_world
+
+#: a coarse eigenspace: small images, 36 directions, the mission's 1 m grid
+SMALL = {"eigenspace": {"camera": {"width_px": 32, "height_px": 16, "supersample": 1},
+                        "learning": {"spacing_m": 1.0, "n_directions": 36},
+                        "learning_strategy": None},
+         "time_limit_s": 60.0}
+
+
+def wait_job(client: TestClient, location: str, timeout_s: float = 300) -> dict[str, Any]:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        j = client.get(location).json()
+        if j["status"] not in ("queued", "running"):
+            return j
+        time.sleep(0.2)
+    raise AssertionError("mission job did not finish")
+
+
+@pytest.fixture(scope="module")
+def mission_run(client: TestClient) -> dict[str, Any]:
+    assert client.post("/worlds", json={"name": "mission_t", "template": "mission"}
+                       ).status_code == 201
+    r = client.post("/worlds/mission_t/missions", json={**SMALL, "seed": 2})
+    assert r.status_code == 202, r.text
+    assert r.headers["location"] == f"/jobs/{r.json()['id']}"
+    job = wait_job(client, r.headers["location"])
+    assert job["status"] == "done", job
+    return dict(job["result"])
+
+
+def test_mission_runs_every_step(mission_run: dict[str, Any]) -> None:
+    whats = [s["what"] for s in mission_run["steps"]]
+    for what in ("survey", "learn_eigenspace", "localize", "nearest_landmark",
+                 "reach_landmark", "drm_path", "navigate", "slam_map", "enter_room",
+                 "viewpoint_plan", "verify", "evaluation"):
+        assert what in whats, (what, whats)
+    assert whats[-1] == "evaluation"
+    ev = mission_run["steps"][-1]["result"]
+    assert ev["localization_error_m"] < 0.5
+    assert ev["objects_verified"] >= 1 and ev["false_verified"] == 0
+    assert mission_run["success"] is True
+    path = next(s["result"] for s in mission_run["steps"] if s["what"] == "drm_path")
+    assert path["to"] == "c1" and path["landmarks"][-1] == "c1"
+    assert 0 < path["probability"] <= 1
+
+
+def test_record_is_facts(client: TestClient, mission_run: dict[str, Any]) -> None:
+    rec = client.get("/worlds/mission_t/mission").json()
+    assert rec["steps"] == mission_run["steps"]
+
+    def q(goal: str) -> list[dict[str, Any]]:
+        r = client.post("/worlds/mission_t/query", json={"goal": goal, "max_solutions": 50})
+        assert r.status_code == 200, r.text
+        return list(r.json()["solutions"])
+
+    assert len(q("mission_step(S, W, R)")) == len(mission_run["steps"])
+    assert q("mission_outcome(O)") == [{"O": "succeeded"}]
+    pose = q("mission_pose(X, Y, Th)")[0]
+    loc = next(s["result"] for s in mission_run["steps"] if s["what"] == "localize"
+               and s["result"].get("state") == "z")
+    assert pose["X"] == pytest.approx(loc["x"])
+    # the steps' products are facts of the same world: the SLAM map, the DRM path
+    # (landmarks as atoms, so they join the DRM's relations)
+    assert q("committed_map(Run)")[0]["Run"] == next(
+        s["result"]["slam_run"] for s in mission_run["steps"] if s["what"] == "slam_map")
+    assert q("mission_path(Ls, _), Ls = [A, B|_], drm_edge(A, B, P, M)")
+    cands = q("mission_step(_, viewpoint_plan, R), member(candidates = Cs, R)")
+    assert cands and cands[0]["Cs"], cands
+
+
+def test_record_survives_a_restart(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """A second app on a fresh data dir, one quick mission that stops early (a start
+    region with no free space is refused; a goal far away is not): the record is stored
+    and comes back after a restart."""
+    from service.app import create_app
+    from service.settings import Settings
+
+    settings = Settings(data_dir=tmp_path_factory.mktemp("mission_restart"), demo_world=None)
+    with TestClient(create_app(settings)) as c:
+        assert c.post("/worlds", json={"name": "m", "template": "mission"}).status_code == 201
+        r = c.post("/worlds/m/missions", json={**SMALL, "seed": 5, "max_stops": 1})
+        job = wait_job(c, r.headers["location"])
+        assert job["status"] == "done", job
+        steps = c.get("/worlds/m/mission").json()["steps"]
+        assert steps and steps[-1]["what"] == "evaluation"
+    with TestClient(create_app(settings)) as c:
+        assert c.get("/worlds/m/mission").json()["steps"] == steps
+        r = c.post("/worlds/m/query", json={"goal": "mission_step(S, W, R)",
+                                            "max_solutions": 100})
+        assert len(r.json()["solutions"]) == len(steps)
+
+
+@pytest.mark.parametrize(("body", "status", "field"), [
+    ({"goal": "nowhere"}, 404, "goal"),
+    ({"goal": "Bad goal"}, 422, "goal"),
+    ({"door": [100.0, 100.0]}, 422, "door"),
+    ({"door": [6.1, 2.1]}, 422, "door"),
+    ({"room": [[12.0, 8.0], [6.0, 2.0]]}, 422, "room"),
+    ({"seed": -1}, 422, "seed"),
+    ({"max_stops": 0}, 422, "max_stops"),
+    ({"time_limit_s": 0}, 422, "time_limit_s"),
+    ({"slam_method": "magic"}, 422, "slam_method"),
+    ({"surprise": 1}, 422, "surprise"),
+])
+def test_bad_mission_input(client: TestClient, body: dict[str, Any], status: int,
+                           field: str) -> None:
+    if client.get("/worlds/mission_bad").status_code == 404:
+        client.post("/worlds", json={"name": "mission_bad", "template": "mission"})
+    r = client.post("/worlds/mission_bad/missions", json=body)
+    assert r.status_code == status, r.text
+    assert r.headers["content-type"].startswith("application/problem+json")
+    assert field in r.text
+    assert client.get("/worlds/mission_bad/mission").json()["steps"] == []
+
+
+def test_bad_mission_raw_json(client: TestClient) -> None:
+    if client.get("/worlds/mission_bad").status_code == 404:
+        client.post("/worlds", json={"name": "mission_bad", "template": "mission"})
+    for text, field in (('{"door": [NaN, 1]}', "door"), ('{"door": [1e999, 1]}', "door"),
+                        ('{"door": [1]}', "door"), ('{"seed": "1"}', "seed")):
+        r = client.post("/worlds/mission_bad/missions", content=text,
+                        headers={"content-type": "application/json"})
+        assert r.status_code == 422, (text, r.text)
+        assert field in r.text
+    assert client.post("/worlds/nope/missions", json={}).status_code == 404
+
+
+def test_office_rooms_are_inside() -> None:
+    """Rooms between partition walls are inside the building (the even-odd rule alone
+    put every other office room outside); outside the walls and inside a closed pillar
+    is not."""
+    w = World(office_world(rooms_per_side=3))
+    rooms = np.array([[3.0, 5.0], [9.0, 5.0], [15.0, 5.0], [3.0, -3.0], [15.0, -3.0],
+                      [1.0, 1.0]])
+    assert w.is_free(rooms).all()
+    assert not w.inside(np.array([[-1.0, 5.0], [19.0, 1.0], [9.0, 9.0]])).any()
+    m = World(mission_world())
+    (x0, y0), (x1, y1) = MISSION_ROOM
+    assert m.is_free(np.array([[x0 + 1.0, y0 + 1.0], [x1 - 1.0, y1 - 1.0]])).all()
