@@ -263,6 +263,52 @@ def mission_world(name: str = "mission") -> WorldDescription:
     return d.model_copy(update={"walls": walls, "objects": objects})
 
 
+def random_mission_world(seed: int, name: str = "random_mission"
+                         ) -> tuple[WorldDescription, str, tuple[float, float],
+                                    tuple[tuple[float, float], tuple[float, float]]]:
+    """An office nobody tuned the mission on: two rooms per side of random width and
+    depth (5-7 m), a corridor of 1.8-2.4 m, a random goal room (north or south) with two
+    to four objects of the built-in types and, half the time, a cabinet. Returns the
+    world and the mission's goal landmark, door point and room corners."""
+    rng = np.random.default_rng(seed)
+    rw, rd = float(rng.uniform(5.0, 7.0)), float(rng.uniform(5.0, 7.0))
+    cw = float(rng.uniform(1.8, 2.4))
+    d = office_world(name=name, rooms_per_side=2, room_width_m=rw, room_depth_m=rd,
+                     corridor_width_m=cw)
+    i, north = int(rng.integers(2)), bool(rng.random() < 0.5)
+    x0, x1 = i * rw, (i + 1) * rw
+    cx = 0.5 * (x0 + x1)
+    if north:
+        room, door = ((x0, cw), (x1, cw + rd)), (cx, cw + 0.6)
+    else:
+        room, door = ((x0, -rd), (x1, 0.0)), (cx, -0.6)
+    (rx0, ry0), (rx1, ry1) = room
+    walls = list(d.walls)
+    far = (lambda y: ry1 - y + ry0) if not north else (lambda y: y)  # mirror for south
+    if rng.random() < 0.5:  # a cabinet across part of the room, off the door's line
+        length = float(rng.uniform(1.5, 2.5))
+        y = far(ry0 + float(rng.uniform(0.45, 0.65)) * rd)
+        xa = rx0 + 0.1 if rng.random() < 0.5 else rx1 - 0.1 - length
+        walls.append(Wall(a=(xa, y), b=(xa + length, y), texture="text", reflectivity=0.4))
+    objects: list[WorldObject] = []
+    cab = Wall(a=walls[-1].a, b=walls[-1].b) if len(walls) > len(d.walls) else None
+    for k in range(int(rng.integers(2, 5))):
+        for _ in range(200):
+            p = np.array([rng.uniform(rx0 + 0.7, rx1 - 0.7), rng.uniform(ry0 + 0.7, ry1 - 0.7)])
+            if abs(p[1] - door[1]) < 1.5 and abs(p[0] - door[0]) < 1.0:
+                continue  # not in the doorway
+            if cab is not None and point_segment_distance(
+                    p[None], np.array([cab.a]), np.array([cab.b]))[0, 0] < 0.6:
+                continue
+            if all(np.hypot(o.x - p[0], o.y - p[1]) > 1.0 for o in objects):
+                break
+        objects.append(WorldObject(id=f"obj{k}", type="ABC"[int(rng.integers(3))],
+                                   x=float(p[0]), y=float(p[1]),
+                                   theta=float(rng.uniform(0, np.pi)), size_m=(0.4, 0.3, 0.5),
+                                   texture="coffee"))
+    return (d.model_copy(update={"walls": walls, "objects": objects}), f"c{i}", door, room)
+
+
 TEMPLATES: dict[str, Callable[[str], WorldDescription]] = {
     "corridor": stripe_corridor,
     "loop": loop_corridor,

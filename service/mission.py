@@ -8,7 +8,8 @@ service calls a client makes, so every result lands in the world's knowledge bas
    movement strategy's next move (§3.5) driven with noisy odometry, until state Z;
 2. **nearest_landmark / reach_landmark** -- the estimated pose names the nearest
    landmark in line of sight, and the robot homes on it (the DRM paper's §6: reach a
-   landmark first);
+   landmark first). A robot still lost after ``max_stops`` wanders until it recognises
+   a landmark and takes its pose there (``reach_landmark`` with ``how = wander``);
 3. **drm_path / navigate** -- the DRM's most probable path to the goal landmark (eq. 4)
    is followed by the qualitative navigation methods (move1-3, §6); each arc the robot
    completes is reported as a ``reached`` event, as a robot teaching the DRM would;
@@ -44,10 +45,16 @@ from numeric.camera import Camera
 from numeric.eigenspace.analysis import EigenspaceConfig
 from numeric.eigenspace.learning import LearningConfig
 from numeric.errors import InvalidInput, NotFound
-from numeric.geometry import compose, line_of_sight, relative, wrap_angle
+from numeric.geometry import compose, free_distance, line_of_sight, relative, wrap_angle
 from numeric.laser import Laser
 from numeric.occupancy import FREE, OCCUPIED, OccupancyMap
-from numeric.qualitative.navigation import NavConfig, execute_step, home_on
+from numeric.qualitative.navigation import (
+    NavConfig,
+    execute_step,
+    home_on,
+    map_heading,
+    reach_any_landmark,
+)
 from numeric.qualitative.survey import survey
 from numeric.simulator import LandmarkObserver, ObserverConfig, OdometryConfig, Robot
 from numeric.slam.runner import SlamOptions
@@ -155,6 +162,8 @@ class MissionRun:
     landmarks: list[str] = field(default_factory=list)
     summary: SummaryRun | None = None
     map: OccupancyMap | None = None
+    #: the pose the mission went on from and the true pose then
+    fix: tuple[np.ndarray, np.ndarray] | None = None
     success: bool = False
     elapsed_s: float = 0.0
 
@@ -244,17 +253,22 @@ class MissionService:
         w = self.worlds.model(world)
         rng = np.random.default_rng(config.seed)
         robot: TracedRobot | None = None
-        est: np.ndarray | None = None
+        start: str | None = None
         try:
             await self._prepare(run, w, report)
             robot = self._wake_up(w, config, rng)
             run.truth_path.append(robot.pose.copy())
-            est = await self._localize(run, w, robot, rng, report)
-            robot.tracing = True
-            odom0 = robot.odom_pose.copy()
             observer = LandmarkObserver(w, config.observer, rng)
             nav = NavConfig()
-            await self._navigate(run, w, robot, observer, nav, est, report)
+            est = await self._localize(run, w, robot, rng, report)
+            if est is None:  # still lost: the DRM paper's way, reach some landmark first
+                start, est = await self._recover(run, w, robot, observer, nav, rng, report)
+            run.fix = (est.copy(), robot.pose.copy())
+            robot.tracing = True  # the map's frame: the pose just fixed
+            odom0 = robot.odom_pose.copy()
+            if start is None:
+                start = await self._reach_nearest(run, w, robot, observer, nav, est, report)
+            await self._navigate(run, robot, observer, nav, start, report)
             await self._map(run, w, robot, est, odom0, rng, report)
             await self._summarise(run, w, robot, report)
         except MissionFailed as e:
@@ -262,7 +276,7 @@ class MissionService:
         if robot is not None:
             run.truth_path.extend(p for p, _ in robot.trace)
         run.elapsed_s = time.perf_counter() - t0
-        await self._evaluate(run, w, est)
+        await self._evaluate(run, w)
         report("done", 1.0)
         return run
 
@@ -320,7 +334,9 @@ class MissionService:
 
     async def _localize(self, run: MissionRun, w: World, robot: TracedRobot,
                         rng: np.random.Generator,
-                        report: Callable[[str, float], None]) -> np.ndarray:
+                        report: Callable[[str, float], None]) -> np.ndarray | None:
+        """Eigenspace stops with the movement strategy's moves in between: the pose once
+        the Fig. 4 rules reach state Z, None if they do not within ``max_stops``."""
         a = self.eigenspace.analysis(run.world)
         cam = Camera(w, a.config.camera.model_copy(update={"noise_sigma":
                                                            run.config.camera_noise}), rng=rng)
@@ -346,23 +362,54 @@ class MissionService:
             if act is not None:
                 await asyncio.to_thread(self._drive, robot, act)
             run.truth_path.append(robot.pose.copy())
-        await self._fail(run, "localize", f"no unique pose after {run.config.max_stops} stops",
-                         session=sid, stops=run.config.max_stops, state=state)
-        raise AssertionError  # unreachable: _fail raises
+        await self._record(run, "localize", session=sid, stops=run.config.max_stops,
+                           state=state, localized=False,
+                           reason=f"no unique pose after {run.config.max_stops} stops")
+        return None
+
+    async def _recover(self, run: MissionRun, w: World, robot: TracedRobot,
+                       observer: LandmarkObserver, nav: NavConfig, rng: np.random.Generator,
+                       report: Callable[[str, float], None]) -> tuple[str, np.ndarray]:
+        """Still lost after the stops: wander until a landmark is recognised and home on
+        it (the DRM paper's §6, :func:`reach_any_landmark`); standing there, the pose is
+        the landmark's position and the heading the one the bearings of the other
+        landmarks in view give on the world's landmark map (:func:`map_heading`)."""
+        report("lost: reaching any landmark", 0.3)
+        lm = await asyncio.to_thread(reach_any_landmark, robot, observer, nav, rng)
+        if lm is None:
+            await self._fail(run, "reach_landmark", "wandered without recognising a "
+                             "landmark", how="wander")
+        assert lm is not None
+        pos = dict(zip(w.landmark_ids, w.landmark_xy, strict=True))
+        heading = map_heading(lm, observer.observe(robot.pose, at=lm), pos)
+        if heading is None:
+            await self._fail(run, "reach_landmark", "no other landmark in view to take the "
+                             "heading from", how="wander", landmark=lm)
+        assert heading is not None
+        est = np.array([*pos[lm], heading])
+        await self._record(run, "reach_landmark", landmark=lm, how="wander",
+                           travelled_m=robot.travelled_m, x=est[0], y=est[1],
+                           theta=est[2], ok=True)
+        return lm, est
 
     @staticmethod
-    def _drive(robot: TracedRobot, act: dict[str, float]) -> None:
-        """The movement strategy's action (alpha, l, beta): turn, drive (stopping in front
-        of a wall), turn."""
+    def _drive(robot: TracedRobot, act: dict[str, float], clearance_m: float = 0.3) -> None:
+        """The movement strategy's action (alpha, l, beta): turn, drive, turn; the drive
+        stops ``clearance_m`` before a wall, as the strategy's model of a move has it
+        (Maeda & Shirai §3.4; the robot's laser sees the wall)."""
         robot.turn(act["alpha_rad"])
-        robot.forward(act["l_m"])
+        room = free_distance(robot.pose[:2], robot.pose[2], robot.world.surfaces.a,
+                             robot.world.surfaces.b)[0] - clearance_m
+        robot.forward(float(np.clip(min(act["l_m"], room), 0.0, None)))
         robot.collided = False
         robot.turn(act["beta_rad"])
 
     # -- 2-3: the nearest landmark, the DRM path, navigation ---------------------------
-    async def _navigate(self, run: MissionRun, w: World, robot: TracedRobot,
-                        observer: LandmarkObserver, nav: NavConfig, est: np.ndarray,
-                        report: Callable[[str, float], None]) -> None:
+    async def _reach_nearest(self, run: MissionRun, w: World, robot: TracedRobot,
+                             observer: LandmarkObserver, nav: NavConfig, est: np.ndarray,
+                             report: Callable[[str, float], None]) -> str:
+        """The landmark nearest to the estimated pose in line of sight on the world's
+        map, then homing on it (move1)."""
         report("reaching the nearest landmark", 0.35)
         d = np.hypot(*(w.landmark_xy - est[:2]).T)
         seen = line_of_sight(est[:2], w.landmark_xy, w.wall_a, w.wall_b)
@@ -378,6 +425,13 @@ class MissionService:
                            travelled_m=robot.travelled_m)
         if not ok:
             raise MissionFailed(f"could not reach {start}")
+        return start
+
+    async def _navigate(self, run: MissionRun, robot: TracedRobot,
+                        observer: LandmarkObserver, nav: NavConfig, start: str,
+                        report: Callable[[str, float], None]) -> None:
+        """The DRM's most probable path from ``start`` to the goal, executed arc by arc
+        (each completed arc is a ``reached`` event of the world)."""
         path = await self.worlds.path(run.world, start, run.config.goal)
         if path is None:
             await self._fail(run, "drm_path", "the DRM has no path", **{"from": start},
@@ -490,7 +544,7 @@ class MissionService:
         return group
 
     # -- the judgement ------------------------------------------------------------------
-    async def _evaluate(self, run: MissionRun, w: World, est: np.ndarray | None) -> None:
+    async def _evaluate(self, run: MissionRun, w: World) -> None:
         """Against the simulator's truth: the localization error at the stop that gave
         the pose, whether the goal was reached, how many real objects were verified and
         whether a false one was. Success: all steps done, the pose within 0.5 m and 30
@@ -498,12 +552,15 @@ class MissionService:
         done = {s["what"] for s in run.steps if s["result"].get("ok") is not False}
         res: dict[str, Any] = {"steps_done": len(run.steps)}
         loc_ok = False
-        if est is not None and run.stops:
-            truth = run.stops[-1]["truth"]
+        if run.fix is not None:
+            est, truth = run.fix
             err = float(np.hypot(*(est[:2] - truth[:2])))
             herr = abs(float(wrap_angle(est[2] - truth[2])))
             loc_ok = err <= 0.5 and herr <= np.deg2rad(30)
-            res.update(localization_error_m=err, heading_error_rad=herr)
+            eig = any(s["what"] == "localize" and s["result"].get("state") == "z"
+                      for s in run.steps)
+            res.update(localization_error_m=err, heading_error_rad=herr,
+                       localized_by="eigenspace" if eig else "landmark")
         objects = {o.id for o in w.description.objects}
         found = 0
         false_found = 0
