@@ -42,6 +42,7 @@ bench: install
 	$(PY) tests/bench/restart.py
 	$(PY) tests/bench/localize_clients.py
 	$(PY) tests/bench/slam_batch.py
+	$(PY) tests/bench/mission.py
 
 lint: install
 	$(VENV)/bin/ruff check numeric service tests

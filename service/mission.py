@@ -42,7 +42,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat
 
 from numeric.camera import Camera
-from numeric.eigenspace.analysis import EigenspaceConfig
+from numeric.eigenspace.analysis import EigenspaceConfig, learning_pixels
 from numeric.eigenspace.learning import LearningConfig
 from numeric.errors import InvalidInput, NotFound
 from numeric.geometry import compose, free_distance, line_of_sight, relative, wrap_angle
@@ -241,6 +241,17 @@ class MissionService:
             raise InvalidInput("door: the point must lie inside the room", field="door")
         if not w.is_free(np.array(config.door), 0.2)[0]:
             raise InvalidInput("door: the point is not in the free space", field="door")
+        self._start_points(w, config, np.random.default_rng(0))
+        try:
+            self.eigenspace.analysis(world)
+        except NotFound:  # the mission will learn one: the learning job's cap applies
+            n = learning_pixels(w, config.eigenspace)
+            if n > self.eigenspace.max_learning_pixels:
+                raise InvalidInput(
+                    f"learning this world's eigenspace would render up to {n:,} pixels; at "
+                    f"most {self.eigenspace.max_learning_pixels:,}: a coarser "
+                    "eigenspace.learning.spacing_m, fewer directions or smaller images",
+                    field="eigenspace.learning.spacing_m") from None
 
     async def run(self, world: str, config: MissionConfig,
                   progress: Callable[[str, float], None] | None = None) -> MissionRun:
@@ -320,16 +331,23 @@ class MissionService:
 
     # -- 1: wake up lost and localize -------------------------------------------------
     @staticmethod
-    def _wake_up(w: World, config: MissionConfig, rng: np.random.Generator) -> TracedRobot:
-        for _ in range(1000):
-            xy = w.sample_free(1, rng, clearance_m=0.5)[0]
-            if config.start is None or (
-                    config.start[0][0] <= xy[0] <= config.start[1][0]
-                    and config.start[0][1] <= xy[1] <= config.start[1][1]):
-                break
-        else:
-            raise InvalidInput("start: no free space in the region", field="start")
-        pose = np.array([xy[0], xy[1], rng.uniform(-np.pi, np.pi)])
+    def _start_points(w: World, config: MissionConfig, rng: np.random.Generator) -> np.ndarray:
+        """Free positions (0.5 m from any surface) where the robot may wake up."""
+        xy = w.sample_free(2000, rng, clearance_m=0.5)
+        if config.start is not None:
+            (x0, y0), (x1, y1) = config.start
+            xy = xy[(xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1)]
+            if len(xy) == 0:
+                raise InvalidInput("start: the region holds no free space 0.5 m from the "
+                                   "walls", field="start")
+        return xy
+
+    @classmethod
+    def _wake_up(cls, w: World, config: MissionConfig,
+                 rng: np.random.Generator) -> TracedRobot:
+        xy = cls._start_points(w, config, rng)
+        p = xy[int(rng.integers(len(xy)))]
+        pose = np.array([p[0], p[1], rng.uniform(-np.pi, np.pi)])
         return TracedRobot(world=w, pose=pose, odometry=config.odometry, rng=rng)
 
     async def _localize(self, run: MissionRun, w: World, robot: TracedRobot,

@@ -72,8 +72,8 @@ def test_a_goal_whose_connection_drops_is_stopped(tmp_path: Path) -> None:
     the goal, and the next one does not wait for the first's 2 s limit."""
     srv = LiveServer(tmp_path / "data", demo=True)
     try:
-        slow = ('{"goal": "reachable(A, B, P, M), reachable(C, D, Q, N), '
-                'reachable(E, F, R, O), fail"}').encode()
+        slow = (b'{"goal": "reachable(A, B, P, M), reachable(C, D, Q, N), '
+                b'reachable(E, F, R, O), fail"}')
         host, port = "127.0.0.1", srv.port
         with socket.create_connection((host, port)) as s:
             s.sendall(b"POST /worlds/demo/query HTTP/1.1\r\nHost: x\r\n"

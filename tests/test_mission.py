@@ -115,6 +115,9 @@ def test_record_survives_a_restart(tmp_path_factory: pytest.TempPathFactory) -> 
     ({"time_limit_s": 0}, 422, "time_limit_s"),
     ({"slam_method": "magic"}, 422, "slam_method"),
     ({"surprise": 1}, 422, "surprise"),
+    ({"start": [[100.0, 100.0], [101.0, 101.0]]}, 422, "start"),
+    ({"eigenspace": {"learning": {"spacing_m": 0.06, "n_directions": 360}}}, 422,
+     "eigenspace.learning.spacing_m"),
 ])
 def test_bad_mission_input(client: TestClient, body: dict[str, Any], status: int,
                            field: str) -> None:

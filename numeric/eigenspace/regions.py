@@ -66,12 +66,28 @@ class Candidates:
         return len(self.m)
 
 
+#: bytes of the (queries, T, 3, K) difference tensor computed at once
+CHUNK_BYTES = 64 * 2**20
+
+
+def query_chunks(n_queries: int, n_triplets: int, k: int) -> range:
+    """Start indices of query chunks whose difference tensor stays under
+    :data:`CHUNK_BYTES` (a 1 m grid of an office is 8 000 learning images against 2 700
+    triplets: 10 GiB in one piece)."""
+    step = max(1, CHUNK_BYTES // max(1, n_triplets * 3 * k * 8))
+    return range(0, n_queries, step)
+
+
 def triplet_differences(model: EigenspaceModel, triplets: Triplets,
                         query: np.ndarray) -> np.ndarray:
     """d of §2.4 for every query projection and triplet: ``(M, T)``."""
     x3 = triplets.projections(model)  # (T, 3, K)
-    diff = f_d(query[:, None, None, :], x3[None], model.n_pixels)  # (M, T, 3)
-    return np.asarray(diff.min(axis=2))
+    out = np.empty((len(query), len(x3)))
+    chunks = query_chunks(len(query), len(x3), x3.shape[-1])
+    for a in chunks:
+        q = query[a:a + chunks.step]
+        out[a:a + len(q)] = f_d(q[:, None, None, :], x3[None], model.n_pixels).min(axis=2)
+    return out
 
 
 def estimation_error(d: np.ndarray, area: np.ndarray, c_a: float) -> np.ndarray:
@@ -105,15 +121,26 @@ def region_candidates(model: EigenspaceModel, triplets: Triplets, query: np.ndar
     if len(triplets) == 0:
         z = np.zeros(0, dtype=int)
         return Candidates(z, z, np.zeros(0), np.zeros(0), np.zeros((0, 3)))
-    d = triplet_differences(model, triplets, query)
-    err = estimation_error(d, triplets.area[None, :], c_a)
-    m, t = np.nonzero(err < d_thd)
+    z = np.zeros(0, dtype=int)
+    ms, ts, ds, es = [z], [z], [np.zeros(0)], [np.zeros(0)]
+    chunks = query_chunks(len(query), len(triplets), query.shape[-1])
+    for a in chunks:  # only the pairs inside a region are kept: memory stays bounded
+        d = triplet_differences(model, triplets, query[a:a + chunks.step])
+        err = estimation_error(d, triplets.area[None, :], c_a)
+        mc, tc = np.nonzero(err < d_thd)
+        ms.append(mc + a)
+        ts.append(tc)
+        ds.append(d[mc, tc])
+        es.append(err[mc, tc])
+    m, t = np.concatenate(ms), np.concatenate(ts)
+    d_in, err_in = np.concatenate(ds), np.concatenate(es)
     if plane_thd is not None and len(m):
         res = estimation_error(plane_residual(model, triplets, query[m], t),
                                triplets.area[t], c_a)
-        m, t = m[res < plane_thd], t[res < plane_thd]
+        keep = res < plane_thd
+        m, t, d_in, err_in = m[keep], t[keep], d_in[keep], err_in[keep]
     pose = interpolate(model, triplets, query[m], t) if len(m) else np.zeros((0, 3))
-    return Candidates(m, t, d[m, t], err[m, t], pose)
+    return Candidates(m, t, d_in, err_in, pose)
 
 
 def agrees(poses: np.ndarray, reference: np.ndarray, position_m: float,
