@@ -127,29 +127,31 @@ def inside_outline(points: ArrayLike, seg_a: FloatArray, seg_b: FloatArray) -> N
 
 
 def enclosed_cells(seg_a: FloatArray, seg_b: FloatArray, resolution_m: float,
-                   max_cells: int = 4_000_000) -> tuple[FloatArray, float, NDArray[np.bool_]]:
+                   max_side: int = 2000) -> tuple[FloatArray, float, NDArray[np.bool_]]:
     """Cells no path from outside the segments' bounding box reaches without crossing a
     segment (a flood fill over a raster of the segments, 4-connected, scipy.ndimage):
-    ``(origin (2,), resolution, mask (H, W))`` indexed ``[iy, ix]``. The resolution is
-    coarsened until the raster has at most ``max_cells`` cells; gaps narrower than a
-    cell are closed."""
+    ``(origin (2,), resolution, mask (H, W))`` indexed ``[iy, ix]``, the segments' own
+    cells excluded. The resolution is coarsened until neither side has more than
+    ``max_side`` cells (so memory and time stay bounded for any coordinates); gaps
+    narrower than a cell are closed."""
     from scipy import ndimage
 
     pts = np.vstack([seg_a, seg_b])
     lo, hi = pts.min(axis=0), pts.max(axis=0)
-    res = float(max(resolution_m, np.sqrt(np.prod(hi - lo + 1e-9) / max_cells)))
+    res = float(max(resolution_m, float(np.max(hi - lo)) / (max_side - 5)))
     lo = lo - 2 * res
     shape = (int(np.ceil((hi[1] - lo[1]) / res)) + 3, int(np.ceil((hi[0] - lo[0]) / res)) + 3)
     wall = np.zeros(shape, dtype=bool)
     for a, b in zip(seg_a, seg_b, strict=True):
+        # at most ~3 points per cell along the segment: at most 3 * 1.5 * max_side
         n = max(2, int(np.ceil(np.hypot(*(b - a)) / (0.3 * res))) + 1)
         q = a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)
-        ij = np.floor((q - lo) / res).astype(int)
+        ij = np.clip(np.floor((q - lo) / res).astype(int), 0, np.array(shape[::-1]) - 1)
         wall[ij[:, 1], ij[:, 0]] = True
     labels, _ = ndimage.label(~wall)
     border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
     outside = np.isin(labels, border[border > 0])
-    return lo, res, ~outside
+    return lo, res, ~outside & ~wall
 
 
 def compose(pose: ArrayLike, delta: ArrayLike) -> FloatArray:

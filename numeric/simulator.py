@@ -20,19 +20,20 @@ from numeric.world import World
 class ObserverConfig(BaseModel):
     """Landmark observer: recognition radius and measurement noise (1-sigma)."""
 
-    recognition_radius_m: float = Field(8.0, gt=0)
-    bearing_noise_rad: float = Field(0.0, ge=0)
-    distance_noise_m: float = Field(0.0, ge=0)
-    distance_noise_ratio: float = Field(0.0, ge=0, description="extra sigma per metre of range")
+    recognition_radius_m: float = Field(8.0, gt=0, le=1000.0, allow_inf_nan=False)
+    bearing_noise_rad: float = Field(0.0, ge=0, le=10.0, allow_inf_nan=False)
+    distance_noise_m: float = Field(0.0, ge=0, le=100.0, allow_inf_nan=False)
+    distance_noise_ratio: float = Field(0.0, ge=0, le=10.0, allow_inf_nan=False,
+                                        description="extra sigma per metre of range")
 
 
 class OdometryConfig(BaseModel):
     """Odometry error: multiplicative sigma on distance and turn, additive heading drift."""
 
-    distance_noise_ratio: float = Field(0.02, ge=0)
-    turn_noise_ratio: float = Field(0.02, ge=0)
-    heading_drift_rad_per_m: float = Field(0.005, ge=0)
-    distance_bias_ratio: float = Field(0.0, ge=-0.5, le=0.5,
+    distance_noise_ratio: float = Field(0.02, ge=0, le=1.0, allow_inf_nan=False)
+    turn_noise_ratio: float = Field(0.02, ge=0, le=1.0, allow_inf_nan=False)
+    heading_drift_rad_per_m: float = Field(0.005, ge=0, le=1.0, allow_inf_nan=False)
+    distance_bias_ratio: float = Field(0.0, ge=-0.5, le=0.5, allow_inf_nan=False,
                                        description="systematic scale error (wheel slip)")
 
 

@@ -230,19 +230,18 @@ class World:
         rule in some axis direction, so rooms between partition walls count and the
         inside of a closed pillar does not (:func:`numeric.geometry.inside_outline`). A
         building whose outer walls leave a gap encloses nothing: then the even-odd rule
-        alone decides."""
+        towards +x alone decides, as it always did."""
         xy = np.atleast_2d(np.asarray(xy, dtype=float))
         walls = ~np.isfinite(self.surfaces.top_m)
         a, b = self.surfaces.a[walls], self.surfaces.b[walls]
-        out = inside_outline(xy, a, b)
         lo, res, enclosed = self._enclosed
-        if enclosed.any():
-            ij = np.floor((xy - lo) / res).astype(int)
-            ok = ((ij >= 0) & (ij < np.array(enclosed.shape[::-1]))).all(axis=1)
-            hit = np.zeros(len(xy), dtype=bool)
-            hit[ok] = enclosed[ij[ok, 1], ij[ok, 0]]
-            out &= hit
-        return out
+        if not enclosed.any():
+            return np.asarray(ray_crossings(xy, a, b) % 2 == 1)
+        ij = np.floor((xy - lo) / res).astype(int)
+        ok = ((ij >= 0) & (ij < np.array(enclosed.shape[::-1]))).all(axis=1)
+        hit = np.zeros(len(xy), dtype=bool)
+        hit[ok] = enclosed[ij[ok, 1], ij[ok, 0]]
+        return np.asarray(hit & inside_outline(xy, a, b))
 
     @cached_property
     def _enclosed(self) -> tuple[np.ndarray, float, np.ndarray]:

@@ -74,18 +74,23 @@ handle_(In, _{ok:true, result:Result}) :-
 with_cancel_checks(Goal) :-
     setup_call_cleanup(arm_cancel_check, Goal, disarm_cancel_check).
 
+%   The alarm is recorded before it is installed, and a fired one stays until it
+%   is removed here (never remove(true): removing an alarm that removed itself
+%   aborts SWI-Prolog 9.0), so a time limit striking anywhere in between leaves no
+%   alarm behind to fire into a later job.
 arm_cancel_check :-
-    alarm(0.1, cancel_check, Id, [remove(true)]),
-    nb_setval(chizu_cancel_alarm, Id).
+    alarm(0.1, cancel_check, Id, [install(false)]),
+    nb_setval(chizu_cancel_alarm, Id),
+    install_alarm(Id).
 
 disarm_cancel_check :-
     (   nb_current(chizu_cancel_alarm, Id), Id \== none
-    ->  remove_alarm(Id), nb_setval(chizu_cancel_alarm, none)
+    ->  nb_setval(chizu_cancel_alarm, none), remove_alarm(Id)
     ;   true
     ).
 
 cancel_check :-
-    nb_setval(chizu_cancel_alarm, none),
+    disarm_cancel_check,
     % the bridge defines it at run time (foreign): built here, so that the load
     % check does not report an undefined predicate when Prolog runs without it
     Check =.. [chizu_cancelled],

@@ -59,6 +59,7 @@ mission_kind(enter_room).
 mission_kind(viewpoint_plan).
 mission_kind(verify).
 mission_kind(evaluation).
+mission_kind(aborted).
 
 %!  replace_mission_steps(+World, +Steps) is det.
 %

@@ -131,17 +131,35 @@ class ComputePool:
     def __init__(self, workers: int, budget_s: float) -> None:
         self.workers, self.budget_s = workers, budget_s
         self._pool: Any = None
+        #: pools started again after breaking (GET /health reports it)
+        self.restarts = 0
         if workers > 0:
-            import pebble
+            self._pool = self._start()
 
-            ctx = multiprocessing.get_context("forkserver")
-            # the fork server imports the numeric stack once; each worker forks from it.
-            # One BLAS thread per worker: the workers are the parallelism, and idle
-            # OpenBLAS threads spin, taking cores from the other workers.
-            ctx.set_forkserver_preload(["service.compute", "service.viewpoint_tasks"])
-            with _environ(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1"):
-                forkserver.ensure_running()
-            self._pool = pebble.ProcessPool(max_workers=workers, context=ctx)
+    def _start(self) -> Any:
+        import pebble
+
+        ctx = multiprocessing.get_context("forkserver")
+        # the fork server imports the numeric stack once; each worker forks from it.
+        # One BLAS thread per worker: the workers are the parallelism, and idle
+        # OpenBLAS threads spin, taking cores from the other workers.
+        ctx.set_forkserver_preload(["service.compute", "service.viewpoint_tasks"])
+        with _environ(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1"):
+            forkserver.ensure_running()
+        return pebble.ProcessPool(max_workers=self.workers, context=ctx)
+
+    def _schedule(self, fn: Callable[..., Any], args: tuple[Any, ...], budget: float) -> Any:
+        """Schedule on the pool; a pool that broke (pebble raises RuntimeError once an
+        idle worker was killed) is replaced by a new one, once."""
+        try:
+            return self._pool.schedule(fn, args=args, timeout=budget)
+        except RuntimeError as e:
+            log.error("the compute pool broke (%s): starting a new one", e)
+            old, self._pool = self._pool, self._start()
+            self.restarts += 1
+            with contextlib.suppress(Exception):
+                old.stop()
+            return self._pool.schedule(fn, args=args, timeout=budget)
 
     async def run(self, fn: Callable[..., T], *args: Any, budget_s: float | None = None) -> T:
         """``fn(*args)`` in a worker, within ``budget_s`` (default: the pool's). Raises
@@ -151,7 +169,7 @@ class ComputePool:
         budget = self.budget_s if budget_s is None else budget_s
         if self._pool is None:
             return await asyncio.to_thread(fn, *args)
-        fut = self._pool.schedule(fn, args=args, timeout=budget)
+        fut = self._schedule(fn, args, budget)
         try:
             return await asyncio.wrap_future(fut)  # type: ignore[no-any-return]
         except concurrent.futures.TimeoutError as e:

@@ -103,9 +103,11 @@ class KnowledgeBase:
                 _CANCEL_FLAGS.pop(threading.get_ident(), None)
                 return
             request, fut = job
-            if not fut.set_running_or_notify_cancel():
-                continue
+            # under the lock :meth:`cancel` takes: a cancel either finds the job queued
+            # (dropped here) or running (its flag set), never in between
             with self._cancel_lock:
+                if not fut.set_running_or_notify_cancel():
+                    continue
                 self._running = fut
                 self._cancelled.clear()
             try:
@@ -242,9 +244,8 @@ class KnowledgeBase:
     def cancel(self, fut: Future[str]) -> None:
         """Give up on a submitted job: a queued one is dropped (the engine skips it), a
         running cancellable one stops at its next check (within 0.1 s)."""
-        fut.cancel()
         with self._cancel_lock:
-            if self._running is fut:
+            if not fut.cancel() and self._running is fut:
                 self._cancelled.set()
 
     @property

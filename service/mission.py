@@ -30,9 +30,11 @@ truth (never read by the robot). :func:`mission_figure` draws the run.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
 import math
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -164,6 +166,12 @@ class MissionRun:
     map: OccupancyMap | None = None
     #: the pose the mission went on from and the true pose then
     fix: tuple[np.ndarray, np.ndarray] | None = None
+    #: the eigenspace's pose and the true pose then (None if it gave none)
+    eigenspace_fix: tuple[np.ndarray, np.ndarray] | None = None
+    #: the odometry pose at :attr:`fix`
+    anchor_odom: np.ndarray | None = None
+    #: the viewpoint plan's poses (x, y, theta), in its order
+    plan_poses: list[tuple[float, float, float]] = field(default_factory=list)
     success: bool = False
     elapsed_s: float = 0.0
 
@@ -209,10 +217,10 @@ class MissionService:
             MISSION_ARTIFACT, "mission_steps", "mission",
             lambda world, blob: {"world": world, "steps": json.loads(blob)["steps"]}))
 
-    def start(self, world: str, config: MissionConfig) -> dict[str, Any]:
+    async def start(self, world: str, config: MissionConfig) -> dict[str, Any]:
         """A durable job (:mod:`service.jobs`) running one mission; its result is
-        :meth:`MissionRun.result`."""
-        self.check(world, config)
+        :meth:`MissionRun.result`. The input is checked first (404 / 422, no job)."""
+        await asyncio.to_thread(self.check, world, config)
 
         async def work(progress: JobProgress) -> dict[str, Any]:
             run = await self.run(world, config, lambda what, frac: progress(what, frac))
@@ -257,7 +265,7 @@ class MissionService:
                   progress: Callable[[str, float], None] | None = None) -> MissionRun:
         """Run the mission (see the module's docstring); a failed step ends it early with
         ``ok = false`` in its record, and the evaluation says what was reached."""
-        self.check(world, config)
+        await asyncio.to_thread(self.check, world, config)
         report = progress or (lambda what, frac: None)
         t0 = time.perf_counter()
         run = MissionRun(world, config)
@@ -267,29 +275,45 @@ class MissionService:
         start: str | None = None
         try:
             await self._prepare(run, w, report)
-            robot = self._wake_up(w, config, rng)
+            robot = await asyncio.to_thread(self._wake_up, w, config, rng)
             run.truth_path.append(robot.pose.copy())
             observer = LandmarkObserver(w, config.observer, rng)
             nav = NavConfig()
             est = await self._localize(run, w, robot, rng, report)
-            if est is None:  # still lost: the DRM paper's way, reach some landmark first
-                start, est = await self._recover(run, w, robot, observer, nav, rng, report)
-            run.fix = (est.copy(), robot.pose.copy())
-            robot.tracing = True  # the map's frame: the pose just fixed
-            odom0 = robot.odom_pose.copy()
-            if start is None:
+            if est is not None:
+                run.eigenspace_fix = (est.copy(), robot.pose.copy())
+                self._anchor(run, robot, est)
                 start = await self._reach_nearest(run, w, robot, observer, nav, est, report)
+            if start is None:  # still lost, or the pose named a landmark that is not
+                # there (a wrong pose): the DRM paper's way, reach some landmark first
+                start, est = await self._recover(run, w, robot, observer, nav, rng, report)
+                self._anchor(run, robot, est)
             await self._navigate(run, robot, observer, nav, start, report)
-            await self._map(run, w, robot, est, odom0, rng, report)
+            await self._map(run, w, robot, rng, report)
             await self._summarise(run, w, robot, report)
         except MissionFailed as e:
             log.info("mission on %s (seed %d) stopped: %s", world, config.seed, e)
+        except BaseException as e:  # cancelled, or an error: the record says so, then on
+            why = "cancelled" if isinstance(e, asyncio.CancelledError) else (
+                f"{type(e).__name__}: {e}")
+            with contextlib.suppress(Exception):
+                await asyncio.shield(self._record(run, "aborted", reason=why[:500], ok=False))
+            raise
         if robot is not None:
             run.truth_path.extend(p for p, _ in robot.trace)
         run.elapsed_s = time.perf_counter() - t0
         await self._evaluate(run, w)
         report("done", 1.0)
         return run
+
+    @staticmethod
+    def _anchor(run: MissionRun, robot: TracedRobot, est: np.ndarray) -> None:
+        """The map's frame: the pose just fixed; the laser's trace starts here."""
+        run.truth_path.extend(p for p, _ in robot.trace)
+        robot.trace.clear()
+        robot.tracing = True
+        run.fix = (est.copy(), robot.pose.copy())
+        run.anchor_odom = robot.odom_pose.copy()
 
     # -- the record -------------------------------------------------------------------
     async def _record(self, run: MissionRun, what: str, **result: Any) -> None:
@@ -312,18 +336,24 @@ class MissionService:
         except NotFound:
             report("learning the eigenspace", 0.02)
             t = time.perf_counter()
-            a = await self.eigenspace.learn(run.world, run.config.eigenspace)
+            a = await self.eigenspace.learn(run.world, run.config.eigenspace, None,
+                                            lambda stage, frac: report(stage, 0.02 + 0.1 * frac))
             await self._record(run, "learn_eigenspace", learning_points=len(a.model.points),
                                triplets=len(a.triplets), seconds=time.perf_counter() - t,
                                ok=True)
 
     async def _ensure_drm(self, world: str, w: World) -> dict[str, Any]:
-        """The DRM needs observations from the landmarks: a survey in the simulator
-        (one panoramic observation per landmark) if the world has none yet."""
-        drm = await self.worlds.drm(world)
-        if drm["edges"]:
-            return {"observations": 0, "edges": len(drm["edges"]), "ok": True}
-        obs = survey(w, ObserverConfig(bearing_noise_rad=0.01, distance_noise_m=0.02), seed=0)
+        """The DRM needs observations from the landmarks: a survey in the simulator (one
+        panoramic observation at each landmark no observation was taken at yet, so a
+        survey cut short is completed by the next mission)."""
+
+        def missing() -> list[Any]:
+            seen = {e.payload.get("at") for e in self.worlds.store.events(world)
+                    if e.kind == "observation"}
+            cfg = ObserverConfig(bearing_noise_rad=0.01, distance_noise_m=0.02)
+            return [o for o in survey(w, cfg, seed=0) if o.at not in seen]
+
+        obs = await asyncio.to_thread(missing)
         for o in obs:
             await self.worlds.observe(world, o)
         drm = await self.worlds.drm(world)
@@ -378,7 +408,7 @@ class MissionService:
             act = move["action"]
             prev = robot.odom_pose.copy()
             if act is not None:
-                await asyncio.to_thread(self._drive, robot, act)
+                await self._until_done(self._drive, robot, act)
             run.truth_path.append(robot.pose.copy())
         await self._record(run, "localize", session=sid, stops=run.config.max_stops,
                            state=state, localized=False,
@@ -393,7 +423,7 @@ class MissionService:
         the landmark's position and the heading the one the bearings of the other
         landmarks in view give on the world's landmark map (:func:`map_heading`)."""
         report("lost: reaching any landmark", 0.3)
-        lm = await asyncio.to_thread(reach_any_landmark, robot, observer, nav, rng)
+        lm = await self._until_done(reach_any_landmark, robot, observer, nav, rng)
         if lm is None:
             await self._fail(run, "reach_landmark", "wandered without recognising a "
                              "landmark", how="wander")
@@ -425,24 +455,29 @@ class MissionService:
     # -- 2-3: the nearest landmark, the DRM path, navigation ---------------------------
     async def _reach_nearest(self, run: MissionRun, w: World, robot: TracedRobot,
                              observer: LandmarkObserver, nav: NavConfig, est: np.ndarray,
-                             report: Callable[[str, float], None]) -> str:
+                             report: Callable[[str, float], None]) -> str | None:
         """The landmark nearest to the estimated pose in line of sight on the world's
-        map, then homing on it (move1)."""
+        map, then homing on it (move1); None if it is not recognised there."""
         report("reaching the nearest landmark", 0.35)
         d = np.hypot(*(w.landmark_xy - est[:2]).T)
         seen = line_of_sight(est[:2], w.landmark_xy, w.wall_a, w.wall_b)
         if not seen.any():
-            await self._fail(run, "nearest_landmark", "no landmark in line of sight of the "
-                             "estimated pose", x=est[0], y=est[1])
+            await self._record(run, "nearest_landmark", x=est[0], y=est[1], found=False,
+                               reason="no landmark in line of sight of the estimated pose")
+            return None
         i = int(np.argmin(np.where(seen, d, np.inf)))
         start = w.landmark_ids[i]
         await self._record(run, "nearest_landmark", x=est[0], y=est[1], landmark=start,
                            distance_m=d[i], ok=True)
-        ok = await asyncio.to_thread(home_on, robot, observer, start, nav)
-        await self._record(run, "reach_landmark", landmark=start, ok=ok,
-                           travelled_m=robot.travelled_m)
-        if not ok:
-            raise MissionFailed(f"could not reach {start}")
+        ok = await self._until_done(home_on, robot, observer, start, nav)
+        if not ok:  # not in view where the pose says: the pose is wrong
+            robot.collided = False
+            await self._record(run, "reach_landmark", landmark=start, reached=False,
+                               reason="not recognised where the pose puts it",
+                               travelled_m=robot.travelled_m)
+            return None
+        await self._record(run, "reach_landmark", landmark=start, reached=True,
+                           travelled_m=robot.travelled_m, ok=True)
         return start
 
     async def _navigate(self, run: MissionRun, robot: TracedRobot,
@@ -462,7 +497,7 @@ class MissionService:
         report("following the DRM path", 0.45)
         t0 = robot.travelled_m
         for k, s in enumerate(path.steps):
-            if not await asyncio.to_thread(execute_step, robot, observer, s, nav):
+            if not await self._until_done(execute_step, robot, observer, s, nav):
                 reason = "collision" if robot.collided else f"{s.method} to {s.target} failed"
                 await self._fail(run, "navigate", reason, arcs_done=k, arcs=len(path.steps),
                                  travelled_m=robot.travelled_m - t0)
@@ -471,13 +506,14 @@ class MissionService:
                            travelled_m=robot.travelled_m - t0, at=run.config.goal, ok=True)
 
     # -- 4: the map ---------------------------------------------------------------------
-    async def _map(self, run: MissionRun, w: World, robot: TracedRobot, est: np.ndarray,
-                   odom0: np.ndarray, rng: np.random.Generator,
-                   report: Callable[[str, float], None]) -> None:
+    async def _map(self, run: MissionRun, w: World, robot: TracedRobot,
+                   rng: np.random.Generator, report: Callable[[str, float], None]) -> None:
         """The laser scans of the way (odometry in the localized pose's frame) into a
         SLAM run, then committed: the world's map and its unknown regions."""
         report("mapping", 0.6)
         laser = Laser(w)
+        assert run.fix is not None and run.anchor_odom is not None
+        est, odom0 = run.fix[0], run.anchor_odom
 
         def take() -> list[ScanIn]:
             return [scan_in(laser.scan(0.1 * (k + 1), truth,
@@ -495,6 +531,7 @@ class MissionService:
         times, poses = await self.slam.trajectory(run.world, rid)
         run.slam_path = np.asarray(poses)
         run.map = await self.slam.grid(run.world, rid)
+        await self.slam.delete(run.world, rid)  # the committed map and facts stay
         await self._record(run, "slam_map", slam_run=rid, method=run.config.slam_method,
                            scans=len(scans), loop_closures=c["loop_closures"],
                            unknown_regions=len(c["unknown_regions"]),
@@ -507,19 +544,18 @@ class MissionService:
         door = np.array(cfg.door, dtype=float)
         heading = float(np.arctan2(*(door - robot.pose[:2])[::-1]))
         robot.turn(float(wrap_angle(heading - robot.pose[2])))
-        ok = await asyncio.to_thread(robot.forward, float(np.hypot(*(door - robot.pose[:2]))))
+        ok = await self._until_done(robot.forward, float(np.hypot(*(door - robot.pose[:2]))))
         await self._record(run, "enter_room", door=door, ok=ok)
         if not ok:
             raise MissionFailed("could not enter the room")
         report("planning viewpoints", 0.75)
         types = [ObjectType.model_validate(t) for t in BUILTIN_OBJECT_TYPES]
-        scene: dict[str, Any] = {}
-        summariser = Summariser(w, types, self._grouper(run.world, scene),
+        summariser = Summariser(w, types, self._grouper(run.world, asyncio.get_running_loop()),
                                 SummaryConfig(time_limit_s=cfg.time_limit_s, loss=cfg.loss,
                                               seed=cfg.seed),
                                 door, area=cfg.room)
         # the candidates seen from the door, planned for on the committed map
-        seen = summariser.detect(door)
+        seen = await asyncio.to_thread(summariser.detect, door)
         req = PlanRequest(robot=(float(door[0]), float(door[1]), float(np.pi / 2)),
                           exit=(float(door[0]), float(door[1])),
                           time_limit_s=cfg.time_limit_s, loss=cfg.loss, object_types=types,
@@ -528,34 +564,63 @@ class MissionService:
                                       for c, (t, xy) in seen.items()])
         plan = await self.viewpoint.plan(run.world, req)
         best = plan["plan"]
+        run.plan_poses = [tuple(st["pose"]) for st in best["steps"]]
         await self._record(run, "viewpoint_plan", candidates=sorted(seen),
                            grid=plan["grid"]["source"], groups=best["groups"],
                            expected_time_s=best["expected_time_s"] or -1.0,
                            utility=best["utility"] or 0.0, feasible=best["feasible"],
                            ok=True)
         report("verifying candidates", 0.8)
-        summary = await asyncio.to_thread(summariser.run)
+        stop = threading.Event()
+
+        def step(_: Any) -> None:
+            if stop.is_set():
+                raise MissionFailed("cancelled")
+
+        summary = await self._until_done(summariser.run, step, stop=stop)
         run.summary = summary
         s = summary.summary(w)
         await self._record(run, "verify", verified=s["verified"], rejected=s["rejected"],
                            unverified=s["unverified"], elapsed_s=s["elapsed_s"],
                            explored_fraction=s["explored_fraction"], plans=s["steps"],
                            time_limit_s=cfg.time_limit_s, ok=True)
-        if scene:  # the loop's last scene, stored as a plan's is
-            async with self.worlds.write_artifact(run.world, SCENE_ARTIFACT) as write:
-                await write.commit(json.dumps(scene).encode(), call=scene)
 
-    def _grouper(self, world: str, scene: dict[str, Any]) -> Callable[..., list[GroupSpec]]:
-        """The online loop's grouping by the world's Prolog rules (called from the loop's
-        thread); ``scene`` keeps the last call's arguments, to be stored afterwards."""
+    @staticmethod
+    async def _until_done(fn: Callable[..., Any], *args: Any,
+                          stop: threading.Event | None = None) -> Any:
+        """``fn(*args)`` in a thread, waited for to the end even when the mission is
+        cancelled (``stop`` is set then, for ``fn`` to notice): no thread of a cancelled
+        mission goes on writing facts."""
+        work = asyncio.ensure_future(asyncio.to_thread(fn, *args))
+        cancelled = False
+        while not work.done():
+            try:
+                await asyncio.shield(work)
+            except asyncio.CancelledError:
+                cancelled = True
+                if stop is not None:
+                    stop.set()
+            except BaseException:  # noqa: BLE001 - work.result() below raises it
+                pass
+        if cancelled:
+            raise asyncio.CancelledError
+        return work.result()
+
+    def _grouper(self, world: str, loop: asyncio.AbstractEventLoop
+                 ) -> Callable[..., list[GroupSpec]]:
+        """The online loop's grouping by the world's Prolog rules, called from the loop's
+        thread: each grouping is a viewpoint-scene write on the event loop (the world's
+        write path, as a plan's), so the facts and the stored scene stay in step."""
+
+        async def write(args: dict[str, Any]) -> Any:
+            async with self.worlds.write_artifact(world, SCENE_ARTIFACT) as w:
+                return await w.commit(json.dumps(args).encode(), call=args)
 
         def group(cands: list[dict[str, Any]], regions: list[dict[str, Any]],
                   min_area: float | None) -> list[GroupSpec]:
             args = {"world": world, "candidates": cands, "regions": regions,
                     "min_area_m2": min_area}
-            reply = self.kb.call("viewpoint_groups", **args)
-            scene.clear()
-            scene.update(args)
+            reply = asyncio.run_coroutine_threadsafe(write(args), loop).result()
             return [GroupSpec(int(g["id"]), str(g["kind"]), tuple(g["members"]))
                     for g in reply["groups"]]
 
@@ -575,10 +640,12 @@ class MissionService:
             err = float(np.hypot(*(est[:2] - truth[:2])))
             herr = abs(float(wrap_angle(est[2] - truth[2])))
             loc_ok = err <= 0.5 and herr <= np.deg2rad(30)
-            eig = any(s["what"] == "localize" and s["result"].get("state") == "z"
-                      for s in run.steps)
+            eig = run.eigenspace_fix is not None and np.array_equal(run.eigenspace_fix[0], est)
             res.update(localization_error_m=err, heading_error_rad=herr,
                        localized_by="eigenspace" if eig else "landmark")
+        if run.eigenspace_fix is not None:  # the eigenspace's own answer, kept or not
+            e, t = run.eigenspace_fix
+            res["eigenspace_error_m"] = float(np.hypot(*(e[:2] - t[:2])))
         objects = {o.id for o in w.description.objects}
         found = 0
         false_found = 0
@@ -634,6 +701,11 @@ def mission_figure(run: MissionRun, world: World, path_png: str) -> None:
                 label="DRM path")
         for lm, (x, y) in zip(run.landmarks, xy, strict=True):
             ax.annotate(lm, (x, y), textcoords="offset points", xytext=(5, 5), fontsize=8)
+    for k, (x, y, _th) in enumerate(run.plan_poses):
+        ax.plot(x, y, "^", color="tab:cyan", ms=9, mec="black",
+                label="planned viewpoints" if k == 0 else None)
+        ax.annotate(str(k + 1), (x, y), textcoords="offset points", xytext=(-3, -12),
+                    fontsize=8, color="tab:cyan")
     if run.summary is not None:
         s = np.array(run.summary.path)
         ax.plot(s[:, 0], s[:, 1], "-", color="tab:purple", lw=1.2, label="room summary")

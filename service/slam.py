@@ -20,6 +20,7 @@ import asyncio
 import json
 import logging
 import math
+import threading
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -163,12 +164,29 @@ class SlamService:
             with self.store.transaction() as conn:
                 self.store.append_slam_scans(conn, rid, first, [s.model_dump() for s in items])
             deadline = time.monotonic() + self.budget_s
+            stop = threading.Event()
+            work = asyncio.ensure_future(asyncio.to_thread(self._process, run, scans,
+                                                           deadline, stop))
+            cancelled = False
             try:
-                await asyncio.to_thread(self._process, run, scans, deadline)
+                # a cancelled request (the client left, a job cancelled) stops the thread
+                # between scans and waits for it, so the store below follows what it did
+                # and no later request runs the filter beside it
+                while not work.done():
+                    try:
+                        await asyncio.shield(work)
+                    except asyncio.CancelledError:
+                        cancelled = True
+                        stop.set()
+                    except Exception:  # noqa: BLE001 - re-raised by work.result() below
+                        pass
+                work.result()
             finally:
                 if run.scans < first + len(scans):  # stopped midway: the store follows
                     with self.store.transaction() as conn:
                         self.store.drop_slam_scans_from(conn, rid, run.scans)
+            if cancelled:
+                raise asyncio.CancelledError
             done = run.scans - first
             if done < len(scans):
                 raise BudgetExceeded(
@@ -178,11 +196,13 @@ class SlamService:
             return run.status()
 
     @staticmethod
-    def _process(run: Run, scans: list[Scan], deadline: float = math.inf) -> None:
+    def _process(run: Run, scans: list[Scan], deadline: float = math.inf,
+                 stop: threading.Event | None = None) -> None:
         """Feed ``scans`` to the run's method, stopping between scans past ``deadline``
-        (time.monotonic; the first scan always runs, so every batch moves on)."""
+        (time.monotonic; the first scan always runs, so every batch moves on) or once
+        ``stop`` is set."""
         for i, s in enumerate(scans):
-            if i and time.monotonic() > deadline:
+            if i and (time.monotonic() > deadline or (stop is not None and stop.is_set())):
                 return
             run.slam.process(s)
             run.scans += 1

@@ -354,3 +354,38 @@ def test_a_batch_past_its_budget_keeps_what_it_processed(client: TestClient, wor
     r = client.post(base + "/scans", json={"scans": [scan_json(i) for i in range(1, 5)]})
     assert r.status_code == 200 and r.json()["scans"] == 5, r.text
     assert len(store.slam_scans(rid)) == 5
+
+
+def test_a_cancelled_batch_keeps_store_and_memory_in_step(tmp_path: Any) -> None:
+    """A batch whose request is cancelled (the client left, a mission job cancelled)
+    stops between scans; the stored scans are exactly the processed ones, and the run
+    goes on from there (the filter never ran in two threads at once)."""
+    import asyncio
+
+    from numeric.slam.runner import SlamOptions
+    from numeric.world import WorldDescription
+    from service.container import open_services
+    from service.schemas.slam import ScanIn
+
+    svc = open_services(Settings(data_dir=tmp_path, demo_world=None, workers=0), demo=False)
+    log = loop_log()
+    items = [ScanIn.model_validate(scan_json(i, log)) for i in range(600)]
+
+    async def go() -> None:
+        await svc.worlds.create(WorldDescription(name="w", template="loop"))
+        rid = (await svc.slam.create("w", SlamOptions(method="graph")))["id"]
+        task = asyncio.ensure_future(svc.slam.add_scans("w", rid, items))
+        await asyncio.sleep(0.5)
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+        n = svc.slam.runs[rid].scans
+        assert 0 < n < len(items)
+        assert len(svc.store.slam_scans(rid)) == n
+        st = await svc.slam.add_scans("w", rid, items[n:n + 5])
+        assert st["scans"] == n + 5 == len(svc.store.slam_scans(rid))
+
+    try:
+        asyncio.run(go())
+    finally:
+        svc.close()

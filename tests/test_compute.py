@@ -93,6 +93,28 @@ def test_a_worker_that_dies_is_reported_and_replaced(pool: ComputePool) -> None:
     assert asyncio.run(pool.run(spin, 0.0)) > 0
 
 
+def test_a_worker_killed_while_idle_does_not_break_the_pool() -> None:
+    """pebble's pool breaks when an idle worker is killed (every later schedule raised
+    RuntimeError, a 500 on every compute endpoint until restart): it is replaced."""
+    import signal
+
+    p = ComputePool(1, budget_s=5.0)
+    try:
+        pid = asyncio.run(p.run(spin, 0.0))
+        os.kill(pid, signal.SIGKILL)
+        time.sleep(0.5)
+        for _ in range(3):
+            try:
+                assert asyncio.run(p.run(spin, 0.0)) > 0
+                break
+            except WorkerLost:  # the dead worker's last task, if it was handed one
+                continue
+        else:
+            raise AssertionError("the pool did not recover")
+    finally:
+        p.close()
+
+
 def test_cached_bytes_are_loaded_once_per_worker(pool: ComputePool) -> None:
     a, b = b"first", b"second"
 

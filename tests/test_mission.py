@@ -34,7 +34,7 @@ def wait_job(client: TestClient, location: str, timeout_s: float = 300) -> dict[
 def mission_run(client: TestClient) -> dict[str, Any]:
     assert client.post("/worlds", json={"name": "mission_t", "template": "mission"}
                        ).status_code == 201
-    r = client.post("/worlds/mission_t/missions", json={**SMALL, "seed": 2})
+    r = client.post("/worlds/mission_t/missions", json={**SMALL, "seed": 3})
     assert r.status_code == 202, r.text
     assert r.headers["location"] == f"/jobs/{r.json()['id']}"
     job = wait_job(client, r.headers["location"])
@@ -44,12 +44,14 @@ def mission_run(client: TestClient) -> dict[str, Any]:
 
 def test_mission_runs_every_step(mission_run: dict[str, Any]) -> None:
     whats = [s["what"] for s in mission_run["steps"]]
-    for what in ("survey", "learn_eigenspace", "localize", "nearest_landmark",
-                 "reach_landmark", "drm_path", "navigate", "slam_map", "enter_room",
-                 "viewpoint_plan", "verify", "evaluation"):
+    for what in ("survey", "learn_eigenspace", "localize", "reach_landmark", "drm_path",
+                 "navigate", "slam_map", "enter_room", "viewpoint_plan", "verify",
+                 "evaluation"):
         assert what in whats, (what, whats)
     assert whats[-1] == "evaluation"
     ev = mission_run["steps"][-1]["result"]
+    # the eigenspace's pose names the nearest landmark; a robot it left lost wanders
+    assert ("nearest_landmark" in whats) == (ev["localized_by"] == "eigenspace"), whats
     assert ev["localization_error_m"] < 0.5
     assert ev["objects_verified"] >= 1 and ev["false_verified"] == 0
     assert mission_run["success"] is True
@@ -134,7 +136,10 @@ def test_bad_mission_raw_json(client: TestClient) -> None:
     if client.get("/worlds/mission_bad").status_code == 404:
         client.post("/worlds", json={"name": "mission_bad", "template": "mission"})
     for text, field in (('{"door": [NaN, 1]}', "door"), ('{"door": [1e999, 1]}', "door"),
-                        ('{"door": [1]}', "door"), ('{"seed": "1"}', "seed")):
+                        ('{"door": [1]}', "door"), ('{"seed": "1"}', "seed"),
+                        ('{"observer": {"recognition_radius_m": Infinity}}',
+                         "observer.recognition_radius_m"),
+                        ('{"odometry": {"turn_noise_ratio": 5}}', "odometry.turn_noise_ratio")):
         r = client.post("/worlds/mission_bad/missions", content=text,
                         headers={"content-type": "application/json"})
         assert r.status_code == 422, (text, r.text)
@@ -154,3 +159,42 @@ def test_office_rooms_are_inside() -> None:
     m = World(mission_world())
     (x0, y0), (x1, y1) = MISSION_ROOM
     assert m.is_free(np.array([[x0 + 1.0, y0 + 1.0], [x1 - 1.0, y1 - 1.0]])).all()
+
+
+def test_inside_gapped_and_huge_worlds() -> None:
+    """A room with a doorway in its outer wall encloses nothing: the even-odd rule decides
+    (its floor stays free); walls millions of metres long rasterise coarsely, not into
+    gigabytes."""
+    from numeric.world import Wall, WorldDescription
+
+    gap = [Wall(a=(0, 0), b=(10, 0)), Wall(a=(10, 0), b=(10, 10)),
+           Wall(a=(10, 10), b=(6, 10)), Wall(a=(5, 10), b=(0, 10)), Wall(a=(0, 10), b=(0, 0))]
+    w = World(WorldDescription(name="gap", walls=gap))
+    assert w.is_free(np.array([[5.0, 5.0], [2.0, 2.0]])).all()
+    assert not w.is_free(np.array([[-1.0, 5.0]])).any()
+    huge = World(WorldDescription(name="huge", walls=[
+        Wall(a=(0, 0), b=(4e6, 0)), Wall(a=(4e6, 0), b=(4e6, 3e6)),
+        Wall(a=(4e6, 3e6), b=(0, 3e6)), Wall(a=(0, 3e6), b=(0, 0))]))
+    assert huge.inside(np.array([[2e6, 1e6]]))[0]
+    assert huge._enclosed[2].size <= 2000 * 2000
+
+
+def test_a_cancelled_mission_says_so(client: TestClient) -> None:
+    """DELETE on a running mission's job: the job ends cancelled, its threads stop, and
+    the record (facts and store alike) ends with an `aborted` step."""
+    assert client.post("/worlds", json={"name": "mission_c", "template": "mission"}
+                       ).status_code == 201
+    r = client.post("/worlds/mission_c/missions", json={**SMALL, "seed": 1})
+    loc = r.headers["location"]
+    time.sleep(1.0)  # surveyed, learning the eigenspace
+    assert client.delete(loc).status_code == 200
+    job = wait_job(client, loc)
+    assert job["status"] == "cancelled", job
+    steps = client.get("/worlds/mission_c/mission").json()["steps"]
+    assert steps[-1]["what"] == "aborted" and steps[-1]["result"]["ok"] is False
+    r = client.post("/worlds/mission_c/query", json={"goal": "mission_outcome(O)",
+                                                      "max_solutions": 5})
+    assert r.json()["solutions"] == [{"O": "failed(aborted)"}]
+    r = client.post("/worlds/mission_c/query", json={"goal": "mission_step(S, W, R)",
+                                                      "max_solutions": 100})
+    assert len(r.json()["solutions"]) == len(steps)

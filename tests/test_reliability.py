@@ -147,3 +147,9 @@ def test_json_types_are_strict(client: TestClient, endpoints: Any) -> None:
         assert r.status_code == 422 and r.json()["field"] == field, (bad, r.text[:300])
     r = client.post("/worlds/rel_room/viewpoint-plan", json={**base, "robot": [1, "1", 0]})
     assert r.status_code == 422 and r.json()["field"] == "robot[1]", r.text[:300]
+    # FastAPI reads these as JSON too (any letter case, +json): so are they checked
+    body = json.dumps({**base, "grid": {**grid, "width": True}})
+    for ctype in ("Application/JSON", "application/problem+json; charset=utf-8"):
+        r = client.post("/worlds/rel_room/viewpoint-plan", content=body,
+                        headers={"content-type": ctype})
+        assert r.status_code == 422 and r.json()["field"] == "grid.width", (ctype, r.text)

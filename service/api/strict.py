@@ -13,6 +13,7 @@ the body is looked at; a strict error is the usual 422 problem naming the field.
 
 from __future__ import annotations
 
+import email.message
 import functools
 import inspect
 from collections.abc import Callable
@@ -26,7 +27,7 @@ from pydantic import TypeAdapter, ValidationError
 
 async def check_strict_json(request: Request, adapter: TypeAdapter[Any]) -> None:
     """422 (RequestValidationError) unless the JSON body is valid in strict mode."""
-    if request.headers.get("content-type", "").split(";")[0].strip() != "application/json":
+    if not _parsed_as_json(request.headers.get("content-type", "")):
         return
     raw = await request.body()  # kept by the request: read once
     if not raw:
@@ -42,6 +43,19 @@ async def check_strict_json(request: Request, adapter: TypeAdapter[Any]) -> None
         if errs:
             raise RequestValidationError([{**x, "loc": ("body", *x["loc"])} for x in errs],
                                          body=raw) from None
+
+
+def _parsed_as_json(content_type: str) -> bool:
+    """Whether FastAPI reads this body as JSON (fastapi.routing, with its default strict
+    content type: application/json or application/*+json, in any letter case; without a
+    content type the body is bytes, refused as not an object)."""
+    if not content_type:
+        return False
+    m = email.message.Message()
+    m["content-type"] = content_type
+    sub = m.get_content_subtype()
+    return m.get_content_maintype() == "application" and (sub == "json"
+                                                          or sub.endswith("+json"))
 
 
 class StrictJsonRoute(APIRoute):

@@ -25,7 +25,7 @@ async def post_mission(world: WorldDep, config: MissionConfig, mission: MissionD
     Learns the world's eigenspace and surveys its landmarks first if it has none. Runs as
     a job: poll ``Location``; its result is the record (also the ``mission_step/3``
     facts, ``GET .../mission``)."""
-    job = mission.start(world, config)
+    job = await mission.start(world, config)
     response.headers["Location"] = f"/jobs/{job['id']}"
     return job
 

@@ -1,0 +1,69 @@
+"""Missions in batches: one task per world, runnable in this process or on Dask
+(:mod:`service.executors`). A task opens its own services (store, Prolog engine) in a
+scratch directory, creates the world, runs the seeds and returns one row per run, so the
+same function runs on any worker of a cluster; nothing but the rows (and, if asked, the
+first run's figure as PNG bytes) comes back."""
+
+from __future__ import annotations
+
+import asyncio
+import tempfile
+from concurrent.futures import Executor
+from pathlib import Path
+from typing import Any
+
+from numeric.world import WorldDescription
+
+
+def mission_rows(world: dict[str, Any], config: dict[str, Any], seeds: list[int],
+                 kind: str = "", figure: bool = False) -> tuple[list[dict[str, Any]],
+                                                                bytes | None]:
+    """Run the mission on ``world`` (a world description) for each seed with
+    ``config`` (a :class:`service.mission.MissionConfig` as JSON): one row per run, and
+    the first run's figure when ``figure``."""
+    from service.container import open_services
+    from service.mission import MissionConfig, mission_figure
+    from service.settings import Settings
+
+    desc = WorldDescription.model_validate(world)
+    cfg = MissionConfig.model_validate(config)
+    rows: list[dict[str, Any]] = []
+    png: bytes | None = None
+    with tempfile.TemporaryDirectory() as d:
+        svc = open_services(Settings(data_dir=Path(d), demo_world=None, workers=0), demo=False)
+        try:
+            asyncio.run(svc.worlds.create(desc))
+            for k, seed in enumerate(seeds):
+                run = asyncio.run(svc.mission.run(desc.name,
+                                                  cfg.model_copy(update={"seed": seed})))
+                ev = run.steps[-1]["result"]
+                failed = next((s["what"] for s in run.steps
+                               if s["result"].get("ok") is False), "")
+                learn = next((s["result"]["seconds"] for s in run.steps
+                              if s["what"] == "learn_eigenspace"), 0.0)
+                rows.append({"kind": kind, "world": desc.name, "seed": seed,
+                             "success": run.success, "failed_at": failed,
+                             "localized_by": ev.get("localized_by", ""),
+                             "localization_error_m": ev.get("localization_error_m"),
+                             "objects": ev["objects"],
+                             "objects_verified": ev["objects_verified"],
+                             "false_verified": ev["false_verified"],
+                             "mission_s": run.elapsed_s - learn, "learning_s": learn or None})
+                if figure and k == 0:
+                    out = Path(d) / "mission.png"
+                    mission_figure(run, svc.worlds.model(desc.name), str(out))
+                    png = out.read_bytes()
+        finally:
+            svc.close()
+    return rows, png
+
+
+def run_missions(tasks: list[tuple[dict[str, Any], dict[str, Any], list[int], str, bool]],
+                 executor: Executor | None = None
+                 ) -> list[tuple[list[dict[str, Any]], bytes | None]]:
+    """:func:`mission_rows` for every task, in order: here one after the other, or on
+    ``executor`` (a Dask cluster's) all at once."""
+    if executor is None:
+        return [mission_rows(*t) for t in tasks]
+    futures = [executor.submit(mission_rows, *t) for t in tasks]
+    return [f.result() for f in futures]
