@@ -52,6 +52,7 @@ mission_kind(survey).
 mission_kind(localize).
 mission_kind(nearest_landmark).
 mission_kind(reach_landmark).
+mission_kind(landmark_fix).
 mission_kind(drm_path).
 mission_kind(navigate).
 mission_kind(slam_map).

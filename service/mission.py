@@ -284,6 +284,11 @@ class MissionService:
                 run.eigenspace_fix = (est.copy(), robot.pose.copy())
                 self._anchor(run, robot, est)
                 start = await self._reach_nearest(run, w, robot, observer, nav, est, report)
+                fix = None if start is None else self.landmark_pose(w, robot, observer, start)
+                if fix is not None:  # at the landmark the pose is known better: re-anchor
+                    self._anchor(run, robot, fix)
+                    await self._record(run, "landmark_fix", landmark=start, x=fix[0],
+                                       y=fix[1], theta=fix[2], ok=True)
             if start is None:  # still lost, or the pose named a landmark that is not
                 # there (a wrong pose): the DRM paper's way, reach some landmark first
                 start, est = await self._recover(run, w, robot, observer, nav, rng, report)
@@ -428,17 +433,25 @@ class MissionService:
             await self._fail(run, "reach_landmark", "wandered without recognising a "
                              "landmark", how="wander")
         assert lm is not None
-        pos = dict(zip(w.landmark_ids, w.landmark_xy, strict=True))
-        heading = map_heading(lm, observer.observe(robot.pose, at=lm), pos)
-        if heading is None:
+        est = self.landmark_pose(w, robot, observer, lm)
+        if est is None:
             await self._fail(run, "reach_landmark", "no other landmark in view to take the "
                              "heading from", how="wander", landmark=lm)
-        assert heading is not None
-        est = np.array([*pos[lm], heading])
+        assert est is not None
         await self._record(run, "reach_landmark", landmark=lm, how="wander",
                            travelled_m=robot.travelled_m, x=est[0], y=est[1],
                            theta=est[2], ok=True)
         return lm, est
+
+    @staticmethod
+    def landmark_pose(w: World, robot: Robot, observer: LandmarkObserver,
+                      at: str) -> np.ndarray | None:
+        """The pose of a robot standing at landmark ``at``: its position on the world's
+        landmark map, the heading from the observed bearings of the other landmarks in
+        view (:func:`map_heading`); None if no other landmark is in view."""
+        pos = dict(zip(w.landmark_ids, w.landmark_xy, strict=True))
+        heading = map_heading(at, observer.observe(robot.pose, at=at), pos)
+        return None if heading is None else np.array([*pos[at], heading])
 
     @staticmethod
     def _drive(robot: TracedRobot, act: dict[str, float], clearance_m: float = 0.3) -> None:
@@ -630,8 +643,10 @@ class MissionService:
     async def _evaluate(self, run: MissionRun, w: World) -> None:
         """Against the simulator's truth: the localization error at the stop that gave
         the pose, whether the goal was reached, how many real objects were verified and
-        whether a false one was. Success: all steps done, the pose within 0.5 m and 30
-        degrees, and at least one real object verified with no false one."""
+        whether a false one was. ``localized_by``: eigenspace (its pose named a landmark
+        the robot reached) or wander (the fallback). Success: all steps done, the pose
+        the map is anchored at within 0.5 m and 30 degrees, and at least one real object
+        verified with no false one."""
         done = {s["what"] for s in run.steps if s["result"].get("ok") is not False}
         res: dict[str, Any] = {"steps_done": len(run.steps)}
         loc_ok = False
@@ -640,9 +655,10 @@ class MissionService:
             err = float(np.hypot(*(est[:2] - truth[:2])))
             herr = abs(float(wrap_angle(est[2] - truth[2])))
             loc_ok = err <= 0.5 and herr <= np.deg2rad(30)
-            eig = run.eigenspace_fix is not None and np.array_equal(run.eigenspace_fix[0], est)
+            wander = any(s["what"] == "reach_landmark" and s["result"].get("how") == "wander"
+                         for s in run.steps)
             res.update(localization_error_m=err, heading_error_rad=herr,
-                       localized_by="eigenspace" if eig else "landmark")
+                       localized_by="wander" if wander else "eigenspace")
         if run.eigenspace_fix is not None:  # the eigenspace's own answer, kept or not
             e, t = run.eigenspace_fix
             res["eigenspace_error_m"] = float(np.hypot(*(e[:2] - t[:2])))
@@ -690,11 +706,17 @@ def mission_figure(run: MissionRun, world: World, path_png: str) -> None:
                 label=f"SLAM ({run.config.slam_method})")
     for k, st in enumerate(run.stops):
         t = st["truth"]
-        ax.plot(t[0], t[1], "x", color="black", ms=8, label="stops (truth)" if k == 0 else None)
-        pose = st["answer"].get("pose")
-        if pose is not None:
-            ax.quiver(pose["x"], pose["y"], np.cos(pose["theta"]), np.sin(pose["theta"]),
-                      color="tab:red", scale=25, width=0.006, label="localized pose")
+        ax.plot(t[0], t[1], "x", color="black", ms=8,
+                label="localization stops (truth)" if k == 0 else None)
+    fixes = [(run.eigenspace_fix, "tab:red", "eigenspace pose")]
+    if run.fix is not None and (run.eigenspace_fix is None
+                                or not np.array_equal(run.fix[0], run.eigenspace_fix[0])):
+        fixes.append((run.fix, "tab:pink", "pose fixed at a landmark"))
+    for fix, colour, label in fixes:
+        if fix is not None:
+            e = fix[0]
+            ax.quiver(e[0], e[1], np.cos(e[2]), np.sin(e[2]), color=colour, scale=20,
+                      width=0.008, label=label, zorder=5)
     if run.landmarks:
         xy = np.array([world.landmark_position(lm) for lm in run.landmarks])
         ax.plot(xy[:, 0], xy[:, 1], "o-", color="tab:green", lw=2, alpha=0.6,
@@ -720,8 +742,11 @@ def mission_figure(run: MissionRun, world: World, path_png: str) -> None:
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     outcome = "succeeded" if run.success else "failed"
+    learn = sum(s["result"].get("seconds", 0.0) for s in run.steps
+                if s["what"] == "learn_eigenspace")
     ax.set_title(f"mission on {run.world}, seed {run.config.seed}: {outcome} "
-                 f"({len(run.steps)} steps, {run.elapsed_s:.1f} s)")
+                 f"({len(run.steps)} steps, {run.elapsed_s - learn:.1f} s"
+                 + (f" + {learn:.0f} s learning)" if learn else ")"))
     ax.legend(loc="upper left", fontsize=8, framealpha=0.9)
     fig.tight_layout()
     fig.savefig(path_png, dpi=110)

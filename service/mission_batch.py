@@ -45,6 +45,7 @@ def mission_rows(world: dict[str, Any], config: dict[str, Any], seeds: list[int]
                              "success": run.success, "failed_at": failed,
                              "localized_by": ev.get("localized_by", ""),
                              "localization_error_m": ev.get("localization_error_m"),
+                             "eigenspace_error_m": ev.get("eigenspace_error_m"),
                              "objects": ev["objects"],
                              "objects_verified": ev["objects_verified"],
                              "false_verified": ev["false_verified"],

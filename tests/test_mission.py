@@ -52,6 +52,8 @@ def test_mission_runs_every_step(mission_run: dict[str, Any]) -> None:
     ev = mission_run["steps"][-1]["result"]
     # the eigenspace's pose names the nearest landmark; a robot it left lost wanders
     assert ("nearest_landmark" in whats) == (ev["localized_by"] == "eigenspace"), whats
+    if ev["localized_by"] == "eigenspace":  # at the landmark the map is anchored anew
+        assert "landmark_fix" in whats and ev["eigenspace_error_m"] < 1.0
     assert ev["localization_error_m"] < 0.5
     assert ev["objects_verified"] >= 1 and ev["false_verified"] == 0
     assert mission_run["success"] is True
