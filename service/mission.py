@@ -293,6 +293,9 @@ class MissionService:
                 # there (a wrong pose): the DRM paper's way, reach some landmark first
                 start, est = await self._recover(run, w, robot, observer, nav, rng, report)
                 self._anchor(run, robot, est)
+            # a full turn where the map starts: its first scans see all round (and a goal
+            # that is the landmark already reached still gets a map)
+            await self._until_done(robot.turn, 2 * np.pi)
             await self._navigate(run, robot, observer, nav, start, report)
             await self._map(run, w, robot, rng, report)
             await self._summarise(run, w, robot, report)

@@ -21,6 +21,7 @@ import pstats
 import subprocess
 import sys
 import time
+from concurrent.futures import Executor
 from pathlib import Path
 
 import numpy as np
@@ -137,15 +138,23 @@ def maps_figure(out: Path, names: list[str]) -> None:
 
 
 def accuracy(quick: bool, out: Path, names: list[str], labels: list[str],
-             lines: list[str]) -> list[dict[str, float | str]]:
+             lines: list[str], executor: Executor | None = None
+             ) -> list[dict[str, float | str]]:
+    """Every (log, method) run, each in a fresh process: one after the other here, or
+    all at once on ``executor`` (a Dask cluster's, :mod:`service.executors`; its
+    workers need this repository at the same path). Runs side by side share the cores:
+    their times and real-time factors are then not the figures of a run alone."""
     lines += ["## Relation errors (Kümmerle et al. 2009), mean ± std, all relations and "
               f"loop-spanning ones (time gap > {LOOP_GAP_S:.0f} s)", "",
               "| log | method | trans (m) | rot (deg) | loop trans (m) | loop rot (deg) | "
               "time (s) | x real time | peak RSS (MB) |", "|---|---|---|---|---|---|---|---|---|"]
     rows = []
+    pending = {(n, m): executor.submit(run_isolated, n, m, quick, out)
+               for n in names for m in labels} if executor is not None else {}
     for name in names:
         for label in labels:
-            r = run_isolated(name, label, quick, out)
+            r = (pending[name, label].result() if pending
+                 else run_isolated(name, label, quick, out))
             rows.append(r)
             with (out / "slam-rows.jsonl").open("a") as f:
                 f.write(json.dumps(r) + "\n")
@@ -297,6 +306,11 @@ def main() -> None:
     ap.add_argument("--one", nargs=2, metavar=("LOG", "METHOD"), help=argparse.SUPPRESS)
     ap.add_argument("--skip-extras", action="store_true",
                     help="only the relation-error table (no corridor, pairs, profile)")
+    ap.add_argument("--local-workers", type=int, default=0,
+                    help="run the (log, method) runs on a Dask LocalCluster of N worker "
+                         "processes (times are then shared-core times)")
+    ap.add_argument("--scheduler", default=None,
+                    help="an existing Dask scheduler (or CHIZU_DASK_SCHEDULER)")
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(exist_ok=True)
@@ -307,7 +321,12 @@ def main() -> None:
     labels = args.methods.split(",")
     scope = "quick: first 1500 scans per log" if args.quick else "full logs"
     lines = [f"# SLAM benchmark ({scope})", ""]
-    accuracy(args.quick, out, names, labels, lines)
+    from service.executors import batch_executor
+
+    with batch_executor(args.scheduler, args.local_workers) as ex:
+        if ex is not None:
+            lines += ["Runs side by side on Dask: times are shared-core times.", ""]
+        accuracy(args.quick, out, names, labels, lines, ex)
     maps_figure(out, names)
     if not args.skip_extras:
         corridor(lines)
