@@ -15,8 +15,8 @@
       mission_step(S, What, Result)   step S (integer >= 0, in the order run)
                                       did What (an atom of mission_kind/1)
                                       and gave Result: a list of Key = Value
-                                      (Key an atom, valid_id/1; Value a finite
-                                      float, true/false, an id-like text as an
+                                      (Key an atom, valid_id/1; Value an
+                                      integer, a finite float, true/false, an id-like text as an
                                       atom, other text as a string, or a list
                                       of those)
 
@@ -83,7 +83,8 @@ mission_pose(World, X, Y, Th) :-
     world_module(World, M),
     findall(R, ( M:mission_step(_, localize, R), memberchk(state = z, R) ), Rs),
     last(Rs, R),
-    memberchk(x = X, R), memberchk(y = Y, R), memberchk(theta = Th, R).
+    memberchk(x = X0, R), memberchk(y = Y0, R), memberchk(theta = Th0, R),
+    X is float(X0), Y is float(Y0), Th is float(Th0).
 
 %!  mission_path(+World, -Landmarks, -P) is semidet.
 %
@@ -148,6 +149,7 @@ result_pair(F, K0-V0, K = V) :-
     result_value(FK, V0, V).
 
 result_value(_, V, V) :- memberchk(V, [true, false]), !.
+result_value(_, V, V) :- integer(V), !.
 result_value(_, V, F) :- finite_real(V, F), !.
 result_value(_, V, A) :- string(V), valid_id(V), !, atom_string(A, V).
 result_value(F, V, V) :-

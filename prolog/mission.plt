@@ -37,6 +37,7 @@ test(stored_as_terms, [nondet, cleanup(drop_world(m1))]) :-
     memberchk(from = F, R), F == c_w,
     memberchk(probability = P, R), P == 0.81,
     memberchk(note = N, R), N == "Not an id",
+    M:mission_step(1, localize, R1), memberchk(stops = St, R1), St == 2,
     memberchk(ok = true, R).
 test(rules, [nondet, cleanup(drop_world(m2))]) :-
     fixture(m2),
