@@ -9,6 +9,7 @@ from typing import Annotated
 from fastapi import Depends, Path, Request
 
 from numeric.world import ID_PATTERN
+from service.compute import ComputePool
 from service.eigenspace import EigenspaceService
 from service.jobs import Jobs
 from service.kb import KnowledgeBase
@@ -39,6 +40,10 @@ async def _jobs(request: Request) -> Jobs:
     return request.app.state.services.jobs  # type: ignore[no-any-return]
 
 
+async def _compute(request: Request) -> ComputePool:
+    return request.app.state.services.compute  # type: ignore[no-any-return]
+
+
 async def _mission(request: Request) -> MissionService:
     return request.app.state.services.mission  # type: ignore[no-any-return]
 
@@ -55,6 +60,7 @@ SlamDep = Annotated[SlamService, Depends(_slam)]
 ViewpointDep = Annotated[ViewpointService, Depends(_viewpoint)]
 JobsDep = Annotated[Jobs, Depends(_jobs)]
 MissionDep = Annotated[MissionService, Depends(_mission)]
+ComputeDep = Annotated[ComputePool, Depends(_compute)]
 
 
 async def _existing_world(world: Annotated[str, Path(pattern=ID_PATTERN, description="world id")],

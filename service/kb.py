@@ -75,6 +75,7 @@ class KnowledgeBase:
         self._running: Future[str] | None = None
         self._cancel_lock = threading.Lock()
         self._cancelled = threading.Event()
+        self._closed = False
         self._ready: Future[None] = Future()
         self._thread = threading.Thread(target=self._run, name="chizu-prolog", daemon=True)
         self._thread.start()
@@ -212,10 +213,12 @@ class KnowledgeBase:
     def submit(self, op: str, **args: Any) -> Future[str]:
         """Queue one operation; the future yields the raw JSON reply."""
         fut: Future[str] = Future()
-        if not self._thread.is_alive():
-            fut.set_exception(KbError("unavailable", "the Prolog engine thread has stopped"))
-            return fut
-        self._jobs.put((self._request(op, args), fut))
+        with self._cancel_lock:  # close() drains the queue under the same lock
+            if self._closed or not self._thread.is_alive():
+                fut.set_exception(KbError("unavailable",
+                                          "the Prolog engine thread has stopped"))
+                return fut
+            self._jobs.put((self._request(op, args), fut))
         return fut
 
     @staticmethod
@@ -253,5 +256,17 @@ class KnowledgeBase:
         return self._thread
 
     def close(self) -> None:
-        self._jobs.put(_STOP)
+        """Stop the engine after the jobs queued so far; a job submitted later, or left
+        in the queue, fails at once instead of waiting for ever (a worker thread's call
+        would otherwise hang the shutdown)."""
+        with self._cancel_lock:
+            self._closed = True
+            self._jobs.put(_STOP)
         self._thread.join(timeout=5)
+        while True:
+            try:
+                job = self._jobs.get_nowait()
+            except queue.Empty:
+                break
+            if job is not _STOP:
+                job[1].set_exception(KbError("unavailable", "the knowledge base was closed"))

@@ -6,6 +6,7 @@ import asyncio
 from pathlib import Path
 
 import httpx
+import pytest
 
 from tests.conftest import make_fig1_world, observation
 
@@ -94,3 +95,28 @@ def test_restart_keeps_worlds(tmp_path: Path, live_server_factory) -> None:  # t
                  for k in before}
         assert after == before
         assert c.get("/worlds/keep/path", params={"from": "a", "to": "c"}).json() == path
+
+
+def test_calls_after_close_fail_at_once(tmp_path: Path) -> None:
+    """A call submitted after close (a worker thread still running at shutdown) fails
+    at once instead of waiting for ever on an engine that has stopped."""
+    import threading
+    import time
+
+    from service.kb import KbError, KnowledgeBase
+    from service.settings import Settings
+
+    kb = KnowledgeBase(Settings(data_dir=tmp_path).prolog_dir, time_limit_s=2.0)
+    kb.call("create_world", world="w", landmarks=[f"l{i}" for i in range(60)])
+    slow = kb.submit("query", world="w", max_solutions=1,  # runs to its 2 s limit
+                     goal="landmark(A), landmark(B), landmark(C), landmark(D), "
+                          "landmark(E), landmark(F), fail")
+    time.sleep(0.2)  # the engine is busy with it
+    closing = threading.Thread(target=kb.close)
+    closing.start()
+    time.sleep(0.2)  # close() has queued the stop and waits for the engine
+    late = kb.submit("worlds")  # after the stop: it was never answered
+    with pytest.raises(KbError):
+        late.result(timeout=3)
+    closing.join()
+    slow.result(timeout=10)

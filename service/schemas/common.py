@@ -16,6 +16,9 @@ class Health(BaseModel):
     prolog_thread: int = Field(description="Prolog thread id of the engine (0 until it "
                                "has answered a probe)")
     python_thread: int = Field(description="ident of the Python thread owning the engine")
+    compute_workers: int = Field(0, description="compute worker processes (0: threads)")
+    compute_restarts: int = Field(0, description="times the compute pool broke (a worker "
+                                  "killed while idle) and was started again")
 
 
 class WorldSummary(BaseModel):

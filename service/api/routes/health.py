@@ -3,7 +3,7 @@ import asyncio
 from fastapi import APIRouter
 
 from service.api.strict import StrictJsonRoute
-from service.deps import KbDep, WorldsDep
+from service.deps import ComputeDep, KbDep, WorldsDep
 from service.schemas.common import Health
 
 router = APIRouter(tags=["health"], route_class=StrictJsonRoute)
@@ -14,7 +14,7 @@ ENGINE_PROBE_S = 0.02
 
 
 @router.get("/health", response_model=Health)
-async def health(worlds: WorldsDep, kb: KbDep) -> Health:
+async def health(worlds: WorldsDep, kb: KbDep, compute: ComputeDep) -> Health:
     """Liveness without waiting in line: the engine thread is alive, and it answers
     within ENGINE_PROBE_S or is reported busy (a request is running; the probe is
     dropped, not queued behind it)."""
@@ -29,4 +29,5 @@ async def health(worlds: WorldsDep, kb: KbDep) -> Health:
     return Health(status="ok", worlds=len(worlds.names()),
                   engine_thread_alive=kb.engine_thread.is_alive(), engine_busy=busy,
                   prolog_thread=kb.prolog_thread_id,
-                  python_thread=kb.engine_thread.ident or 0)
+                  python_thread=kb.engine_thread.ident or 0,
+                  compute_workers=compute.workers, compute_restarts=compute.restarts)
