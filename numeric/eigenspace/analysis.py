@@ -261,11 +261,18 @@ class SimulatedCamera(ImageSource):
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         _, poses = calibration_poses(self.world, model, triplets,
                                      self.config.regions.calibration_per_triplet, self.rng)
-        imgs = self.camera.render_many(poses)
+        # rendered and projected in chunks: an office's 1 m grid has ~2 700 triplets, and
+        # its ~11 000 supersampled renders at once took 2 GB
+        step = 512
+        imgs = np.concatenate([self.camera.render_many(poses[a:a + step])
+                               for a in range(0, len(poses), step)])
         self.recorded.update(calib_poses=poses, calib_images=imgs)
         # paired by where they stand, as a user's calibration images are
         obs, t = calibration_pairs(model, triplets, poses)
-        return t, poses[obs], model.project(imgs[obs])
+        proj = np.concatenate([np.zeros((0, model.k))]
+                              + [model.project(imgs[obs[a:a + step]])
+                                 for a in range(0, len(obs), step)])
+        return t, poses[obs], proj
 
     def entry_model(self, model: EigenspaceModel, triplets: Triplets,
                     c_a: float) -> EntryModel | None:

@@ -122,25 +122,27 @@ def region_candidates(model: EigenspaceModel, triplets: Triplets, query: np.ndar
         z = np.zeros(0, dtype=int)
         return Candidates(z, z, np.zeros(0), np.zeros(0), np.zeros((0, 3)))
     z = np.zeros(0, dtype=int)
-    ms, ts, ds, es = [z], [z], [np.zeros(0)], [np.zeros(0)]
+    ms, ts, ds, es, ps = [z], [z], [np.zeros(0)], [np.zeros(0)], [np.zeros((0, 3))]
     chunks = query_chunks(len(query), len(triplets), query.shape[-1])
-    for a in chunks:  # only the pairs inside a region are kept: memory stays bounded
-        d = triplet_differences(model, triplets, query[a:a + chunks.step])
+    for a in chunks:  # chunk by chunk, the pairs in a region only: memory stays bounded
+        q = query[a:a + chunks.step]
+        d = triplet_differences(model, triplets, q)
         err = estimation_error(d, triplets.area[None, :], c_a)
         mc, tc = np.nonzero(err < d_thd)
-        ms.append(mc + a)
-        ts.append(tc)
-        ds.append(d[mc, tc])
-        es.append(err[mc, tc])
-    m, t = np.concatenate(ms), np.concatenate(ts)
-    d_in, err_in = np.concatenate(ds), np.concatenate(es)
-    if plane_thd is not None and len(m):
-        res = estimation_error(plane_residual(model, triplets, query[m], t),
-                               triplets.area[t], c_a)
-        keep = res < plane_thd
-        m, t, d_in, err_in = m[keep], t[keep], d_in[keep], err_in[keep]
-    pose = interpolate(model, triplets, query[m], t) if len(m) else np.zeros((0, 3))
-    return Candidates(m, t, d_in, err_in, pose)
+        d_in, err_in = d[mc, tc], err[mc, tc]
+        if plane_thd is not None and len(mc):
+            res = estimation_error(plane_residual(model, triplets, q[mc], tc),
+                                   triplets.area[tc], c_a)
+            keep = res < plane_thd
+            mc, tc, d_in, err_in = mc[keep], tc[keep], d_in[keep], err_in[keep]
+        if len(mc):
+            ms.append(mc + a)
+            ts.append(tc)
+            ds.append(d_in)
+            es.append(err_in)
+            ps.append(interpolate(model, triplets, q[mc], tc))
+    return Candidates(np.concatenate(ms), np.concatenate(ts), np.concatenate(ds),
+                      np.concatenate(es), np.concatenate(ps))
 
 
 def agrees(poses: np.ndarray, reference: np.ndarray, position_m: float,
@@ -251,16 +253,22 @@ def calibration_pairs(model: EigenspaceModel, triplets: Triplets,
     tri = model.points[triplets.point_idx]  # (T, 3, 2)
     a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
     v0, v1 = b - a, c - a  # (T, 2)
-    v2 = poses[:, None, :2] - a[None]  # (M, T, 2)
     den = v0[:, 0] * v1[:, 1] - v0[:, 1] * v1[:, 0]  # (T,)
-    u = (v2[..., 0] * v1[:, 1] - v2[..., 1] * v1[:, 0]) / den
-    v = (v0[:, 0] * v2[..., 1] - v0[:, 1] * v2[..., 0]) / den
-    inside = (u >= 0) & (v >= 0) & (u + v <= 1)
-    look = np.arctan2(triplets.target[None, :, 1] - poses[:, None, 1],
-                      triplets.target[None, :, 0] - poses[:, None, 0])
-    facing = np.abs(wrap_angle(poses[:, None, 2] - look)) <= np.pi / len(model.directions)
-    obs, t = np.nonzero(inside & facing)
-    return obs, t
+    obs_all, t_all = [np.zeros(0, dtype=int)], [np.zeros(0, dtype=int)]
+    step = max(1, 2**22 // len(triplets))  # (M, T) arrays of at most 4 M entries at once
+    for s in range(0, len(poses), step):
+        p = poses[s:s + step]
+        v2 = p[:, None, :2] - a[None]  # (m, T, 2)
+        u = (v2[..., 0] * v1[:, 1] - v2[..., 1] * v1[:, 0]) / den
+        v = (v0[:, 0] * v2[..., 1] - v0[:, 1] * v2[..., 0]) / den
+        inside = (u >= 0) & (v >= 0) & (u + v <= 1)
+        look = np.arctan2(triplets.target[None, :, 1] - p[:, None, 1],
+                          triplets.target[None, :, 0] - p[:, None, 0])
+        facing = np.abs(wrap_angle(p[:, None, 2] - look)) <= np.pi / len(model.directions)
+        o, t = np.nonzero(inside & facing)
+        obs_all.append(o + s)
+        t_all.append(t)
+    return np.concatenate(obs_all), np.concatenate(t_all)
 
 
 def leave_one_out_pairs(model: EigenspaceModel, triplets: Triplets,
