@@ -17,6 +17,7 @@ it was.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
 import math
@@ -161,8 +162,21 @@ class SlamService:
                 raise InvalidInput(f"a run holds at most {MAX_SCANS_PER_RUN} scans",
                                    field="scans")
             first = run.scans
-            with self.store.transaction() as conn:
-                self.store.append_slam_scans(conn, rid, first, [s.model_dump() for s in items])
+
+            def append() -> None:  # JSON of a batch: tens of ms, off the event loop
+                with self.store.transaction() as conn:
+                    self.store.append_slam_scans(conn, rid, first,
+                                                 [s.model_dump() for s in items])
+
+            writing = asyncio.ensure_future(asyncio.to_thread(append))
+            try:
+                await asyncio.shield(writing)
+            except asyncio.CancelledError:  # the rows go in all the same: take them out
+                with contextlib.suppress(Exception):
+                    await writing
+                with self.store.transaction() as conn:
+                    self.store.drop_slam_scans_from(conn, rid, first)
+                raise
             deadline = time.monotonic() + self.budget_s
             stop = threading.Event()
             work = asyncio.ensure_future(asyncio.to_thread(self._process, run, scans,
@@ -235,7 +249,8 @@ class SlamService:
         poses = run.slam.map_poses()
         summary = g.summary()
         params = await self.kb.acall("params", world=world)
-        regions = g.unknown_regions(float(params["parameters"]["unknown_region_min_area_m2"]))
+        regions = await asyncio.to_thread(
+            g.unknown_regions, float(params["parameters"]["unknown_region_min_area_m2"]))
         async with run.lock:
             closures = loop_closures(run.slam)
         call = {"world": world, "run": rid,
@@ -243,8 +258,9 @@ class SlamService:
                 "info": {k: summary[k] for k in ("resolution_m", "free_m2", "occupied_m2",
                                                  "unknown_m2")},
                 "regions": regions, "closures": closures}
+        blob, npz = await asyncio.to_thread(lambda: (json.dumps(call).encode(), g.to_npz()))
         async with self.worlds.write_artifact(world, FACTS_ARTIFACT) as w:
-            reply = await w.commit(json.dumps(call).encode(), {MAP_ARTIFACT: g.to_npz()}, call)
+            reply = await w.commit(blob, {MAP_ARTIFACT: npz}, call)
         return {"world": world, "run": rid, "facts": reply, "map": summary,
                 "unknown_regions": regions, "loop_closures": len(closures)}
 
