@@ -209,7 +209,9 @@ CONFLICTS = {("post", "/worlds"), ("post", "/worlds/{world}/eigenspace"),
              # a run's map or commit before it has scans
              *(("get", f"/worlds/{{world}}/slam-runs/{{rid}}/map.{ext}")
                for ext in ("png", "pgm", "yaml")),
-             ("post", "/worlds/{world}/slam-runs/{rid}/commit")}
+             ("post", "/worlds/{world}/slam-runs/{rid}/commit"),
+             # one mission job per world at a time
+             ("post", "/worlds/{world}/missions")}
 _REASONS = {400: "Bad request", 404: "Not found (the field names what)",
             409: "Conflict with the current state", 413: "Payload too large",
             422: "Invalid input (the field names it)",

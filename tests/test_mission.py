@@ -200,3 +200,12 @@ def test_a_cancelled_mission_says_so(client: TestClient) -> None:
     r = client.post("/worlds/mission_c/query", json={"goal": "mission_step(S, W, R)",
                                                       "max_solutions": 100})
     assert len(r.json()["solutions"]) == len(steps)
+
+
+def test_one_mission_per_world(client: TestClient, mission_run: dict[str, Any]) -> None:
+    r = client.post("/worlds/mission_t/missions", json={**SMALL, "seed": 4})
+    assert r.status_code == 202, r.text
+    again = client.post("/worlds/mission_t/missions", json={**SMALL, "seed": 5})
+    assert again.status_code == 409, again.text
+    assert again.headers["content-type"].startswith("application/problem+json")
+    assert wait_job(client, r.headers["location"])["status"] == "done"

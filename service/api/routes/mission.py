@@ -22,9 +22,9 @@ async def post_mission(world: WorldDep, config: MissionConfig, mission: MissionD
     up lost and localize (eigenspace), reach the nearest landmark, follow the DRM's most
     probable path to the goal landmark while mapping (laser SLAM, committed), then plan
     viewpoints and verify the candidate objects in the goal room under the time limit.
-    Learns the world's eigenspace and surveys its landmarks first if it has none. Runs as
-    a job: poll ``Location``; its result is the record (also the ``mission_step/3``
-    facts, ``GET .../mission``)."""
+    Learns the world's eigenspace and surveys its landmarks first if it has none. One
+    mission per world at a time (409 while one runs). Runs as a job: poll ``Location``;
+    its result is the record (also the ``mission_step/3`` facts, ``GET .../mission``)."""
     job = await mission.start(world, config)
     response.headers["Location"] = f"/jobs/{job['id']}"
     return job
