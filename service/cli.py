@@ -476,6 +476,10 @@ def mission(world: str = typer.Argument("mission", help="stored world, or a temp
                                              help="the goal room's summary (s)"),
             goal: str = typer.Option(None, help="goal landmark (default: the mission "
                                      "world's)"),
+            door: str = typer.Option(None, help="x,y: a point just inside the goal room's "
+                                     "door (default: the mission world's)"),
+            room: str = typer.Option(None, help="x0,y0,x1,y1: the goal room's corners "
+                                     "(default: the mission world's)"),
             ) -> None:
     """One robot, one knowledge base: wake up lost, localize (eigenspace), reach the
     nearest landmark, follow the DRM path to the goal while mapping (SLAM), then plan
@@ -492,9 +496,20 @@ def mission(world: str = typer.Argument("mission", help="stored world, or a temp
     from numeric.worlds import TEMPLATES
     from service.mission import MissionConfig, mission_figure
 
+    over: dict[str, Any] = {"slam_method": slam_method, "time_limit_s": time_limit}
     try:
-        base = MissionConfig(slam_method=slam_method, time_limit_s=time_limit,  # type: ignore[arg-type]
-                             **({"goal": goal} if goal else {}))
+        if goal:
+            over["goal"] = goal
+        if door:
+            over["door"] = [float(v) for v in door.split(",")]
+        if room:
+            v = [float(x) for x in room.split(",")]
+            over["room"] = [v[:2], v[2:]] if len(v) == 4 else v
+    except ValueError:
+        console.print("[red]--door is x,y and --room x0,y0,x1,y1 (numbers)[/red]")
+        raise typer.Exit(2) from None
+    try:
+        base = MissionConfig.model_validate(over)
     except ValidationError as e:
         err = e.errors()[0]
         console.print(f"[red]{'.'.join(map(str, err['loc']))}: {err['msg']}[/red]")
