@@ -528,8 +528,10 @@ def mission(world: str = typer.Argument("mission", help="stored world, or a temp
         for k in range(seeds):
             cfg = base.model_copy(update={"seed": seed + k})
 
-            def progress(stage: str, frac: float) -> None:
-                if "stop" not in stage:
+            def progress(stage: str, frac: float, shown: list[str] = []) -> None:  # noqa: B006
+                # each stage once (learning reports every point)
+                if "stop" not in stage and (not shown or shown[-1] != stage):
+                    shown.append(stage)
                     console.print(f"  {frac:4.0%} {stage}")
 
             run = asyncio.run(services.mission.run(world, cfg, progress if seeds == 1
