@@ -70,6 +70,7 @@ from numeric.viewpoint.planner import (
 )
 from numeric.world import Id, World
 from numeric.worlds import MISSION_DOOR, MISSION_GOAL, MISSION_ROOM
+from service.disconnect import thread_to_end
 from service.eigenspace import EigenspaceService
 from service.jobs import JobProgress, Jobs
 from service.kb import KnowledgeBase
@@ -295,7 +296,7 @@ class MissionService:
                 self._anchor(run, robot, est)
             # a full turn where the map starts: its first scans see all round (and a goal
             # that is the landmark already reached still gets a map)
-            await self._until_done(robot.turn, 2 * np.pi)
+            await thread_to_end(robot.turn, 2 * np.pi)
             await self._navigate(run, robot, observer, nav, start, report)
             await self._map(run, w, robot, rng, report)
             await self._summarise(run, w, robot, report)
@@ -416,7 +417,7 @@ class MissionService:
             act = move["action"]
             prev = robot.odom_pose.copy()
             if act is not None:
-                await self._until_done(self._drive, robot, act)
+                await thread_to_end(self._drive, robot, act)
             run.truth_path.append(robot.pose.copy())
         await self._record(run, "localize", session=sid, stops=run.config.max_stops,
                            state=state, localized=False,
@@ -431,7 +432,7 @@ class MissionService:
         the landmark's position and the heading the one the bearings of the other
         landmarks in view give on the world's landmark map (:func:`map_heading`)."""
         report("lost: reaching any landmark", 0.3)
-        lm = await self._until_done(reach_any_landmark, robot, observer, nav, rng)
+        lm = await thread_to_end(reach_any_landmark, robot, observer, nav, rng)
         if lm is None:
             await self._fail(run, "reach_landmark", "wandered without recognising a "
                              "landmark", how="wander")
@@ -485,7 +486,7 @@ class MissionService:
         start = w.landmark_ids[i]
         await self._record(run, "nearest_landmark", x=est[0], y=est[1], landmark=start,
                            distance_m=d[i], ok=True)
-        ok = await self._until_done(home_on, robot, observer, start, nav)
+        ok = await thread_to_end(home_on, robot, observer, start, nav)
         if not ok:  # not in view where the pose says: the pose is wrong
             robot.collided = False
             await self._record(run, "reach_landmark", landmark=start, reached=False,
@@ -513,7 +514,7 @@ class MissionService:
         report("following the DRM path", 0.45)
         t0 = robot.travelled_m
         for k, s in enumerate(path.steps):
-            if not await self._until_done(execute_step, robot, observer, s, nav):
+            if not await thread_to_end(execute_step, robot, observer, s, nav):
                 reason = "collision" if robot.collided else f"{s.method} to {s.target} failed"
                 await self._fail(run, "navigate", reason, arcs_done=k, arcs=len(path.steps),
                                  travelled_m=robot.travelled_m - t0)
@@ -560,7 +561,7 @@ class MissionService:
         door = np.array(cfg.door, dtype=float)
         heading = float(np.arctan2(*(door - robot.pose[:2])[::-1]))
         robot.turn(float(wrap_angle(heading - robot.pose[2])))
-        ok = await self._until_done(robot.forward, float(np.hypot(*(door - robot.pose[:2]))))
+        ok = await thread_to_end(robot.forward, float(np.hypot(*(door - robot.pose[:2]))))
         await self._record(run, "enter_room", door=door, ok=ok)
         if not ok:
             raise MissionFailed("could not enter the room")
@@ -593,34 +594,13 @@ class MissionService:
             if stop.is_set():
                 raise MissionFailed("cancelled")
 
-        summary = await self._until_done(summariser.run, step, stop=stop)
+        summary = await thread_to_end(summariser.run, step, on_cancel=stop.set)
         run.summary = summary
         s = summary.summary(w)
         await self._record(run, "verify", verified=s["verified"], rejected=s["rejected"],
                            unverified=s["unverified"], elapsed_s=s["elapsed_s"],
                            explored_fraction=s["explored_fraction"], plans=s["steps"],
                            time_limit_s=cfg.time_limit_s, ok=True)
-
-    @staticmethod
-    async def _until_done(fn: Callable[..., Any], *args: Any,
-                          stop: threading.Event | None = None) -> Any:
-        """``fn(*args)`` in a thread, waited for to the end even when the mission is
-        cancelled (``stop`` is set then, for ``fn`` to notice): no thread of a cancelled
-        mission goes on writing facts."""
-        work = asyncio.ensure_future(asyncio.to_thread(fn, *args))
-        cancelled = False
-        while not work.done():
-            try:
-                await asyncio.shield(work)
-            except asyncio.CancelledError:
-                cancelled = True
-                if stop is not None:
-                    stop.set()
-            except BaseException:  # noqa: BLE001 - work.result() below raises it
-                pass
-        if cancelled:
-            raise asyncio.CancelledError
-        return work.result()
 
     def _grouper(self, world: str, loop: asyncio.AbstractEventLoop
                  ) -> Callable[..., list[GroupSpec]]:

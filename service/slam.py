@@ -17,7 +17,6 @@ it was.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import json
 import logging
 import math
@@ -34,6 +33,7 @@ from numeric.occupancy import OccupancyMap, build_occupancy
 from numeric.scan import Scan, beam_angles
 from numeric.slam.runner import Slam, SlamOptions, create
 from service.compute import BudgetExceeded
+from service.disconnect import thread_to_end
 from service.kb import KnowledgeBase
 from service.schemas.slam import ScanIn
 from service.store import Store
@@ -168,39 +168,24 @@ class SlamService:
                     self.store.append_slam_scans(conn, rid, first,
                                                  [s.model_dump() for s in items])
 
-            writing = asyncio.ensure_future(asyncio.to_thread(append))
             try:
-                await asyncio.shield(writing)
-            except asyncio.CancelledError:  # the rows go in all the same: take them out
-                with contextlib.suppress(Exception):
-                    await writing
+                await thread_to_end(append)
+            except asyncio.CancelledError:  # the rows went in all the same: take them out
                 with self.store.transaction() as conn:
                     self.store.drop_slam_scans_from(conn, rid, first)
                 raise
             deadline = time.monotonic() + self.budget_s
             stop = threading.Event()
-            work = asyncio.ensure_future(asyncio.to_thread(self._process, run, scans,
-                                                           deadline, stop))
-            cancelled = False
             try:
                 # a cancelled request (the client left, a job cancelled) stops the thread
                 # between scans and waits for it, so the store below follows what it did
                 # and no later request runs the filter beside it
-                while not work.done():
-                    try:
-                        await asyncio.shield(work)
-                    except asyncio.CancelledError:
-                        cancelled = True
-                        stop.set()
-                    except Exception:  # noqa: BLE001 - re-raised by work.result() below
-                        pass
-                work.result()
+                await thread_to_end(self._process, run, scans, deadline, stop,
+                                    on_cancel=stop.set)
             finally:
                 if run.scans < first + len(scans):  # stopped midway: the store follows
                     with self.store.transaction() as conn:
                         self.store.drop_slam_scans_from(conn, rid, run.scans)
-            if cancelled:
-                raise asyncio.CancelledError
             done = run.scans - first
             if done < len(scans):
                 raise BudgetExceeded(
