@@ -60,16 +60,10 @@ on_a_world = load(f'[parameters]\n"path.world" = "{WORLD}"\n').exclude(method="D
 def live() -> Iterator[LiveServer]:
     env = {"CHIZU_MAX_LEARNING_PIXELS": "2000000", "CHIZU_REQUEST_BUDGET_S": "5",
            "CHIZU_JOB_BUDGET_S": "20"}
-    old = {k: os.environ.get(k) for k in env}
-    os.environ.update(env)
-    try:
+    with pytest.MonkeyPatch.context() as mp:  # the server's environment only
+        for k, v in env.items():
+            mp.setenv(k, v)
         srv = LiveServer(Path(tempfile.mkdtemp()) / "data", demo=True)
-    finally:
-        for k, v in old.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
     r = httpx.post(srv.url + "/worlds", json={"name": WORLD, "template": "room_a"}, timeout=60)
     assert r.status_code == 201, r.text
     yield srv
