@@ -285,13 +285,14 @@ def random_mission_world(seed: int, name: str = "random_mission"
     (rx0, ry0), (rx1, ry1) = room
     walls = list(d.walls)
     far = (lambda y: ry1 - y + ry0) if not north else (lambda y: y)  # mirror for south
+    cab: Wall | None = None
     if rng.random() < 0.5:  # a cabinet across part of the room, off the door's line
         length = float(rng.uniform(1.5, 2.5))
         y = far(ry0 + float(rng.uniform(0.45, 0.65)) * rd)
         xa = rx0 + 0.1 if rng.random() < 0.5 else rx1 - 0.1 - length
-        walls.append(Wall(a=(xa, y), b=(xa + length, y), texture="text", reflectivity=0.4))
+        cab = Wall(a=(xa, y), b=(xa + length, y), texture="text", reflectivity=0.4)
+        walls.append(cab)
     objects: list[WorldObject] = []
-    cab = Wall(a=walls[-1].a, b=walls[-1].b) if len(walls) > len(d.walls) else None
     for k in range(int(rng.integers(2, 5))):
         for _ in range(200):
             p = np.array([rng.uniform(rx0 + 0.7, rx1 - 0.7), rng.uniform(ry0 + 0.7, ry1 - 0.7)])

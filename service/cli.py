@@ -536,14 +536,7 @@ def mission(world: str = typer.Argument("mission", help="stored world, or a temp
 
             run = asyncio.run(services.mission.run(world, cfg, progress if seeds == 1
                                                    else None))
-            ev = run.steps[-1]["result"]
-            last = next((s for s in run.steps if s["result"].get("ok") is False), None)
-            rows.append({"seed": cfg.seed, "success": run.success,
-                         "failed_at": last["what"] if last else "",
-                         "localization_error_m": ev.get("localization_error_m", ""),
-                         "objects_verified": ev.get("objects_verified", 0),
-                         "false_verified": ev.get("false_verified", 0),
-                         "wall_time_s": round(run.elapsed_s, 2)})
+            rows.append(run.row())
             records.append(run.result())
             console.print(f"seed {cfg.seed}: {'[green]succeeded' if run.success else '[red]failed'}"
                           f"[/] {rows[-1]}")

@@ -180,6 +180,28 @@ class MissionRun:
         return {"world": self.world, "seed": self.config.seed, "success": self.success,
                 "elapsed_s": self.elapsed_s, "steps": self.steps}
 
+    @property
+    def learning_s(self) -> float:
+        """Seconds spent learning the world's eigenspace (0 if it had one)."""
+        return float(sum(s["result"].get("seconds", 0.0) for s in self.steps
+                         if s["what"] == "learn_eigenspace"))
+
+    def row(self) -> dict[str, Any]:
+        """One line of a results table: the outcome, the step that ended the run (if
+        one did), the evaluation's figures, the times."""
+        ev = self.steps[-1]["result"] if self.steps else {}
+        failed = next((s["what"] for s in self.steps if s["result"].get("ok") is False), "")
+        return {"world": self.world, "seed": self.config.seed, "success": self.success,
+                "failed_at": failed, "localized_by": ev.get("localized_by", ""),
+                "localization_error_m": ev.get("localization_error_m"),
+                "eigenspace_error_m": ev.get("eigenspace_error_m"),
+                "objects": ev.get("objects", 0),
+                "objects_verified": ev.get("objects_verified", 0),
+                "false_verified": ev.get("false_verified", 0),
+                "mission_s": self.elapsed_s - self.learning_s,
+                "learning_s": self.learning_s or None,
+                "wall_time_s": round(self.elapsed_s, 2)}
+
 
 def _plain(v: Any) -> Any:
     """A JSON value of a step's result (numpy scalars and arrays made plain)."""
@@ -726,8 +748,7 @@ def mission_figure(run: MissionRun, world: World, path_png: str) -> None:
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     outcome = "succeeded" if run.success else "failed"
-    learn = sum(s["result"].get("seconds", 0.0) for s in run.steps
-                if s["what"] == "learn_eigenspace")
+    learn = run.learning_s
     ax.set_title(f"mission on {run.world}, seed {run.config.seed}: {outcome} "
                  f"({len(run.steps)} steps, {run.elapsed_s - learn:.1f} s"
                  + (f" + {learn:.0f} s learning)" if learn else ")"))

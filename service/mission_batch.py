@@ -36,20 +36,7 @@ def mission_rows(world: dict[str, Any], config: dict[str, Any], seeds: list[int]
             for k, seed in enumerate(seeds):
                 run = asyncio.run(svc.mission.run(desc.name,
                                                   cfg.model_copy(update={"seed": seed})))
-                ev = run.steps[-1]["result"]
-                failed = next((s["what"] for s in run.steps
-                               if s["result"].get("ok") is False), "")
-                learn = next((s["result"]["seconds"] for s in run.steps
-                              if s["what"] == "learn_eigenspace"), 0.0)
-                rows.append({"kind": kind, "world": desc.name, "seed": seed,
-                             "success": run.success, "failed_at": failed,
-                             "localized_by": ev.get("localized_by", ""),
-                             "localization_error_m": ev.get("localization_error_m"),
-                             "eigenspace_error_m": ev.get("eigenspace_error_m"),
-                             "objects": ev["objects"],
-                             "objects_verified": ev["objects_verified"],
-                             "false_verified": ev["false_verified"],
-                             "mission_s": run.elapsed_s - learn, "learning_s": learn or None})
+                rows.append({"kind": kind, **run.row()})
                 if figure and k == 0:
                     out = Path(d) / "mission.png"
                     mission_figure(run, svc.worlds.model(desc.name), str(out))

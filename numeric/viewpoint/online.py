@@ -117,6 +117,7 @@ class Summariser:
         explores this room, not the building."""
         self.world = world
         self.area = area
+        self._within: np.ndarray | None = None  # the area's cells (every grid: one frame)
         self.types = object_types
         self.grouper = grouper
         self.cfg = config
@@ -166,13 +167,14 @@ class Summariser:
         grid = scanned_grid(self.world, scans)
         if self.area is None:
             return grid
-        (x0, y0), (x1, y1) = self.area
-        i, j = np.indices(grid.state.shape)
-        c = grid.centres(i.ravel(), j.ravel())
-        within = ((c[:, 0] >= x0) & (c[:, 0] <= x1) & (c[:, 1] >= y0)
-                  & (c[:, 1] <= y1)).reshape(grid.state.shape)
-        room = grid.room if grid.room is not None else np.ones_like(within)
-        return PlanningGrid(grid.grid, room & within)
+        if self._within is None or self._within.shape != grid.state.shape:
+            (x0, y0), (x1, y1) = self.area
+            i, j = np.indices(grid.state.shape)
+            c = grid.centres(i.ravel(), j.ravel())
+            self._within = ((c[:, 0] >= x0) & (c[:, 0] <= x1) & (c[:, 1] >= y0)
+                            & (c[:, 1] <= y1)).reshape(grid.state.shape)
+        room = grid.room if grid.room is not None else np.ones_like(self._within)
+        return PlanningGrid(grid.grid, room & self._within)
 
     # -- motion -----------------------------------------------------------------------
     def _route(self, grid: PlanningGrid, a: np.ndarray, b: np.ndarray) -> np.ndarray:
