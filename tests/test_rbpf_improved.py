@@ -18,7 +18,7 @@ from numeric.slam.keyframes import FieldConfig, Keyframe, LikelihoodField, moved
 from numeric.slam.proposal import FieldPack, count_inliers, gaussian_fit, loop_search
 from numeric.slam.rbpf import MotionNoise, RbpfConfig, RbpfSlam
 from numeric.world import World
-from numeric.worlds import from_template
+from numeric.worlds import from_template, office_world
 
 #: a 12 m laser sees the whole 10 m room: the scans pin the pose down
 LASER = LaserConfig(max_range_m=12.0, scan_period_s=0.2)
@@ -359,3 +359,31 @@ def test_the_loop_search_finds_a_place_beyond_the_matchers_reach(room: World) ->
     r = int(np.argmax(inl))
     assert np.hypot(*(poses[r, :2] - p0[:2])) < 0.05 and abs(poses[r, 2] - p0[2]) < 0.01
     assert inl[r] >= 0.8 * len(beams) and eig[r] > 5.0
+
+
+def test_free_space_tells_a_closure_from_the_room_next_door() -> None:
+    """The negative evidence :meth:`RbpfSlam._loop_start` asks of a closure
+    (``_free_space_share``): in an office whose rooms share a wall, with the keyframes
+    of the west room only, a scan of the west room at its true pose puts (almost) no
+    return in that room's free space, the same scan at a drifted estimate 1.7 m off
+    puts many there -- so a closure from there lowers the share -- and a scan of the
+    east room, whose wall alone the old map saw, puts none there at its true pose: its
+    current estimate is not contradicted, and a closure into the west room, which looks
+    the same, cannot lower the share."""
+    office = World(office_world(name="o", rooms_per_side=2))
+    laser, rng = Laser(office, LASER), np.random.default_rng(0)
+    slam = RbpfSlam(RbpfConfig(particles=1))
+    kf_poses = np.array([(1.5, 5.0, 0.0), (3.0, 4.0, 1.5), (4.5, 6.0, 3.0)])
+    for i, p in enumerate(kf_poses):
+        slam.keyframes.add(i, laser.scan(0.0, p, p, rng).points()[0], None)
+    frames = np.arange(len(kf_poses))
+
+    def share(scan_pose: np.ndarray, at: np.ndarray) -> float:
+        xy = laser.scan(0.0, scan_pose, scan_pose, rng).points()[0]
+        return float(slam._free_space_share(at[None, :], xy, frames, kf_poses)[0])
+
+    west = np.array([3.0, 5.0, 0.2])
+    assert share(west, west) < 0.05
+    assert share(west, west + np.array([-1.5, -0.8, 0.0])) > 0.3
+    east = np.array([7.2, 5.0, 0.0])
+    assert share(east, east) < 0.05

@@ -115,8 +115,8 @@ class ImprovedConfig(BaseModel):
                               "best particle's old keyframes (a loop) once per update; a "
                               "clearly better, well-constrained alignment becomes the start "
                               "and motion prior of every particle")
-    loop_radius_m: float = Field(1.0, gt=0, description="half width of its position grid")
-    loop_step_m: float = Field(0.1, gt=0, description="... and its spacing")
+    loop_radius_m: float = Field(2.0, gt=0, description="half width of its position grid")
+    loop_step_m: float = Field(0.2, gt=0, description="... and its spacing")
     loop_angle_rad: float = Field(0.1, ge=0, description="half width of its heading grid")
     loop_angle_step_rad: float = Field(0.025, gt=0, description="... and its spacing")
     loop_coarse_cutoff_m: float = Field(0.2, gt=0, description="residual cap of the grid")
@@ -136,7 +136,13 @@ class ImprovedConfig(BaseModel):
     loop_min_shift_m: float = Field(0.25, ge=0, description="smaller corrections are left "
                                     "to the scan matcher")
     loop_min_old: int = Field(3, ge=1, description="old keyframes needed to search")
-    loop_persistence: int = Field(1, ge=1, description="consecutive updates that must agree "
+    loop_min_free_drop: float = Field(0.1, ge=0, le=1, description="... and put this "
+                                      "share of the beams fewer than the current estimate "
+                                      "does where the old keyframes saw free space")
+    loop_free_cell_m: float = Field(0.1, gt=0, description="cell of that free-space grid")
+    loop_free_margin_m: float = Field(0.1, ge=0, description="free cells this close to a "
+                                      "cell not seen free do not count")
+    loop_persistence: int = Field(2, ge=1, description="consecutive updates that must agree "
                                   "on the correction (within loop_min_sep_m) before it is "
                                   "taken")
 
@@ -700,8 +706,10 @@ def loop_search(center: np.ndarray, pts: np.ndarray, li: np.ndarray, alpha: floa
     """A wide search of the scan against one map ``kf_pose (K, 1, 3)`` (the old
     keyframes of a loop): a correlative grid of poses ``center`` + (±``radius`` in
     ``step``, ±``half_angle`` in ``angle_step``) scored by Σ_b min(ρ_b, ``coarse2``);
-    the ``n_refine`` best, at least ``min_sep`` apart, refined by :func:`scan_match` on
-    the scan alone (residual cap ``cut2``). Returns the refined poses ``(M, 3)``, their
+    ``center`` itself and the ``n_refine`` best, at least ``min_sep`` apart from each
+    other and from ``center``, refined by :func:`scan_match` on the scan alone (residual
+    cap ``cut2``). Returns the refined poses ``(M, 3)`` (the first refined from
+    ``center``), their
     beams within ``sqrt(inlier2)`` of the map ``(M,)`` and the smallest eigenvalue of
     the position block of ``J^T J`` at each ``(M,)`` (about the number of beams that
     pin the position down in its weakest direction; ~0 along a corridor)."""
@@ -730,8 +738,9 @@ def loop_search(center: np.ndarray, pts: np.ndarray, li: np.ndarray, alpha: floa
                                     False, h, g, cand, 0, work, iwork)
                 q += 1
     order = np.argsort(cost)
-    kept = np.empty((n_refine, 3))
-    m = 0
+    kept = np.empty((n_refine + 1, 3))
+    kept[0] = center  # the current estimate, refined too: the rival every mode must beat
+    m = 1
     for q in order:
         far = True
         for r in range(m):
@@ -741,7 +750,7 @@ def loop_search(center: np.ndarray, pts: np.ndarray, li: np.ndarray, alpha: floa
         if far:
             kept[m] = poses[q]
             m += 1
-            if m == n_refine:
+            if m == n_refine + 1:
                 break
     free = np.zeros((2, 3))
     out = np.empty((m, 3))

@@ -2,7 +2,7 @@
 the stripe corridor, scan-pair alignment against small_gicp, and where the time goes.
 
     .venv/bin/python tests/bench/slam.py [--quick] [--logs aces,...] [--methods graph,...]
-                                         [--skip-extras] [--out bench-out]
+                                         [--seeds 0,1,2] [--skip-extras] [--out bench-out]
 
 Every (log, method) runs in a fresh process, one after the other, so that its peak memory
 is its own and the peers (OpenKarto's matcher, small_gicp; tests/bench/slam_peers.py)
@@ -52,10 +52,11 @@ METHODS: dict[str, dict[str, str]] = {
 LOOP_GAP_S = 60.0
 
 
-def one_run(name: str, label: str, quick: bool, out: Path) -> dict[str, float | str]:
+def one_run(name: str, label: str, quick: bool, out: Path,
+            seed: int = 0) -> dict[str, float | str | int]:
     """Run ``label`` over log ``name`` in this process: relation errors on all relations
     and on the loop-spanning ones (time gap > 60 s), seconds, real-time factor, peak
-    memory of this process; writes the trajectory and the map under ``out``."""
+    memory of this process; writes the trajectory and (seed 0) the map under ``out``."""
     import resource
 
     from numeric.slam.logs import write_tum
@@ -70,6 +71,7 @@ def one_run(name: str, label: str, quick: bool, out: Path) -> dict[str, float | 
     rt, rd = rt[keep], rd[keep]
     base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     slug = label.split()[0] + ("-improved" if "improved" in label else "")
+    slug += f"-s{seed}" if seed else ""
     if label in ("karto", "small_gicp"):
         times, poses, seconds = peer_odometry(log, label)
         closures = 0
@@ -78,11 +80,11 @@ def one_run(name: str, label: str, quick: bool, out: Path) -> dict[str, float | 
         # hundreds of metres on some logs, so their (unused) maps are kept coarse
         shown = label in ("graph", "rbpf (improved)")
         opts = SlamOptions(map_resolution_m=0.05 if shown else 0.5,  # type: ignore[arg-type]
-                           **METHODS[label])
+                           seed=seed, **METHODS[label])
         slam, res = run_log(log, opts)
         times, poses, seconds = res.times, res.poses, res.seconds
         closures = len(getattr(slam, "closures", []))
-        if label in ("graph", "rbpf (improved)"):
+        if label in ("graph", "rbpf (improved)") and not seed:
             (out / f"map-{name}-{slug}.png").write_bytes(res.map.to_png())
             (out / f"map-{name}-{slug}.pgm").write_bytes(res.map.to_pgm())
     write_tum(out / f"traj-{name}-{slug}.tum", times, poses)
@@ -90,7 +92,8 @@ def one_run(name: str, label: str, quick: bool, out: Path) -> dict[str, float | 
     loop = (rt[:, 1] - rt[:, 0]) > LOOP_GAP_S
     el = relation_errors(times, poses, rt[loop], rd[loop]) if np.any(loop) else None
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return {"log": name, "method": label, "scans": len(log), "duration_s": log.duration_s,
+    return {"log": name, "method": label, "seed": seed, "scans": len(log),
+            "duration_s": log.duration_s,
             "trans": e.trans_m, "trans_std": e.trans_std_m, "rot": e.rot_deg,
             "rot_std": e.rot_std_deg, "n": e.n,
             "loop_trans": el.trans_m if el else float("nan"),
@@ -101,9 +104,11 @@ def one_run(name: str, label: str, quick: bool, out: Path) -> dict[str, float | 
             "closures": closures}
 
 
-def run_isolated(name: str, label: str, quick: bool, out: Path) -> dict[str, float | str]:
+def run_isolated(name: str, label: str, quick: bool, out: Path,
+                 seed: int = 0) -> dict[str, float | str | int]:
     """:func:`one_run` in a fresh process, so that peak memory is this run's alone."""
-    cmd = [sys.executable, str(Path(__file__)), "--one", name, label, "--out", str(out)]
+    cmd = [sys.executable, str(Path(__file__)), "--one", name, label, "--out", str(out),
+           "--seed", str(seed)]
     if quick:
         cmd.append("--quick")
     r = subprocess.run(cmd, capture_output=True, text=True, cwd=Path(__file__).parents[2])
@@ -137,37 +142,69 @@ def maps_figure(out: Path, names: list[str]) -> None:
         plt.close(fig)
 
 
+def stochastic(label: str) -> bool:
+    """Whether a method's result depends on its seed (the particle filters)."""
+    return label.startswith("rbpf")
+
+
 def accuracy(quick: bool, out: Path, names: list[str], labels: list[str],
-             lines: list[str], executor: Executor | None = None
-             ) -> list[dict[str, float | str]]:
+             lines: list[str], executor: Executor | None = None, seeds: tuple[int, ...] = (0,),
+             ) -> list[dict[str, float | str | int]]:
     """Every (log, method) run, each in a fresh process: one after the other here, or
     all at once on ``executor`` (a Dask cluster's, :mod:`service.executors`; its
     workers need this repository at the same path). Runs side by side share the cores:
-    their times and real-time factors are then not the figures of a run alone."""
+    their times and real-time factors are then not the figures of a run alone. The
+    particle filters run once per seed of ``seeds``, the others once."""
     lines += ["## Relation errors (Kümmerle et al. 2009), mean ± std, all relations and "
               f"loop-spanning ones (time gap > {LOOP_GAP_S:.0f} s)", "",
-              "| log | method | trans (m) | rot (deg) | loop trans (m) | loop rot (deg) | "
-              "time (s) | x real time | peak RSS (MB) |", "|---|---|---|---|---|---|---|---|---|"]
+              "| log | method | seed | trans (m) | rot (deg) | loop trans (m) | loop rot (deg) | "
+              "time (s) | x real time | peak RSS (MB) |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
     rows = []
-    pending = {(n, m): executor.submit(run_isolated, n, m, quick, out)
-               for n in names for m in labels} if executor is not None else {}
+    runs = [(n, m, sd) for n in names for m in labels
+            for sd in (seeds if stochastic(m) else (0,))]
+    pending = {run: executor.submit(run_isolated, run[0], run[1], quick, out, run[2])
+               for run in runs} if executor is not None else {}
     for name in names:
-        for label in labels:
-            r = (pending[name, label].result() if pending
-                 else run_isolated(name, label, quick, out))
+        for run in [r for r in runs if r[0] == name]:
+            label = run[1]
+            r = (pending[run].result() if pending
+                 else run_isolated(name, label, quick, out, run[2]))
             rows.append(r)
             with (out / "slam-rows.jsonl").open("a") as f:
                 f.write(json.dumps(r) + "\n")
-            lines.append(f"| {name} | {label} | {r['trans']:.3f} ± {r['trans_std']:.3f} | "
+            lines.append(f"| {name} | {label} | {run[2]} | "
+                         f"{r['trans']:.3f} ± {r['trans_std']:.3f} | "
                          f"{r['rot']:.2f} ± {r['rot_std']:.2f} | {r['loop_trans']:.3f} ± "
                          f"{r['loop_trans_std']:.3f} | {r['loop_rot']:.2f} | "
                          f"{r['seconds']:.1f} | {r['realtime']:.1f} | {r['peak_rss_mb']:.0f} |")
             print(lines[-1], flush=True)
         sm, rb, gm, carto = PUBLISHED[name]
-        lines.append(f"| {name} | published SM / GMapping / Graph Mapping / Cartographer | "
+        lines.append(f"| {name} | published SM / GMapping / Graph Mapping / Cartographer | | "
                      f"{sm} / {rb} / {gm} / {carto} | | | | | | |")
     (out / "slam.json").write_text(json.dumps(rows, indent=1))
+    if len(seeds) > 1:
+        seed_summary(rows, lines)
     return rows
+
+
+def seed_summary(rows: list[dict[str, float | str | int]], lines: list[str]) -> None:
+    """Per (log, particle filter): the relation error over the seeds, against GMapping's
+    published figure."""
+    lines += ["", "## Particle filters over seeds: translational relation error (m)", "",
+              "| log | method | seeds | mean over seeds | worst seed | loop, worst seed | "
+              "GMapping (published) |", "|---|---|---|---|---|---|---|"]
+    for name in dict.fromkeys(str(r["log"]) for r in rows):
+        for label in dict.fromkeys(str(r["method"]) for r in rows if stochastic(str(r["method"]))):
+            rs = [r for r in rows if r["log"] == name and r["method"] == label]
+            if not rs:
+                continue
+            t = np.array([float(r["trans"]) for r in rs])
+            w = rs[int(np.argmax(t))]
+            lines.append(f"| {name} | {label} | {', '.join(str(r['seed']) for r in rs)} | "
+                         f"{t.mean():.3f} | {t.max():.3f} (seed {w['seed']}) | "
+                         f"{float(w['loop_trans']):.3f} | {PUBLISHED[name][1]} |")
+            print(lines[-1], flush=True)
 
 
 def corridor(lines: list[str]) -> None:
@@ -205,12 +242,12 @@ def peers(lines: list[str], pairs_per_log: int) -> None:
             i2 = int(np.argmin(np.abs(times - rt[k, 1])))
             if abs(times[i1] - rt[k, 0]) > 0.1 or abs(times[i2] - rt[k, 1]) > 0.1:
                 continue
-            a, b = log.scans[i1], log.scans[i2]
-            xa, _ = a.points()
-            xb, _ = b.points()
+            sa, sb = log.scans[i1], log.scans[i2]
+            xa, _ = sa.points()
+            xb, _ = sb.points()
             if len(xa) < 20 or len(xb) < 20:
                 continue
-            init = relative(a.odom, b.odom)
+            init = relative(sa.odom, sb.odom)
             for label in ALIGNERS:
                 t0 = time.perf_counter()
                 est = align(label, small_gicp, xa, xb, init)
@@ -219,8 +256,8 @@ def peers(lines: list[str], pairs_per_log: int) -> None:
                 results.setdefault(label, []).append(
                     (float(np.hypot(err[0], err[1])), float(np.degrees(abs(err[2]))), dt))
     base = np.mean([r[2] for r in results["small_gicp GICP"]])
-    for label, r in results.items():
-        a = np.array(r)
+    for label, errs in results.items():
+        a = np.array(errs)
         lines.append(f"| {label} | {a[:, 0].mean():.3f} (median {np.median(a[:, 0]):.3f}) | "
                      f"{a[:, 1].mean():.2f} | {1000 * a[:, 2].mean():.2f} | "
                      f"{a[:, 2].mean() / base:.2f}x |")
@@ -304,6 +341,10 @@ def main() -> None:
     ap.add_argument("--logs", default=",".join(n for n, _ in LOGS))
     ap.add_argument("--methods", default=",".join(METHODS))
     ap.add_argument("--one", nargs=2, metavar=("LOG", "METHOD"), help=argparse.SUPPRESS)
+    ap.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
+    ap.add_argument("--seeds", default="0",
+                    help="seeds of the particle filters, e.g. 0,1,2 (one run per seed and log; "
+                         "a table of the mean and worst seed)")
     ap.add_argument("--skip-extras", action="store_true",
                     help="only the relation-error table (no corridor, pairs, profile)")
     ap.add_argument("--local-workers", type=int, default=0,
@@ -315,7 +356,7 @@ def main() -> None:
     out = Path(args.out)
     out.mkdir(exist_ok=True)
     if args.one:
-        print(json.dumps(one_run(args.one[0], args.one[1], args.quick, out)))
+        print(json.dumps(one_run(args.one[0], args.one[1], args.quick, out, args.seed)))
         return
     names = args.logs.split(",")
     labels = args.methods.split(",")
@@ -326,7 +367,8 @@ def main() -> None:
     with batch_executor(args.scheduler, args.local_workers) as ex:
         if ex is not None:
             lines += ["Runs side by side on Dask: times are shared-core times.", ""]
-        accuracy(args.quick, out, names, labels, lines, ex)
+        accuracy(args.quick, out, names, labels, lines, ex,
+                 tuple(int(x) for x in args.seeds.split(",")))
     maps_figure(out, names)
     if not args.skip_extras:
         corridor(lines)
