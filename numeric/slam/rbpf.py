@@ -349,8 +349,12 @@ class RbpfSlam:
         the current estimate ``x_best (+) u_start``, refined by the scan matcher). The
         best alternative is taken only on strong evidence: it explains at least
         ``loop_min_fraction`` of the beams within ``loop_inlier_m`` of the old map,
-        ``loop_min_gain`` more than the current estimate and ``loop_ambiguity`` more
-        than any other mode, its position is well constrained (``loop_min_eig``) and
+        ``loop_min_gain`` more than the current estimate (the better of it as it is and
+        refined by the scan matcher against the old map: if that refinement itself
+        reaches the alternative, there is nothing to gain) and ``loop_ambiguity`` more
+        than any other mode, its position is well constrained (``loop_min_eig``), it
+        lowers the share of beams in the old map's free space by ``loop_min_free_drop``
+        against the current estimate as it is (:meth:`_free_space_share`) and
         ``loop_persistence`` consecutive updates agree. Every particle then starts at, and
         is drawn around (the motion prior centred on), its pose (+) the returned
         increment: the shift is common, so the relative weights hold, and the residual
@@ -428,14 +432,16 @@ class RbpfSlam:
         (fr079 at 806 s, ±2 m search: 70 of 90 beams within 5 cm, 20 at the true pose,
         where the scan sees only the shared wall). There the current estimate puts no
         return in the old free space (0.00; the rest of its scan is in unknown space)
-        and the alternative 0.19. The true closures of aces (1.7-2.0 m) lower it from
-        0.33-0.52 to 0.06-0.20 (what is left: people in the corridor)."""
+        and the alternative 0.19. The true closures of aces seed 1 (0.8-2.0 m) lower it
+        from 0.33-0.54 to 0-0.20 (what is left: people in the corridor). ``xy`` are the
+        beams picked for the match (:meth:`_beams`)."""
         imp = self.config.improved
         occ = build_occupancy([self.keyframes.frames[int(k)] for k in frames], kf_poses,
                               resolution_m=imp.loop_free_cell_m, margin_m=0.0)
-        steps = max(1, int(round(imp.loop_free_margin_m / imp.loop_free_cell_m)))
-        free = ndimage.binary_erosion(occ.state == FREE, structure=np.ones((3, 3)),
-                                      iterations=steps)
+        steps = int(round(imp.loop_free_margin_m / imp.loop_free_cell_m))
+        free = occ.state == FREE
+        if steps > 0:  # (iterations=0 would erode until nothing changes)
+            free = ndimage.binary_erosion(free, structure=np.ones((3, 3)), iterations=steps)
         out = np.zeros(len(poses))
         for m, pose in enumerate(poses):
             c = np.floor((place(xy, pose) - occ.origin) / occ.resolution_m).astype(np.int64)

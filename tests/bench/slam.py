@@ -7,9 +7,11 @@ the stripe corridor, scan-pair alignment against small_gicp, and where the time 
 Every (log, method) runs in a fresh process, one after the other, so that its peak memory
 is its own and the peers (OpenKarto's matcher, small_gicp; tests/bench/slam_peers.py)
 are timed on the same machine in the same run. --quick runs the first 1500 scans of each
-log (relations inside that span only). Writes OUT/slam.md, OUT/slam.json, the
-trajectories (TUM), the maps of graph SLAM and the improved RBPF, and OUT/maps-LOG.png
-(the two side by side).
+log (relations inside that span only). --seeds 0,1,2 runs the particle filters once per
+seed (the others once) and adds a table of the mean and the worst seed. Writes
+OUT/slam.md, OUT/slam.json, the trajectories (TUM; traj-LOG-METHOD-sN.tum for seed N > 0),
+the maps of graph SLAM and of the improved RBPF's seed 0, and OUT/maps-LOG.png (the two
+side by side).
 """
 
 from __future__ import annotations
@@ -113,7 +115,7 @@ def run_isolated(name: str, label: str, quick: bool, out: Path,
         cmd.append("--quick")
     r = subprocess.run(cmd, capture_output=True, text=True, cwd=Path(__file__).parents[2])
     if r.returncode != 0:
-        raise RuntimeError(f"{name} / {label} failed:\n{r.stderr[-3000:]}")
+        raise RuntimeError(f"{name} / {label} / seed {seed} failed:\n{r.stderr[-3000:]}")
     return dict(json.loads(r.stdout.strip().splitlines()[-1]))
 
 
@@ -368,7 +370,7 @@ def main() -> None:
         if ex is not None:
             lines += ["Runs side by side on Dask: times are shared-core times.", ""]
         accuracy(args.quick, out, names, labels, lines, ex,
-                 tuple(int(x) for x in args.seeds.split(",")))
+                 tuple(dict.fromkeys(int(x) for x in args.seeds.split(","))))
     maps_figure(out, names)
     if not args.skip_extras:
         corridor(lines)
