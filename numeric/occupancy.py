@@ -69,6 +69,14 @@ class OccupancyMap:
                 "resolution_m": self.resolution_m,
                 "width": self.shape[0], "height": self.shape[1]}
 
+    def cells(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Cell indices ``(i, j)`` of points ``(..., 2)`` and whether they are on the
+        grid (off-grid points get index 0)."""
+        c = np.floor((np.asarray(xy, float) - self.origin) / self.resolution_m).astype(int)
+        i, j = c[..., 0], c[..., 1]
+        inside = (i >= 0) & (j >= 0) & (i < self.state.shape[0]) & (j < self.state.shape[1])
+        return np.where(inside, i, 0), np.where(inside, j, 0), inside
+
     def centres(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
         """Centres (..., 2) of the cells ``(i, j)``."""
         return np.asarray(self.origin + (np.stack([i, j], axis=-1) + 0.5) * self.resolution_m)

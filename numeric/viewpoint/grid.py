@@ -77,10 +77,7 @@ class PlanningGrid:
     # -- cells ------------------------------------------------------------------------
     def cells(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Cell indices ``(i, j)`` of points ``(..., 2)`` and whether they are on the grid."""
-        c = np.floor((np.asarray(xy, float) - self.grid.origin) / self.resolution).astype(int)
-        i, j = c[..., 0], c[..., 1]
-        inside = (i >= 0) & (j >= 0) & (i < self.state.shape[0]) & (j < self.state.shape[1])
-        return np.where(inside, i, 0), np.where(inside, j, 0), inside
+        return self.grid.cells(xy)
 
     def centres(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
         return self.grid.centres(i, j)
