@@ -292,10 +292,11 @@ def next_move_task(a: EigenspaceAnalysis, world: World, session: Session,
     now and its state belief, then the action of the grid maximising Q(Z) (eq. 8)."""
     cfg = a.config.strategy
     layout = a.layout(world)
-    # samples of where stop 0 may have been (used while the state is X)
-    samples0 = initial_samples(world.sample_free, cfg.n_samples,
-                               np.random.default_rng(a.config.seed + 11))
-    now, belief = session_belief(session, layout, samples0, candidate_set)
+    # samples of where stop 0 may have been (used while the state is X; more of them
+    # when the turns' appearance weighs them, resampled to n_samples)
+    n0 = cfg.n_samples if cfg.appearance_tau is None else cfg.appearance_samples
+    samples0 = initial_samples(world.sample_free, n0, np.random.default_rng(a.config.seed + 11))
+    now, belief = session_belief(session, layout, samples0, candidate_set, cfg)
     return choose_action(now, belief, layout, cfg)
 
 

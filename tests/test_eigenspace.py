@@ -16,6 +16,8 @@ from numeric.eigenspace.localization import (
     LocalizationConfig,
     Session,
     TurnCandidates,
+    session_from_dict,
+    session_to_dict,
     turn_candidates,
 )
 from numeric.eigenspace.movement_strategy import (
@@ -24,6 +26,8 @@ from numeric.eigenspace.movement_strategy import (
     StrategyConfig,
     apply_action,
     choose_action,
+    initial_samples,
+    session_belief,
     transition,
 )
 from numeric.eigenspace.regions import EntryModel, false_admissions, fit_c_a, fit_entry_model
@@ -328,6 +332,73 @@ def test_strategy_drives_towards_the_only_region(room: World) -> None:
     assert dec.action[0] == pytest.approx(-np.pi / 2)  # turn right ...
     assert dec.action[1] == pytest.approx(4.0)          # ... and drive as far as allowed
     assert 0.0 < dec.q_z < 1.0
+
+
+def test_turn_appearance_is_smallest_at_the_learning_point_and_heading(
+        analysis: EigenspaceAnalysis, room: World) -> None:
+    """A turn rendered at learning point 7 starting at direction 10 matches that point's
+    own turn shifted by 10 (A = 0 there, up to pixel noise), and nothing else as well."""
+    m = analysis.model
+    n = len(m.directions)
+    cam = Camera(room, analysis.config.camera)
+    c = turn_candidates(analysis.regions, cam.render_turn(m.points[7], m.directions[10], n))
+    a = c.appearance
+    assert a is not None and a.shape == (len(m.points), n)
+    assert np.unravel_index(int(np.argmin(a)), a.shape) == (7, 10)
+    assert a[7, 10] < 1e-4 < np.sort(a, axis=None)[1]
+    other = turn_candidates(analysis.regions, cam.render_turn(m.points[7], 0.0, n // 2))
+    assert other.appearance is None  # a turn of another length has no shift to compare
+
+
+@pytest.mark.parametrize("tau", [StrategyConfig().appearance_tau, None])
+def test_appearance_narrows_where_the_robot_may_be_while_in_x(
+        analysis: EigenspaceAnalysis, room: World, tau: float | None) -> None:
+    """Eq. 8's samples of stop 0, weighed by a turn's appearance, gather near the true
+    pose and heading; with ``appearance_tau`` null (the paper) they stay spread over the
+    room."""
+    cfg = StrategyConfig(appearance_tau=tau, n_samples=200)
+    lay = analysis.layout(room)
+    rng = np.random.default_rng(1)
+    cam = Camera(room, analysis.config.camera.model_copy(update={"noise_sigma": 0.01}),
+                 rng=rng)
+    n = len(analysis.model.directions)
+    for p in room.sample_free(50, rng):  # the first pose whose turn enters no region
+        pose = np.array([*p, rng.uniform(-np.pi, np.pi)])
+        c = turn_candidates(analysis.regions, cam.render_turn(pose[:2], pose[2], n))
+        if len(c) == 0:
+            break
+    assert len(c) == 0
+    s = Session(LocalizationConfig())
+    s.add_stop(c, 0.2)
+    samples0 = initial_samples(room.sample_free, cfg.appearance_samples,
+                               np.random.default_rng(2))
+    now, belief = session_belief(s, lay, samples0, config=cfg)
+    w = belief.weight / belief.weight.sum()
+    off = np.hypot(now[:, 0] - pose[0], now[:, 1] - pose[1])
+    turn = np.abs(wrap_angle(now[:, 2] - pose[2]))
+    near = float(w @ (off < 1.5))
+    facing = float(w @ (turn < np.deg2rad(20)))
+    if tau is None:  # measured: 0.05 near, 0.11 facing
+        assert len(now) == cfg.appearance_samples
+        assert near < 0.2 and facing < 0.25
+    else:  # measured: 0.88 near, 1.0 facing
+        assert len(now) == cfg.n_samples
+        assert near > 0.7 and facing > 0.8
+
+
+def test_sessions_keep_their_turns_appearance_through_the_store() -> None:
+    s = Session(LocalizationConfig())
+    app = np.arange(12, dtype=np.float32).reshape(3, 4) / 7
+    s.add_stop(TurnCandidates(np.zeros(0, int), np.zeros(0), np.zeros((0, 3)), np.zeros(0, int),
+                              app), 0.2)
+    s.add_stop(TurnCandidates(np.zeros(0, int), np.zeros(0), np.zeros((0, 3)), np.zeros(0, int)),
+               0.2, np.array([1.0, 0.0, 0.0]))
+    b = session_from_dict(session_to_dict(s))
+    assert b.appearance[1] is None and b.appearance[0] is not None
+    np.testing.assert_allclose(b.appearance[0], app, atol=1e-5)
+    old = session_to_dict(s)
+    del old["appearance"]  # stored before the appearance was kept
+    assert session_from_dict(old).appearance == []
 
 
 def test_hypothetical_gain_prefers_uncovered_space(room: World) -> None:

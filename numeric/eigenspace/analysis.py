@@ -126,7 +126,7 @@ class EigenspaceAnalysis:
                                field="calibration")
         surf = world.surfaces
         return RegionLayout(self.entry, self.model.points[self.triplets.point_idx],
-                            self.set_of(), (surf.a, surf.b))
+                            self.set_of(), (surf.a, surf.b), self.model.points)
 
     def coverage(self, world: World, cell_m: float = 0.2) -> float | None:
         """Localizable area: share of the free space where one observation enters some

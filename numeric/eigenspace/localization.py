@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from numeric.eigenspace.learning import EigenspaceModel
+from numeric.eigenspace.learning import DYNAMIC_RANGE, EigenspaceModel
 from numeric.eigenspace.regions import RegionConfig, agrees, region_candidates
 from numeric.eigenspace.triplets import Triplets
 from numeric.geometry import compose, relative, wrap_angle
@@ -65,6 +65,8 @@ class TurnCandidates:
     d_err: np.ndarray
     start_pose: np.ndarray
     image: np.ndarray
+    #: :func:`turn_appearance` of the turn ``(Nw, n)``, or None (a turn of another length)
+    appearance: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.t)
@@ -78,7 +80,32 @@ def turn_candidates(regions: RegionModel, images: np.ndarray) -> TurnCandidates:
                           regions.plane_thd_m)
     start = c.pose.copy()
     start[:, 2] = wrap_angle(c.pose[:, 2] - 2.0 * np.pi * c.m / len(imgs))
-    return TurnCandidates(t=c.t, d_err=c.d_err, start_pose=start, image=c.m)
+    return TurnCandidates(t=c.t, d_err=c.d_err, start_pose=start, image=c.m,
+                          appearance=turn_appearance(regions.model, q))
+
+
+def turn_appearance(model: EigenspaceModel, q: np.ndarray) -> np.ndarray | None:
+    """How well each learning point's turn explains an observed turn, at every heading:
+    ``A[i, m]`` = mean over the turn's images j of eq. 2's f_d between image j and
+    learning image ``(j + m) mod n`` of point i, for projections ``q (n, K)`` at relative
+    headings 2 pi j / n. A small ``A[i, m]`` says the turn started near point i facing
+    direction 2 pi m / n: the nearest-learning-image estimate of Maeda & Shirai's Table 2
+    baseline, kept for every point and heading. The movement strategy weighs where the
+    robot may be with it while no region has been entered (see
+    :func:`numeric.eigenspace.movement_strategy.appearance_likelihood`). None when the
+    turn does not have one image per learned direction."""
+    p = model.projections  # (Nw, n, K)
+    n = p.shape[1]
+    if len(q) != n or n == 0:
+        return None
+    flat = p.reshape(-1, p.shape[2])
+    d2 = (np.einsum("ik,ik->i", flat, flat)[:, None] + np.einsum("jk,jk->j", q, q)[None, :]
+          - 2.0 * flat @ q.T)
+    d = np.sqrt(np.clip(d2, 0.0, None)).reshape(len(p), n, n)  # (Nw, learned j', seen j)
+    j = np.arange(n)
+    shifted = d[:, (j[None, :] + j[:, None]) % n, j[None, :]]  # (Nw, m, j)
+    return np.asarray(shifted.mean(axis=2) / (DYNAMIC_RANGE * np.sqrt(model.n_pixels)),
+                      dtype=np.float32)
 
 
 @dataclass
@@ -106,6 +133,8 @@ class Session:
     weight: list[float] = field(default_factory=list)
     pose0: list[np.ndarray] = field(default_factory=list)
     own_pose: list[np.ndarray] = field(default_factory=list)
+    #: each stop's :func:`turn_appearance` (None where unknown)
+    appearance: list[np.ndarray | None] = field(default_factory=list)
 
     @property
     def stops(self) -> int:
@@ -121,6 +150,8 @@ class Session:
             mv = np.zeros(3) if motion is None else np.asarray(motion, dtype=float)
             self.odometry.append(compose(self.odometry[-1], mv))
             self.travelled_m += float(np.hypot(mv[0], mv[1]))
+        self.appearance.extend([None] * (self.stops - 1 - len(self.appearance)))
+        self.appearance.append(cands.appearance)
         o = self.odometry[-1]
         inv = relative(o, np.zeros(3))  # o^-1
         k = self.stops - 1
@@ -254,7 +285,9 @@ def session_to_dict(s: Session) -> dict[str, object]:
     return {"config": s.config.model_dump(mode="json"),
             "odometry": [o.tolist() for o in s.odometry], "travelled_m": s.travelled_m,
             "stop_of": s.stop_of, "triplet": s.triplet, "weight": s.weight,
-            "pose0": [p.tolist() for p in s.pose0], "own_pose": [p.tolist() for p in s.own_pose]}
+            "pose0": [p.tolist() for p in s.pose0], "own_pose": [p.tolist() for p in s.own_pose],
+            "appearance": [None if a is None else np.round(a, 5).tolist()
+                           for a in s.appearance]}
 
 
 def session_from_dict(d: dict[str, object]) -> Session:
@@ -265,4 +298,7 @@ def session_from_dict(d: dict[str, object]) -> Session:
                    odometry=arrs("odometry"), travelled_m=float(d["travelled_m"]),  # type: ignore[arg-type]
                    stop_of=list(d["stop_of"]), triplet=list(d["triplet"]),  # type: ignore[call-overload]
                    weight=list(d["weight"]), pose0=arrs("pose0"),  # type: ignore[call-overload]
-                   own_pose=arrs("own_pose"))
+                   own_pose=arrs("own_pose"),
+                   # sessions stored before the appearance was kept have none
+                   appearance=[None if a is None else np.asarray(a, dtype=np.float32)
+                               for a in d.get("appearance", [])])  # type: ignore[attr-defined]

@@ -45,6 +45,15 @@ class StrategyConfig(BaseModel):
                                                            float(np.pi), float(-np.pi / 2)],
                                    min_length=1, max_length=64)
     clearance_m: float = Field(0.3, ge=0.0, le=10.0)
+    appearance_tau: float | None = Field(
+        0.05, gt=0.0, le=10.0,
+        description="while no region has been entered, weigh where the robot may be by "
+        "how well the learning images explain its turns (appearance_likelihood), with "
+        "this temperature as a share of each turn's spread of f_d; null: the paper's eq. "
+        "8 alone (every pose that has entered no region is alike)")
+    appearance_samples: int = Field(4000, ge=10, le=100_000,
+                                    description="poses drawn to weigh by appearance, "
+                                    "resampled to n_samples")
 
     @model_validator(mode="after")
     def _grid_size(self) -> StrategyConfig:
@@ -75,6 +84,8 @@ class RegionLayout:
     points: np.ndarray
     set_of: np.ndarray
     walls: tuple[np.ndarray, np.ndarray]
+    #: the learning points ``(Nw, 2)`` (for :func:`appearance_likelihood`), if known
+    learning_points: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         # the regions share learning points: distances to the distinct points, then the
@@ -216,25 +227,101 @@ def p_z_curve(poses: np.ndarray, layout: RegionLayout, config: StrategyConfig,
     return curve, acts
 
 
+def appearance_scores(points: np.ndarray, appearance: np.ndarray, xy: np.ndarray,
+                      radius_m: float, tau: float) -> np.ndarray:
+    """How well a turn that started at each of the positions ``xy (I, 2)``, facing
+    each learned direction 2 pi m / n, agrees with what was seen: ``(I, n)`` in (0, 1].
+    The learning points near a position (Gaussian weights of ``radius_m``) vote with
+    ``exp(-(A[i, m] - min A) / (tau * spread))``, where ``A`` is the turn's
+    :func:`~numeric.eigenspace.localization.turn_appearance` and the spread is its
+    median minus its minimum.
+
+    Beyond Maeda & Shirai: eq. 8 weighs the initial poses s_0^(i) by
+    P(s_0^(i)|a_1..a_n), which §3.5 leaves uniform over the poses that entered no
+    region. A turn that enters no region still shows roughly where the robot is and
+    which way it faces (the nearest learning image, Table 2's baseline, is about 0.6 m
+    off in room A); without it every heading is alike, and the turn alpha of an action
+    cannot matter while the state is X."""
+    pts = np.asarray(points, dtype=float)
+    d2 = (xy[:, None, 0] - pts[None, :, 0]) ** 2 + (xy[:, None, 1] - pts[None, :, 1]) ** 2
+    near = np.exp(-d2 / (2.0 * radius_m ** 2))  # (I, Nw)
+    near /= np.maximum(near.sum(axis=1, keepdims=True), 1e-300)
+    a = np.asarray(appearance, dtype=float)
+    spread = max(float(np.median(a) - a.min()), 1e-12)
+    return np.asarray(near @ np.exp(-(a - a.min()) / (tau * spread)))
+
+
+def heading_bins(theta: np.ndarray, n: int) -> np.ndarray:
+    """The learned direction ``m`` (of ``n``) nearest to each heading."""
+    return np.round(np.mod(theta, 2.0 * np.pi) / (2.0 * np.pi / n)).astype(int) % n
+
+
+def learning_spacing(points: np.ndarray) -> float:
+    """The median distance from a learning point to its nearest other point [m]."""
+    pts = np.asarray(points, dtype=float)
+    if len(pts) < 2:
+        return 1.0
+    d = np.hypot(pts[:, None, 0] - pts[None, :, 0], pts[:, None, 1] - pts[None, :, 1])
+    np.fill_diagonal(d, np.inf)
+    return float(np.median(d.min(axis=1)))
+
+
 def session_belief(session: Session, layout: RegionLayout, samples0: np.ndarray,
-                   candidate_set: int | None = None) -> tuple[np.ndarray, StateBelief]:
+                   candidate_set: int | None = None, config: StrategyConfig | None = None
+                   ) -> tuple[np.ndarray, StateBelief]:
     """Where the robot may be now ``(I, 3)`` and its state distribution, to choose the
     next move of a running localization.
 
     While no region has been entered (state X): the initial samples ``samples0`` (poses
     of stop 0) moved by the session's odometry, weighted by the chance of having stayed
-    in X at every stop so far.  Afterwards: the strongest candidate of every identified
-    group, weighted by its votes; with ``candidate_set`` m (1-based, state Y^(m)) the
-    belief starts in Y^(m).
+    in X at every stop so far and, with ``config.appearance_tau`` and the layout's
+    learning points, by :func:`appearance_likelihood` of every stop's turn; those are
+    then resampled (systematically, deterministically) to ``config.n_samples``.
+    Afterwards: the strongest candidate of every identified group, weighted by its
+    votes; with ``candidate_set`` m (1-based, state Y^(m)) the belief starts in Y^(m).
     """
     if not session.pose0:
-        weight = np.ones(len(samples0))
-        for o in session.odometry:
+        logw = np.zeros(len(samples0))
+        pts = layout.learning_points
+        tau = config.appearance_tau if config is not None else None
+        apps = [session.appearance[k] if k < len(session.appearance) else None
+                for k in range(session.stops)]
+        use = [tau is not None and pts is not None and a is not None
+               and a.shape[0] == len(pts) for a in apps]
+        radius = learning_spacing(pts) / 2.0 if pts is not None and any(use) else 1.0
+        if use and use[0]:
+            # stop 0's heading drawn from its appearance given the position (importance
+            # sampling: uniform positions, headings from p(theta | xy)); the weight is
+            # that conditional's normaliser
+            assert pts is not None and tau is not None and apps[0] is not None
+            sc = appearance_scores(pts, apps[0], samples0[:, :2], radius, tau)
+            n = sc.shape[1]
+            cdf = np.cumsum(sc, axis=1)
+            r = np.random.default_rng(0)
+            u = r.uniform(0.0, 1.0, len(sc)) * cdf[:, -1]
+            m = np.minimum((cdf < u[:, None]).sum(axis=1), n - 1)
+            samples0 = samples0.copy()
+            samples0[:, 2] = wrap_angle(2.0 * np.pi * (m + r.uniform(-0.5, 0.5, len(m))) / n)
+            logw += np.log(np.maximum(sc.mean(axis=1), 1e-300))
+        for k, o in enumerate(session.odometry):
             moved = compose(samples0, o)
-            weight *= np.prod(1.0 - layout.entry_probabilities(moved[:, :2]), axis=1)
-        if weight.sum() <= 0:
+            stay = np.prod(1.0 - layout.entry_probabilities(moved[:, :2]), axis=1)
+            logw += np.log(np.maximum(stay, 1e-300))
+            app = apps[k]
+            if k > 0 and use[k] and pts is not None and tau is not None and app is not None:
+                sc = appearance_scores(pts, app, moved[:, :2], radius, tau)
+                lik = sc[np.arange(len(sc)), heading_bins(moved[:, 2], sc.shape[1])]
+                logw += np.log(np.maximum(lik, 1e-300))
+        weight = np.exp(logw - logw.max())
+        if not np.isfinite(weight).all() or weight.sum() <= 0:
             weight = np.ones(len(samples0))
         now = compose(samples0, session.odometry[-1]) if session.odometry else samples0
+        if any(use) and config is not None and len(now) > config.n_samples:
+            # systematic resampling, fixed offset: the same session gives the same belief
+            c = np.cumsum(weight / weight.sum())
+            u = (np.arange(config.n_samples) + 0.5) / config.n_samples
+            now = now[np.minimum(np.searchsorted(c, u), len(now) - 1)]
+            weight = np.ones(len(now))
         return now, StateBelief.start(len(now), layout.n_sets, weight)
     vote = session.vote()
     reps = session.representatives(vote)

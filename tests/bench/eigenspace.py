@@ -1,7 +1,7 @@
 """Eigenspace localization benchmark: the paper's Table 1, Table 2, Fig. 6 and §5.4 in the
 simulator, plus speed ratios.  Writes bench-out/eigenspace.md and bench-out/fig6.png.
 
-    .venv/bin/python tests/bench/eigenspace.py [--quick]
+    .venv/bin/python tests/bench/eigenspace.py [--quick] [--parts speed,table1,fig6,s54,unseen]
 """
 
 from __future__ import annotations
@@ -45,7 +45,13 @@ from numeric.worlds import room_a, room_b, room_c, room_d  # noqa: E402
 
 OUT = Path("bench-out")
 QUICK = "--quick" in sys.argv
+#: ``--parts fig6,unseen``: only those parts (speed, table1, fig6, s54, unseen)
+PARTS = set(sys.argv[sys.argv.index("--parts") + 1].split(",")) if "--parts" in sys.argv else set()
 NOISE = 0.01
+#: Fig. 6's policies: the movement strategy (default: eq. 8 with the turns' appearance
+#: weighing where the robot may be while in X), the paper's eq. 8 alone, random moves
+EQ8 = "strategy, eq. 8 alone"
+POLICIES = ("strategy", EQ8, "random")
 
 
 def table1(cfg: EigenspaceConfig, a: EigenspaceAnalysis, rng: np.random.Generator) -> list[str]:
@@ -158,7 +164,11 @@ def run_trial(a: EigenspaceAnalysis, w: World, cam: Camera, pose: np.ndarray,
     lay = a.layout(w)
     walls = (w.surfaces.a, w.surfaces.b)
     entered, est = [], None
-    samples0 = initial_samples(w.sample_free, 150, np.random.default_rng(5))
+    scfg = a.config.strategy
+    if policy == EQ8:
+        scfg = scfg.model_copy(update={"appearance_tau": None})
+    samples0 = initial_samples(w.sample_free, scfg.n_samples if scfg.appearance_tau is None
+                               else scfg.appearance_samples, np.random.default_rng(5))
     prev = pose.copy()
     info: dict[str, object] = {}
     truths: list[np.ndarray] = []
@@ -179,9 +189,9 @@ def run_trial(a: EigenspaceAnalysis, w: World, cam: Camera, pose: np.ndarray,
             off = agrees(est[None], pose, loc.same_position_m, loc.same_heading_rad)[0]
             info["cause"] = None if off else wrong_cause(a, s, v, truths)
             break
-        if policy == "strategy":
-            now, belief = session_belief(s, lay, samples0)
-            act = choose_action(now, belief, lay, a.config.strategy).action
+        if policy != "random":
+            now, belief = session_belief(s, lay, samples0, config=scfg)
+            act = choose_action(now, belief, lay, scfg).action
         else:
             act = np.array([rng.uniform(-np.pi, np.pi), rng.uniform(0.5, 4.0), 0.0])
         prev = pose.copy()
@@ -196,13 +206,13 @@ def table2_fig6(a: EigenspaceAnalysis, w: World, rng: np.random.Generator
     seeds = 2 if QUICK else 20
     trials = 15 if QUICK else 40
     max_obs = 5
-    curves: dict[str, list[np.ndarray]] = {"strategy": [], "random": []}
+    curves: dict[str, list[np.ndarray]] = {p: [] for p in POLICIES}
     errs: list[tuple[float, ...]] = []
     causes: list[str] = []
     for seed in range(seeds):
         r = np.random.default_rng(100 + seed)
         starts = [np.array([*p, r.uniform(-np.pi, np.pi)]) for p in w.sample_free(trials, r)]
-        for policy in ("strategy", "random"):
+        for policy in POLICIES:
             hits = np.zeros(max_obs)
             for p0 in starts:
                 entered, est, info = run_trial(a, w, cam, p0.copy(), policy, r, max_obs)
@@ -237,7 +247,7 @@ def table2_fig6(a: EigenspaceAnalysis, w: World, rng: np.random.Generator
         t2.append(f"| {cause} | {int(sel.sum())} | {e[sel, 0].mean():.2f} |")
     fig, ax = plt.subplots(figsize=(5, 3.5))
     x = np.arange(1, max_obs + 1)
-    for policy, style in (("strategy", "o-"), ("random", "s--")):
+    for policy, style in zip(POLICIES, ("o-", "^:", "s--"), strict=True):
         c = np.array(curves[policy])
         ax.errorbar(x, c.mean(axis=0), yerr=c.std(axis=0), fmt=style, capsize=3, label=policy)
     ax.set_xlabel("observations")
@@ -248,14 +258,15 @@ def table2_fig6(a: EigenspaceAnalysis, w: World, rng: np.random.Generator
     fig.savefig(OUT / "fig6.png", dpi=120)
     f6 = ["| observations | " + " | ".join(str(i) for i in x) + " |",
           "|---|" + "---|" * max_obs]
-    for policy in ("strategy", "random"):
+    for policy in POLICIES:
         c = np.array(curves[policy])
         f6.append(f"| {policy} | " + " | ".join(f"{m:.2f} ± {sd:.2f}" for m, sd in
                                                  zip(c.mean(0), c.std(0), strict=True)) + " |")
-    # both policies start from the same poses in each seed: the paired difference
-    d = np.array(curves["strategy"]) - np.array(curves["random"])
-    f6.append("| strategy − random (paired) | " + " | ".join(
-        f"{m:+.2f} ± {sd:.2f}" for m, sd in zip(d.mean(0), d.std(0), strict=True)) + " |")
+    # the policies start from the same poses in each seed: paired differences
+    for p in POLICIES[:2]:
+        d = np.array(curves[p]) - np.array(curves["random"])
+        f6.append(f"| {p} − random (paired) | " + " | ".join(
+            f"{m:+.2f} ± {sd:.2f}" for m, sd in zip(d.mean(0), d.std(0), strict=True)) + " |")
     f6 += ["", f"mean ± std over {seeds} seeds of {trials} random starts each; "
            "P(a right region entered by that observation)."]
     return t2, f6
@@ -424,12 +435,14 @@ def main() -> None:
              f"{cfg.localization.same_position_m} m and "
              f"{np.rad2deg(cfg.localization.same_heading_rad):.0f} deg.", "",
              f"Analysis of A: {a.summary(w)}", ""]
-    for title, fn in (("Speed", lambda: speed(cfg, a, w)),
-                      ("Table 1", lambda: table1(cfg, a, rng)),
-                      ("Table 2 and Fig. 6", lambda: sum(table2_fig6(a, w, rng), [])),
-                      ("§5.4 learning strategy", lambda: section54(cfg, w)),
-                      ("Rooms nobody tuned on (default parameters)",
-                       lambda: unseen(cfg, rng))):
+    for key, title, fn in (("speed", "Speed", lambda: speed(cfg, a, w)),
+                           ("table1", "Table 1", lambda: table1(cfg, a, rng)),
+                           ("fig6", "Table 2 and Fig. 6", lambda: sum(table2_fig6(a, w, rng), [])),
+                           ("s54", "§5.4 learning strategy", lambda: section54(cfg, w)),
+                           ("unseen", "Rooms nobody tuned on (default parameters)",
+                            lambda: unseen(cfg, rng))):
+        if PARTS and key not in PARTS:
+            continue
         t0 = time.perf_counter()
         rows = fn()
         parts += [f"## {title}", "", *rows, "", f"({time.perf_counter() - t0:.0f} s)", ""]
