@@ -31,7 +31,7 @@ from numeric.eigenspace.movement_strategy import (
     transition,
 )
 from numeric.eigenspace.regions import EntryModel, false_admissions, fit_c_a, fit_entry_model
-from numeric.eigenspace.triplets import TripletConfig
+from numeric.eigenspace.triplets import TripletConfig, Triplets
 from numeric.geometry import compose, relative, wrap_angle
 from numeric.world import Wall, World, WorldDescription
 from numeric.worlds import room_a, room_b, room_c, room_d, twin_hexagon
@@ -459,6 +459,45 @@ def test_learn_with_strategy_adds_points_and_keeps_the_trace(room: World) -> Non
     b = EigenspaceAnalysis.from_bytes(a.to_bytes())
     assert b.strategy_trace == a.strategy_trace
     assert b.summary(room)["learning_strategy"] == a.strategy_trace
+
+
+def test_a_region_that_places_near_probes_wrong_is_rejected(
+        analysis: EigenspaceAnalysis) -> None:
+    """A probe turn 1.3 m from a triplet (not far: the far test lets it pass) that the
+    region admits and eq. 5 places 1.3 m off makes the triplet imprecise: it goes
+    with ``max_wrong_share``, and stays with it off."""
+    from numeric.eigenspace.analysis import (
+        EntryObservations,
+        far_admissions,
+        probe_validated,
+        wrong_placements,
+    )
+
+    a, cfg = analysis, analysis.config
+    t = 0
+    w = a.triplets.point_idx[t, 0]
+    corners = a.model.points[a.triplets.point_idx[t]]
+    away = np.array([[1.3, 0.0], [-1.3, 0.0], [0.0, 1.3], [0.0, -1.3]])
+    near_xy = next(corners[0] + d for d in away
+                   if np.linalg.norm(corners - (corners[0] + d), axis=1).min() > 1.2)
+    probes = EntryObservations(near_xy[None], np.array([a.model.directions[0]]),
+                               a.model.projections[w][None])
+    none = np.full(len(a.triplets), -1)
+    assert far_admissions(a.model, a.triplets, a.c_a, cfg, probes, none)[t] == 0
+    hits, wrong = wrong_placements(a.model, a.triplets, a.c_a, cfg, probes, none)
+    assert hits[t] == 1 and wrong[t] == 1
+    in_set = none.copy()
+    in_set[t] = 0
+    assert wrong_placements(a.model, a.triplets, a.c_a, cfg, probes, in_set)[1][t] == 0
+
+    def key(tr: Triplets, i: int) -> tuple[tuple[int, ...], tuple[int, ...]]:
+        return tuple(tr.point_idx[i]), tuple(tr.dir_idx[i])
+
+    kept = probe_validated(a.triplets, a.model, a.c_a, cfg, probes)
+    assert key(a.triplets, t) not in {key(kept, i) for i in range(len(kept))}
+    off = cfg.model_copy(update={"regions": cfg.regions.model_copy(
+        update={"max_wrong_share": None})})
+    assert len(probe_validated(a.triplets, a.model, a.c_a, off, probes)) == len(a.triplets)
 
 
 def test_probes_from_far_away_reject_a_region_that_admits_them(

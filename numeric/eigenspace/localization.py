@@ -14,6 +14,7 @@ this module reports.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -101,11 +102,17 @@ def turn_appearance(model: EigenspaceModel, q: np.ndarray) -> np.ndarray | None:
     flat = p.reshape(-1, p.shape[2])
     d2 = (np.einsum("ik,ik->i", flat, flat)[:, None] + np.einsum("jk,jk->j", q, q)[None, :]
           - 2.0 * flat @ q.T)
-    d = np.sqrt(np.clip(d2, 0.0, None)).reshape(len(p), n, n)  # (Nw, learned j', seen j)
+    d = np.sqrt(np.clip(d2, 0.0, None))  # (Nw * n learned j', n seen j)
+    shifted = np.take(d.reshape(len(p), n * n), _shift_index(n), axis=1)  # (Nw, m * n + j)
+    return np.asarray(shifted.reshape(len(p), n, n).sum(axis=2)
+                      / (n * DYNAMIC_RANGE * np.sqrt(model.n_pixels)), dtype=np.float32)
+
+
+@lru_cache(maxsize=8)
+def _shift_index(n: int) -> np.ndarray:
+    """Flat indices ``((j + m) mod n) * n + j`` in row-major ``(m, j)`` order."""
     j = np.arange(n)
-    shifted = d[:, (j[None, :] + j[:, None]) % n, j[None, :]]  # (Nw, m, j)
-    return np.asarray(shifted.mean(axis=2) / (DYNAMIC_RANGE * np.sqrt(model.n_pixels)),
-                      dtype=np.float32)
+    return (((j[None, :] + j[:, None]) % n) * n + j[None, :]).ravel()
 
 
 @dataclass

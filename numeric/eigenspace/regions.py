@@ -44,6 +44,11 @@ class RegionConfig(BaseModel):
     reject_false_admissions: bool = Field(
         True, description="drop triplets whose region admits a learning image of another "
                           "point and places it wrong (false_admissions)")
+    max_wrong_share: float | None = Field(
+        0.15, ge=0.0, le=1.0,
+        description="drop a triplet when more than this share of the probe turns its "
+                    "region admits (the simulator's turns of known pose) are placed wrong "
+                    "by eq. 5, beyond the localization tolerances; None: keep them")
 
     @property
     def plane_thd_m(self) -> float | None:
