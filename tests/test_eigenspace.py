@@ -18,6 +18,7 @@ from numeric.eigenspace.localization import (
     TurnCandidates,
     session_from_dict,
     session_to_dict,
+    turn_appearance,
     turn_candidates,
 )
 from numeric.eigenspace.movement_strategy import (
@@ -341,13 +342,15 @@ def test_turn_appearance_is_smallest_at_the_learning_point_and_heading(
     m = analysis.model
     n = len(m.directions)
     cam = Camera(room, analysis.config.camera)
-    c = turn_candidates(analysis.regions, cam.render_turn(m.points[7], m.directions[10], n))
-    a = c.appearance
+    q = m.project(cam.render_turn(m.points[7], m.directions[10], n))
+    a = turn_appearance(m, q)
     assert a is not None and a.shape == (len(m.points), n)
     assert np.unravel_index(int(np.argmin(a)), a.shape) == (7, 10)
     assert a[7, 10] < 1e-4 < np.sort(a, axis=None)[1]
-    other = turn_candidates(analysis.regions, cam.render_turn(m.points[7], 0.0, n // 2))
-    assert other.appearance is None  # a turn of another length has no shift to compare
+    assert turn_appearance(m, q[::2]) is None  # a turn of another length: no shift
+    # a turn with region hits leaves state X, where the appearance serves: none kept
+    hit = turn_candidates(analysis.regions, cam.render_turn(m.points[7], m.directions[10], n))
+    assert len(hit) > 0 and hit.appearance is None
 
 
 @pytest.mark.parametrize("tau", [StrategyConfig().appearance_tau, None])

@@ -66,7 +66,8 @@ class TurnCandidates:
     d_err: np.ndarray
     start_pose: np.ndarray
     image: np.ndarray
-    #: :func:`turn_appearance` of the turn ``(Nw, n)``, or None (a turn of another length)
+    #: :func:`turn_appearance` of a turn without hits ``(Nw, n)``; None for a turn with
+    #: hits or of another length
     appearance: np.ndarray | None = None
 
     def __len__(self) -> int:
@@ -81,8 +82,10 @@ def turn_candidates(regions: RegionModel, images: np.ndarray) -> TurnCandidates:
                           regions.plane_thd_m)
     start = c.pose.copy()
     start[:, 2] = wrap_angle(c.pose[:, 2] - 2.0 * np.pi * c.m / len(imgs))
+    # the appearance serves the movement strategy while no region has been entered
+    # (state X): a turn with hits leaves X, so only a turn without any pays for it
     return TurnCandidates(t=c.t, d_err=c.d_err, start_pose=start, image=c.m,
-                          appearance=turn_appearance(regions.model, q))
+                          appearance=None if len(c.t) else turn_appearance(regions.model, q))
 
 
 def turn_appearance(model: EigenspaceModel, q: np.ndarray) -> np.ndarray | None:
