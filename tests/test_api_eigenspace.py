@@ -12,6 +12,7 @@ import pytest
 from fastapi.testclient import TestClient
 from PIL import Image
 
+from numeric.geometry import wrap_angle
 from service.app import create_app
 from service.settings import Settings
 
@@ -137,6 +138,36 @@ def test_session_stops_and_next_move(client: TestClient, learned: str) -> None:
     assert order[s2.json()["state"]["state"]] >= order[s1.json()["state"]["state"]]
     got = client.get(base).json()
     assert got["stops"] == 2 and got["state"] == s2.json()["state"]
+
+
+def test_next_move_in_state_x_follows_the_turns_appearance(client: TestClient,
+                                                          learned: str) -> None:
+    """Before any region is entered, the strategy weighs where the robot may be by what
+    its turn looked like: at one corner, facing the room or facing the wall, the
+    advised turn alpha differs (eq. 8 alone gives every heading the same advice), and
+    the stored session carries the appearance from one request to the next."""
+    advice = []
+    for x, y, th in ((0.7, 0.7, np.pi / 4), (0.7, 0.7, -3 * np.pi / 4),
+                     (9.3, 9.3, -3 * np.pi / 4), (9.3, 9.3, np.pi / 4)):
+        sid = client.post(f"/worlds/{learned}/localization-sessions").json()["id"]
+        base = f"/worlds/{learned}/localization-sessions/{sid}"
+        r = client.post(base + "/stops", json={"images_png": turn(
+            client, learned, x, y, th, fmt="png")["images_png"]})
+        assert r.status_code == 200, r.text
+        if r.json()["state"]["state"] != "x":
+            continue
+        mv = client.get(base + "/next-move")
+        assert mv.status_code == 200, mv.text
+        advice.append(((x, y), th, mv.json()["action"]["alpha_rad"]))
+    pairs = [(a, b) for a in advice for b in advice if a[0] == b[0] and a[1] < b[1]]
+    assert pairs, "no corner turn stayed in state X"
+    for a, b in pairs:
+        # the two headings are half a turn apart: the advice in the room's frame agrees
+        # (within 45 deg), so in the robot's frame the turns differ
+        room_a_dir = a[1] + a[2]
+        room_b_dir = b[1] + b[2]
+        assert abs(wrap_angle(room_a_dir - room_b_dir)) <= np.pi / 4 + 1e-9
+        assert abs(wrap_angle(a[2] - b[2])) >= np.pi / 2
 
 
 def test_bad_images(client: TestClient, learned: str) -> None:
