@@ -19,6 +19,13 @@ def wrap_angle(a: ArrayLike) -> FloatArray:
     return np.where(w <= -np.pi, w + 2.0 * np.pi, w)
 
 
+def heading_bin(theta: ArrayLike, n: int) -> NDArray[np.intp]:
+    """Index ``j`` of the nearest of ``n`` evenly spaced headings 2 pi j / n."""
+    step = 2.0 * np.pi / n
+    return np.asarray(np.round(np.mod(np.asarray(theta, dtype=float), 2.0 * np.pi) / step)
+                      .astype(np.intp) % n)
+
+
 def circular_mean(angles: ArrayLike, weights: ArrayLike | None = None) -> float:
     """Mean direction of ``angles`` (handles wrap-around)."""
     a = np.asarray(angles, dtype=float)

@@ -294,8 +294,8 @@ def next_move_task(a: EigenspaceAnalysis, world: World, session: Session,
     layout = a.layout(world)
     # samples of where stop 0 may have been (used while the state is X; more of them
     # when the turns' appearance weighs them, resampled to n_samples)
-    n0 = cfg.n_samples if cfg.appearance_tau is None else cfg.appearance_samples
-    samples0 = initial_samples(world.sample_free, n0, np.random.default_rng(a.config.seed + 11))
+    samples0 = initial_samples(world.sample_free, cfg.initial_sample_count,
+                               np.random.default_rng(a.config.seed + 11))
     now, belief = session_belief(session, layout, samples0, candidate_set, cfg)
     return choose_action(now, belief, layout, cfg)
 

@@ -542,14 +542,7 @@ def far_admissions(model: EigenspaceModel, triplets: Triplets, c_a: float,
     state Y, §3.3). With ``margin`` > 1 the region is grown by that factor: a region
     that nearly admits a far place admits it from a spot nearby, and sparse probes miss
     the spot."""
-    far_m = 2 * config.localization.same_position_m
-    counts = np.zeros(len(triplets), dtype=int)
-    for i, c, ok in placed_hits(model, triplets, c_a, config, probes, margin):
-        corners = model.points[triplets.point_idx[c.t]]                      # (h, 3, 2)
-        far = np.linalg.norm(corners - probes.xy[i], axis=2).min(axis=1) > far_m
-        bad = ~ok & far & (set_of[c.t] < 0)
-        counts += np.bincount(c.t[bad], minlength=len(triplets))
-    return counts
+    return probe_tally(model, triplets, c_a, config, probes, set_of, margin)[0]
 
 
 def wrong_placements(model: EigenspaceModel, triplets: Triplets, c_a: float,
@@ -559,14 +552,29 @@ def wrong_placements(model: EigenspaceModel, triplets: Triplets, c_a: float,
     how many of those it places wrong (eq. 5: some admitted image of the turn lands
     beyond the localization tolerances), not counting triplets of a candidate-multiple
     set (their look-alike is the twin's place, §3.3)."""
+    _, hits, wrong = probe_tally(model, triplets, c_a, config, probes, set_of)
+    return hits, wrong
+
+
+def probe_tally(model: EigenspaceModel, triplets: Triplets, c_a: float,
+                config: EigenspaceConfig, probes: EntryObservations, set_of: np.ndarray,
+                margin: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One pass of the region test over the probe turns, with regions grown by
+    ``margin``: :func:`far_admissions`' counts, and :func:`wrong_placements`' admitted
+    and wrongly placed turns per triplet."""
+    far_m = 2 * config.localization.same_position_m
+    far_bad = np.zeros(len(triplets), dtype=int)
     hits = np.zeros(len(triplets), dtype=int)
     wrong = np.zeros(len(triplets), dtype=int)
-    for _, c, ok in placed_hits(model, triplets, c_a, config, probes):
-        t = np.unique(c.t)
-        hits[t] += 1
+    for i, c, ok in placed_hits(model, triplets, c_a, config, probes, margin):
+        corners = model.points[triplets.point_idx[c.t]]                      # (h, 3, 2)
+        far = np.linalg.norm(corners - probes.xy[i], axis=2).min(axis=1) > far_m
+        bad = ~ok & far & (set_of[c.t] < 0)
+        far_bad += np.bincount(c.t[bad], minlength=len(triplets))
+        hits[np.unique(c.t)] += 1
         wrong[np.unique(c.t[~ok])] += 1
     wrong[set_of >= 0] = 0
-    return hits, wrong
+    return far_bad, hits, wrong
 
 
 def probe_validated(triplets: Triplets, model: EigenspaceModel, c_a: float,
@@ -598,10 +606,13 @@ def probe_validated(triplets: Triplets, model: EigenspaceModel, c_a: float,
         set_of = np.full(len(triplets), -1)
         for m, members in enumerate(sets):
             set_of[members] = m
-        bad = far_admissions(model, triplets, c_a, config, probes, set_of, margin) > 0
+        # one pass gives both tests at the region's own size; grown regions need another
+        far, hits, wrong = probe_tally(model, triplets, c_a, config, probes, set_of, margin)
+        bad = far > 0
         share = config.regions.max_wrong_share
         if share is not None:
-            hits, wrong = wrong_placements(model, triplets, c_a, config, probes, set_of)
+            if margin != 1.0:
+                hits, wrong = wrong_placements(model, triplets, c_a, config, probes, set_of)
             bad |= wrong > share * hits
         keep = np.flatnonzero(~(bad & tested))
         if len(keep) == len(triplets):

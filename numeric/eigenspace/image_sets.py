@@ -31,7 +31,7 @@ import numpy as np
 from PIL import Image, UnidentifiedImageError
 
 from numeric.errors import InvalidInput
-from numeric.geometry import wrap_angle
+from numeric.geometry import heading_bin, wrap_angle
 
 POSES_FILE = "poses.csv"
 FORMATS = ("PNG", "JPEG")
@@ -221,7 +221,7 @@ def read_image_set(poses_csv: str, files: Mapping[str, bytes],
     for i, g in enumerate(groups.values()):
         filled = [False] * n
         for r in g:
-            j = int(np.round(wrap_angle(r.theta) / step)) % n
+            j = int(heading_bin(r.theta, n))
             if abs(wrap_angle(r.theta - j * step)) > 0.25 * step or filled[j]:
                 raise InvalidInput(f"{r.file}: heading {r.theta:.4f} rad is not one of a "
                                    f"turn's {n} headings 2*pi*j/{n} (or repeats one)",

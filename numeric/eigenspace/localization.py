@@ -96,7 +96,7 @@ def turn_appearance(model: EigenspaceModel, q: np.ndarray) -> np.ndarray | None:
     direction 2 pi m / n: the nearest-learning-image estimate of Maeda & Shirai's Table 2
     baseline, kept for every point and heading. The movement strategy weighs where the
     robot may be with it while no region has been entered (see
-    :func:`numeric.eigenspace.movement_strategy.appearance_likelihood`). None when the
+    :func:`numeric.eigenspace.movement_strategy.appearance_scores`). None when the
     turn does not have one image per learned direction."""
     p = model.projections  # (Nw, n, K)
     n = p.shape[1]

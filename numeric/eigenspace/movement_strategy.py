@@ -22,10 +22,11 @@ from typing import Annotated, Any
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
+from scipy.spatial import cKDTree
 
 from numeric.eigenspace.localization import Session
 from numeric.eigenspace.regions import EntryModel
-from numeric.geometry import compose, free_distance, wrap_angle
+from numeric.geometry import compose, free_distance, heading_bin, wrap_angle
 
 Angle = Annotated[float, Field(ge=-2 * np.pi, le=2 * np.pi, allow_inf_nan=False)]
 Length = Annotated[float, Field(ge=0.0, le=100.0, allow_inf_nan=False)]
@@ -48,12 +49,18 @@ class StrategyConfig(BaseModel):
     appearance_tau: float | None = Field(
         0.05, gt=0.0, le=10.0,
         description="while no region has been entered, weigh where the robot may be by "
-        "how well the learning images explain its turns (appearance_likelihood), with "
+        "how well the learning images explain its turns (appearance_scores), with "
         "this temperature as a share of each turn's spread of f_d; null: the paper's eq. "
         "8 alone (every pose that has entered no region is alike)")
     appearance_samples: int = Field(4000, ge=10, le=100_000,
                                     description="poses drawn to weigh by appearance, "
                                     "resampled to n_samples")
+
+    @property
+    def initial_sample_count(self) -> int:
+        """How many poses of stop 0 to draw: more when the turns' appearance weighs them
+        (they are resampled to ``n_samples``)."""
+        return self.n_samples if self.appearance_tau is None else self.appearance_samples
 
     @model_validator(mode="after")
     def _grid_size(self) -> StrategyConfig:
@@ -84,7 +91,7 @@ class RegionLayout:
     points: np.ndarray
     set_of: np.ndarray
     walls: tuple[np.ndarray, np.ndarray]
-    #: the learning points ``(Nw, 2)`` (for :func:`appearance_likelihood`), if known
+    #: the learning points ``(Nw, 2)`` (for :func:`appearance_scores`), if known
     learning_points: np.ndarray | None = None
 
     def __post_init__(self) -> None:
@@ -251,19 +258,12 @@ def appearance_scores(points: np.ndarray, appearance: np.ndarray, xy: np.ndarray
     return np.asarray(near @ np.exp(-(a - a.min()) / (tau * spread)))
 
 
-def heading_bins(theta: np.ndarray, n: int) -> np.ndarray:
-    """The learned direction ``m`` (of ``n``) nearest to each heading."""
-    return np.round(np.mod(theta, 2.0 * np.pi) / (2.0 * np.pi / n)).astype(int) % n
-
-
 def learning_spacing(points: np.ndarray) -> float:
     """The median distance from a learning point to its nearest other point [m]."""
     pts = np.asarray(points, dtype=float)
     if len(pts) < 2:
         return 1.0
-    d = np.hypot(pts[:, None, 0] - pts[None, :, 0], pts[:, None, 1] - pts[None, :, 1])
-    np.fill_diagonal(d, np.inf)
-    return float(np.median(d.min(axis=1)))
+    return float(np.median(cKDTree(pts).query(pts, k=2)[0][:, 1]))
 
 
 def session_belief(session: Session, layout: RegionLayout, samples0: np.ndarray,
@@ -275,7 +275,7 @@ def session_belief(session: Session, layout: RegionLayout, samples0: np.ndarray,
     While no region has been entered (state X): the initial samples ``samples0`` (poses
     of stop 0) moved by the session's odometry, weighted by the chance of having stayed
     in X at every stop so far and, with ``config.appearance_tau`` and the layout's
-    learning points, by :func:`appearance_likelihood` of every stop's turn; those are
+    learning points, by :func:`appearance_scores` of every stop's turn; those are
     then resampled (systematically, deterministically) to ``config.n_samples``.
     Afterwards: the strongest candidate of every identified group, weighted by its
     votes; with ``candidate_set`` m (1-based, state Y^(m)) the belief starts in Y^(m).
@@ -283,18 +283,22 @@ def session_belief(session: Session, layout: RegionLayout, samples0: np.ndarray,
     if not session.pose0:
         logw = np.zeros(len(samples0))
         pts = layout.learning_points
-        tau = config.appearance_tau if config is not None else None
-        apps = [session.appearance[k] if k < len(session.appearance) else None
-                for k in range(session.stops)]
-        use = [tau is not None and pts is not None and a is not None
-               and a.shape[0] == len(pts) for a in apps]
-        radius = learning_spacing(pts) / 2.0 if pts is not None and any(use) else 1.0
-        if use and use[0]:
+        tau = None if config is None else config.appearance_tau
+        score: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+        apps: list[np.ndarray | None] = [None] * session.stops
+        if pts is not None and len(pts) and tau is not None:
+            radius = learning_spacing(pts) / 2.0
+            apps = [a if a is not None and a.shape[0] == len(pts) else None
+                    for a in session.appearance[:session.stops]]
+            apps += [None] * (session.stops - len(apps))
+
+            def score(app: np.ndarray, xy: np.ndarray) -> np.ndarray:
+                return appearance_scores(pts, app, xy, radius, tau)
+        if score is not None and apps and apps[0] is not None:
             # stop 0's heading drawn from its appearance given the position (importance
             # sampling: uniform positions, headings from p(theta | xy)); the weight is
             # that conditional's normaliser
-            assert pts is not None and tau is not None and apps[0] is not None
-            sc = appearance_scores(pts, apps[0], samples0[:, :2], radius, tau)
+            sc = score(apps[0], samples0[:, :2])
             n = sc.shape[1]
             cdf = np.cumsum(sc, axis=1)
             r = np.random.default_rng(0)
@@ -308,15 +312,16 @@ def session_belief(session: Session, layout: RegionLayout, samples0: np.ndarray,
             stay = np.prod(1.0 - layout.entry_probabilities(moved[:, :2]), axis=1)
             logw += np.log(np.maximum(stay, 1e-300))
             app = apps[k]
-            if k > 0 and use[k] and pts is not None and tau is not None and app is not None:
-                sc = appearance_scores(pts, app, moved[:, :2], radius, tau)
-                lik = sc[np.arange(len(sc)), heading_bins(moved[:, 2], sc.shape[1])]
+            if k > 0 and score is not None and app is not None:
+                sc = score(app, moved[:, :2])
+                lik = sc[np.arange(len(sc)), heading_bin(moved[:, 2], sc.shape[1])]
                 logw += np.log(np.maximum(lik, 1e-300))
         weight = np.exp(logw - logw.max())
         if not np.isfinite(weight).all() or weight.sum() <= 0:
             weight = np.ones(len(samples0))
         now = compose(samples0, session.odometry[-1]) if session.odometry else samples0
-        if any(use) and config is not None and len(now) > config.n_samples:
+        if any(a is not None for a in apps) and config is not None \
+                and len(now) > config.n_samples:
             # systematic resampling, fixed offset: the same session gives the same belief
             c = np.cumsum(weight / weight.sum())
             u = (np.arange(config.n_samples) + 0.5) / config.n_samples

@@ -167,8 +167,8 @@ def run_trial(a: EigenspaceAnalysis, w: World, cam: Camera, pose: np.ndarray,
     scfg = a.config.strategy
     if policy == EQ8:
         scfg = scfg.model_copy(update={"appearance_tau": None})
-    samples0 = initial_samples(w.sample_free, scfg.n_samples if scfg.appearance_tau is None
-                               else scfg.appearance_samples, np.random.default_rng(5))
+    samples0 = initial_samples(w.sample_free, scfg.initial_sample_count,
+                               np.random.default_rng(5))
     prev = pose.copy()
     info: dict[str, object] = {}
     truths: list[np.ndarray] = []
