@@ -14,7 +14,14 @@ from numeric.geometry import compose, relative
 from numeric.laser import Laser, LaserConfig, record_log
 from numeric.scan import LaserLog, Scan
 from numeric.simulator import OdometryConfig, follow_path, odometry_along
-from numeric.slam.keyframes import FieldConfig, Keyframe, LikelihoodField, moved
+from numeric.slam.keyframes import (
+    FieldConfig,
+    Keyframe,
+    Keyframes,
+    LikelihoodField,
+    MapConfig,
+    moved,
+)
 from numeric.slam.proposal import FieldPack, count_inliers, gaussian_fit, loop_search
 from numeric.slam.rbpf import MotionNoise, RbpfConfig, RbpfSlam
 from numeric.world import World
@@ -267,6 +274,33 @@ def test_lookup_is_the_bilinear_minimum_over_intensity_bands() -> None:
                 near = inten[b, i + (fu >= 0.5), j + (fv >= 0.5)]
                 expect = min(expect, bil + alpha * (near - li) ** 2)
         assert val == pytest.approx(expect, abs=1e-6)
+
+
+def test_a_far_wall_is_a_surface_and_a_depth_jump_is_not() -> None:
+    """With ``connect_gap_m`` a keyframe's likelihood field is made of the polyline through
+    its returns: a beam hitting a wall 20 m away between two returns (0.35 m apart at
+    1 deg) costs nothing, where the returns alone charge it for half the gap. The
+    0.4 m step from a box's edge 3 m away to the wall behind it runs along the beam and
+    is not joined: a point on that step costs what it costs without the surface."""
+    a = np.deg2rad(np.arange(-20.0, 20.5, 1.0))
+
+    def residuals(r: np.ndarray, probe: np.ndarray) -> dict[float | None, float]:
+        xy = np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
+        out = {}
+        for gap in (None, 0.5):
+            kfs = Keyframes(MapConfig(max_points_m=30.0, connect_gap_m=gap))
+            kfs.add(0, xy, None)
+            f = LikelihoodField(kfs.frames[0], FieldConfig(), None)
+            out[gap] = float(f.residual(probe[None], None, 0.0)[0])
+        return out
+
+    far = residuals(20.0 / np.cos(a), np.array([20.0, 20.0 * np.tan(np.deg2rad(19.5))]))
+    half_gap = 20.0 * (np.tan(np.deg2rad(20)) - np.tan(np.deg2rad(19))) / 2
+    assert far[None] == pytest.approx(half_gap ** 2, rel=0.3)
+    assert far[0.5] < 0.05 ** 2 < far[None]
+    box = np.where(np.abs(a) < np.deg2rad(5.5), 3.0, 3.4 / np.cos(a))
+    step = residuals(box, 3.2 * np.array([np.cos(np.deg2rad(5.5)), np.sin(np.deg2rad(5.5))]))
+    assert step[0.5] == step[None] > 0.1 ** 2
 
 
 def test_the_paper_proposals_keep_their_reference_unless_a_map_is_given() -> None:
