@@ -303,6 +303,27 @@ def test_a_far_wall_is_a_surface_and_a_depth_jump_is_not() -> None:
     assert step[0.5] == step[None] > 0.1 ** 2
 
 
+def test_an_open_scan_reaches_farther_than_a_closed_one() -> None:
+    """``open_points_m``: a scan with more than ``open_share`` of its returns beyond
+    ``max_points_m`` keeps (and matches) them up to ``open_points_m``; a scan with a few
+    far returns keeps the near reach, as without the setting."""
+    a = np.deg2rad(np.arange(-90.0, 90.5, 1.0))
+    walls = np.where(np.abs(a) < np.deg2rad(20), 25.0, 4.0)  # 41 of 181 beams far: open
+    door = np.where(np.abs(a) < np.deg2rad(5), 25.0, 4.0)  # 11 of 181: closed
+    cfg = MapConfig(max_points_m=15.0, open_points_m=30.0, open_share=0.1)
+    for r, reach in ((walls, 30.0), (door, 15.0)):
+        xy = np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
+        kfs = Keyframes(cfg)
+        assert kfs.reach(xy) == reach
+        kfs.add(0, xy, None)
+        assert np.hypot(*kfs.frames[0].xy.T).max() == pytest.approx(25.0 if reach == 30 else 4.0,
+                                                                    abs=0.1)
+        assert Keyframes(MapConfig(max_points_m=15.0)).reach(xy) == 15.0
+    slam = RbpfSlam(RbpfConfig(map=cfg))
+    xy = np.stack([walls * np.cos(a), walls * np.sin(a)], axis=1)
+    assert np.hypot(*xy[slam._beams(xy, True)].T).max() == pytest.approx(25.0)
+
+
 def test_the_paper_proposals_keep_their_reference_unless_a_map_is_given() -> None:
     """The improved proposal matches against about the last 15 m of keyframes; the
     paper's proposals keep the 8 + 8 reference their figures were made with."""
