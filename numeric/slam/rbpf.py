@@ -22,7 +22,7 @@ Rao-Blackwellized Particle Filters" (IEEE T-RO 2007, the GMapping method; see
 pose drawn from a Gaussian fitted to ``p(z|m,x) p(x|x_{t-1},u)`` around the match
 (eqs. 14-15) and its weight multiplied by η (eq. 16); the filter then updates only after
 ``update_linear_m`` / ``update_angular_rad`` of odometry, and the ``beams`` are picked
-among the returns within ``map.max_points_m`` (the reach of the keyframes). The scans in
+among the returns within the keyframes' reach (``map.max_points_m``). The scans in
 between refine the odometry but do not touch the particles: each is matched against
 the best particle's map for its own pose (:meth:`RbpfSlam.track`, ``track_scans``).
 When the best particle's reference holds old keyframes (a loop), each update also
@@ -612,8 +612,9 @@ class RbpfSlam:
 
     def _beams(self, xy: np.ndarray, improved: bool) -> np.ndarray:
         """The ``beams`` a match uses, evenly picked; with the improved proposal among
-        the returns within the keyframes' ``max_points_m`` only (beyond it they never
-        find a map point; in halls most returns are that far)."""
+        the returns within the keyframes' reach only (:meth:`Keyframes.reach`:
+        ``max_points_m``, or ``open_points_m`` for an open scan; beyond it they never
+        find a map point)."""
         cfg = self.config
         cand = np.arange(len(xy))
         if improved:
