@@ -147,9 +147,10 @@ class RbpfConfig(BaseModel):
     #: An open scan (more than 10 % of its returns beyond 15 m) reaches 30 m
     #: (:meth:`~numeric.slam.keyframes.Keyframes.reach`). Full logs, 512 particles:
     #: fr-clinic at seeds 0-4 1.058 / 0.694 / 1.049 / 0.525 / 0.485 (mean 0.76) against
-    #: 0.636 / 4.217 / 0.967 / 2.542 with 15 m for every scan; aces seed 0 0.047
-    #: against 0.050; fr079 and mit-csail have no open scan, so nothing changes there
-    #: (all scans to 30 m had cost fr079 0.060 -> 0.075).
+    #: 0.636 / 4.217 / 0.967 / 2.542 / 0.387 (mean 1.75) with 15 m for every scan; aces
+    #: (52 open scans of 7 374) 0.047 / 0.056 / 0.049 against 0.050 / 0.050 / 0.047; fr079
+    #: and mit-csail have no open scan, so nothing changes there (all scans to 30 m had
+    #: cost fr079 0.060 -> 0.075).
     map: MapConfig = Field(default_factory=lambda: MapConfig(recent_keyframes=50,
                                                              nearby_keyframes=24,
                                                              nearby_radius_m=12.0,
