@@ -139,16 +139,25 @@ class Keyframes:
         the benchmark logs the rule picks fr-clinic's scans (85 % have more than 10 %
         of their returns beyond 15 m), a few of aces' (0.7 %), and none of fr079's or
         mit-csail's."""
+        return self._reach_of(np.hypot(xy[:, 0], xy[:, 1]))
+
+    def in_reach(self, xy: np.ndarray) -> np.ndarray:
+        """Which of the returns ``xy`` (robot frame) of one scan lie within its
+        :meth:`reach` (the ranges computed once)."""
+        r = np.hypot(xy[:, 0], xy[:, 1])
+        return np.asarray(r <= self._reach_of(r))
+
+    def _reach_of(self, ranges: np.ndarray) -> float:
         cfg = self.config
-        if cfg.open_points_m is None or len(xy) == 0:
+        if cfg.open_points_m is None or len(ranges) == 0:
             return cfg.max_points_m
-        far = np.hypot(xy[:, 0], xy[:, 1]) > cfg.max_points_m
-        return cfg.open_points_m if far.mean() > cfg.open_share else cfg.max_points_m
+        open_scan = np.mean(ranges > cfg.max_points_m) > cfg.open_share
+        return cfg.open_points_m if open_scan else cfg.max_points_m
 
     def add(self, scan_index: int, xy: np.ndarray, intensity: np.ndarray | None,
             misses: np.ndarray | None = None) -> int:
         cfg = self.config
-        near = np.hypot(xy[:, 0], xy[:, 1]) <= self.reach(xy)
+        near = self.in_reach(xy)
         xy, intensity = xy[near], None if intensity is None else intensity[near]
         surface = None
         if cfg.connect_gap_m is not None:

@@ -626,7 +626,7 @@ class RbpfSlam:
         cfg = self.config
         cand = np.arange(len(xy))
         if improved:
-            near = np.flatnonzero(np.hypot(xy[:, 0], xy[:, 1]) <= self.keyframes.reach(xy))
+            near = np.flatnonzero(self.keyframes.in_reach(xy))
             if len(near) >= 8:
                 cand = near
         return cand[np.linspace(0, len(cand) - 1, min(cfg.beams, len(cand))).astype(int)]
