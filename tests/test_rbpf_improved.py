@@ -22,8 +22,14 @@ from numeric.slam.keyframes import (
     MapConfig,
     moved,
 )
-from numeric.slam.proposal import FieldPack, count_inliers, gaussian_fit, loop_search
-from numeric.slam.rbpf import MotionNoise, RbpfConfig, RbpfSlam
+from numeric.slam.proposal import (
+    FieldPack,
+    ImprovedConfig,
+    count_inliers,
+    gaussian_fit,
+    loop_search,
+)
+from numeric.slam.rbpf import MotionNoise, OdometryCalibration, RbpfConfig, RbpfSlam
 from numeric.world import World
 from numeric.worlds import from_template, office_world
 
@@ -442,3 +448,52 @@ def test_free_space_tells_a_closure_from_the_room_next_door() -> None:
     assert share(west, west + np.array([-1.5, -0.8, 0.0])) > 0.3
     east = np.array([7.2, 5.0, 0.0])
     assert share(east, east) < 0.05
+
+
+# -- (e) the odometry's heading sigma, learned from the log -----------------------------------
+def test_odometry_calibration_is_a_robust_clamped_spread() -> None:
+    cal = OdometryCalibration(window=40, min_scale=0.1)
+    for _ in range(19):
+        cal.add(0.01)
+    assert cal.scale == 1.0  # too few residuals yet
+    cal.add(-0.3)
+    assert cal.scale == 0.1  # 1.4826 x median 0.01, clamped up to min_scale
+    for _ in range(30):
+        cal.add(0.3)
+    assert cal.scale == pytest.approx(1.4826 * 0.3)  # the median follows the window
+    for _ in range(12):  # a stretch of bad matches moves the median no further
+        cal.add(50.0)
+    assert cal.scale == pytest.approx(1.4826 * 0.3)
+    for _ in range(40):
+        cal.add(5.0)
+    assert cal.scale == 1.0  # never wider than the fixed model
+    assert OdometryCalibration(window=0, min_scale=0.1).scale == 1.0
+
+
+def test_the_heading_sigma_learned_follows_the_odometrys_quality(room: World) -> None:
+    """The same drive around room_a with two odometries: near-exact, and one whose
+    heading random-walks 0.2 rad per sqrt(m) with 10 % turn noise. The scan-matched
+    residuals put the first's heading sigma at the floor (0.1 of the fixed model's)
+    and leave the second's at the fixed one (measured 0.1 and 1.0; 0.05 rad per sqrt(m)
+    gives 0.16-0.18: the match leaves heading errors within about 1 degree where they
+    are, so the spread is a lower bound)."""
+    truth = follow_path(np.array([(1.5, 1.5), (9.2, 1.5), (9.2, 9.2), (1.0, 9.2), (1.0, 1.5)]),
+                        0.5, LASER.scan_period_s)
+    scales = {}
+    for name, noise in (("exact", OdometryConfig(distance_noise_ratio=0.001,
+                                                  turn_noise_ratio=0.001,
+                                                  heading_drift_rad_per_m=0.0)),
+                        ("drifting", OdometryConfig(distance_noise_ratio=0.05,
+                                                    turn_noise_ratio=0.1,
+                                                    heading_drift_rad_per_m=0.2))):
+        rng = np.random.default_rng(1)
+        log = record_log(room, truth, odometry_along(truth, noise, rng), Laser(room, LASER),
+                         rng, name=name)
+        s = _run(log, RbpfConfig(particles=4, seed=0,
+                                 improved=ImprovedConfig(odometry_window=100)))
+        assert len(s.odometry.residuals) == 100
+        scales[name] = s.odometry.scale
+        u = np.array([0.2, 0.0, 0.05])  # the motion model the proposal uses is scaled
+        assert np.allclose(s.sigmas(u), MotionNoise().sigmas(u) * [1, 1, scales[name]])
+    assert scales["exact"] < 0.2
+    assert scales["drifting"] > 0.5

@@ -122,6 +122,11 @@ class ImprovedConfig(BaseModel):
         (0.0, -0.1, 0.1, -0.2, 0.2, -0.35, 0.35),
         description="heading offsets of the multi-start match that corrects the odometry "
                     "increment once per update (one value: no correction)")
+    odometry_window: int = Field(0, ge=0, description="the motion model's heading sigma "
+                                 "is learned from the last this many updates "
+                                 "(:class:`~numeric.slam.rbpf.OdometryCalibration`); 0: fixed")
+    odometry_min_scale: float = Field(0.1, gt=0, le=1, description="... down to this share "
+                                      "of the fixed one")
     loop_search: bool = Field(True, description="a wide search of the scan against the "
                               "best particle's old keyframes (a loop) once per update; a "
                               "clearly better, well-constrained alignment becomes the start "
