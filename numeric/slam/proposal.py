@@ -122,11 +122,13 @@ class ImprovedConfig(BaseModel):
         (0.0, -0.1, 0.1, -0.2, 0.2, -0.35, 0.35),
         description="heading offsets of the multi-start match that corrects the odometry "
                     "increment once per update (one value: no correction)")
-    odometry_window: int = Field(0, ge=0, description="the motion model's heading sigma "
+    odometry_window: int = Field(200, ge=0, description="the motion model's heading sigma "
                                  "is learned from the last this many updates "
                                  "(:class:`~numeric.slam.rbpf.OdometryCalibration`); 0: fixed")
     odometry_min_scale: float = Field(0.1, gt=0, le=1, description="... down to this share "
                                       "of the fixed one")
+    odometry_margin: float = Field(1.0, gt=0, description="... as this many times the "
+                                   "residuals' robust spread")
     loop_search: bool = Field(True, description="a wide search of the scan against the "
                               "best particle's old keyframes (a loop) once per update; a "
                               "clearly better, well-constrained alignment becomes the start "
@@ -644,7 +646,7 @@ def robust_increment(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, pts: np.nda
                      meta: np.ndarray, origins: np.ndarray, inv_res: float,
                      kf_pose: np.ndarray, cut2: float, inv_2s2: float, max_iter: int,
                      headings: np.ndarray, margin: float, use_prior: bool,
-                     shifts: np.ndarray) -> np.ndarray:
+                     shifts: np.ndarray) -> tuple[np.ndarray, int]:
     """The increment from ``x0`` (one particle, ``kf_pose (K, 1, 3)`` its map) to the best
     of several scan matches started at ``x0 (+) u`` turned by each of ``headings`` (rad)
     or moved along its heading by each of ``shifts`` (m), best by ``log p(z|m,x) +
@@ -655,7 +657,8 @@ def robust_increment(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, pts: np.nda
     forward while the robot backs up (fr079 at 300 s: 0.5 m off, beyond the field's
     cutoff), so the shifted starts are matched on the scan alone, the motion model
     (sure of the wrong odometry) only scoring the result. The particles being close,
-    one robust start serves them all."""
+    one robust start serves them all. Also returns which start won (0: the odometry's
+    own)."""
     kpose = np.empty((kf_pose.shape[0], 4))
     _kposes(kf_pose, 0, kpose)
     cand = np.full((pts.shape[0], 2), -1, dtype=np.int64)
@@ -667,6 +670,7 @@ def robust_increment(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, pts: np.nda
     start = np.empty(3)
     best = -np.inf
     out = u.copy()
+    won = 0
     prior = _prior(x0, u, sig, use_prior)
     free = _prior(x0, u, sig, False)
     ns = headings.shape[0]
@@ -687,12 +691,13 @@ def robust_increment(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, pts: np.nda
             score += margin
         if score > best:
             best = score
+            won = q
             dx = hat[0] - x0[0]
             dy = hat[1] - x0[1]
             out[0] = c0 * dx + s0 * dy
             out[1] = -s0 * dx + c0 * dy
             out[2] = _wrap(hat[2] - x0[2])
-    return out
+    return out, won
 
 
 @njit(cache=True, nogil=True)

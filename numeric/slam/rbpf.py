@@ -109,6 +109,7 @@ class OdometryCalibration:
 
     window: int
     min_scale: float
+    margin: float = 1.0
     min_count: int = 20
     residuals: deque[float] = field(default_factory=deque)
 
@@ -121,7 +122,7 @@ class OdometryCalibration:
     def scale(self) -> float:
         if self.window == 0 or len(self.residuals) < self.min_count:
             return 1.0
-        spread = 1.4826 * float(np.median(np.asarray(self.residuals)))
+        spread = self.margin * 1.4826 * float(np.median(np.asarray(self.residuals)))
         return min(1.0, max(self.min_scale, spread))
 
 
@@ -271,7 +272,8 @@ class RbpfSlam:
         self._loop_streak = 0  # consecutive updates whose loop search agreed
         self._loop_shift = np.zeros(3)  # ... on this correction (world frame)
         self.odometry = OdometryCalibration(cfg.improved.odometry_window,
-                                            cfg.improved.odometry_min_scale)
+                                            cfg.improved.odometry_min_scale,
+                                            cfg.improved.odometry_margin)
 
     def sigmas(self, u: np.ndarray) -> np.ndarray:
         """Σ_w of eq. 7 for the increment ``u``, its heading sigma scaled by what
@@ -355,7 +357,9 @@ class RbpfSlam:
         if imp.odometry_window:
             self._calibrate(u, maps, kf_pose[:, best:best + 1])
         if len(imp.start_headings_rad) > 1:
-            u_start = self._robust_start(u, maps, kf_pose[:, best:best + 1])
+            u_start, won = self._robust_start(u, maps, kf_pose[:, best:best + 1])
+            if won:  # the odometry failed here: its learned sigma does not apply
+                sig = cfg.motion.sigmas(u)
         if imp.loop_search:
             u_loop = self._loop_start(u_start, chosen, maps, kf_pose[:, best:best + 1])
             if u_loop is not None:  # the loop's increment replaces the odometry's
@@ -524,27 +528,31 @@ class RbpfSlam:
         kf_pose = self._kf_pose[chosen, self._lineage[chosen, best]][:, None, :]
         li = np.zeros(len(xy)) if inten is None else np.asarray(inten, dtype=float)
         maps: ScanMaps = (xy, li, alpha, fp.grid, fp.inten, fp.meta, fp.origins, fp.inv_res)
-        return self._robust_start(u, maps, kf_pose)
+        return self._robust_start(u, maps, kf_pose)[0]
 
     def _robust_start(self, u: np.ndarray, maps: ScanMaps, kf_best: np.ndarray,
-                      alone: bool = False) -> np.ndarray:
+                      alone: bool = False) -> tuple[np.ndarray, int]:
         """:func:`robust_increment` of the best particle (its map ``kf_best`` (K, 1, 3))
         from ``x_best (+) u``, with the scan and fields ``maps`` as the kernels take them;
-        ``alone``: one start, the odometry's, matched on the likelihood alone."""
+        ``alone``: one start, the odometry's, matched on the likelihood alone. It scores
+        the starts with the fixed motion model, not the learned one
+        (:class:`OdometryCalibration`): it is what finds the odometry's failures, the
+        tail a spread learned from the core does not cover."""
         cfg, imp = self.config, self.config.improved
         cut = min(imp.cutoff_m, cfg.field.cutoff_m)
         headings = np.zeros(1) if alone else np.asarray(imp.start_headings_rad, dtype=float)
         shifts = np.zeros(0) if alone else np.asarray(imp.start_shifts_m, dtype=float)
-        return np.asarray(robust_increment(
-            self.x[self.best], u, self.sigmas(u), *maps, np.ascontiguousarray(kf_best),
+        inc, won = robust_increment(
+            self.x[self.best], u, cfg.motion.sigmas(u), *maps, np.ascontiguousarray(kf_best),
             cut * cut, 1.0 / (2.0 * imp.sigma_m**2), imp.max_iterations, headings,
-            imp.start_margin, imp.match_prior and not alone, shifts))
+            imp.start_margin, imp.match_prior and not alone, shifts)
+        return np.asarray(inc), int(won)
 
     def _calibrate(self, u: np.ndarray, maps: ScanMaps, kf_best: np.ndarray) -> None:
         """One residual for :class:`OdometryCalibration`: the heading of the best
         particle's match on the likelihood alone minus the odometry's, over the fixed
         heading sigma."""
-        free = self._robust_start(u, maps, kf_best, alone=True)
+        free = self._robust_start(u, maps, kf_best, alone=True)[0]
         self.odometry.add(float(wrap_angle(free[2] - u[2])) / self.config.motion.sigmas(u)[2])
 
     def effective_sample_size(self) -> float:
