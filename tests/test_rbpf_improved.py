@@ -468,6 +468,11 @@ def test_odometry_calibration_is_a_robust_clamped_spread() -> None:
         cal.add(5.0)
     assert cal.scale == 1.0  # never wider than the fixed model
     assert OdometryCalibration(window=0, min_scale=0.1).scale == 1.0
+    for spread, scale in ((0.15, 0.15), (0.25, 0.4), (0.3, 0.6), (0.45, 1.0)):
+        kneed = OdometryCalibration(window=40, min_scale=0.1, knee=0.2)
+        for _ in range(30):
+            kneed.add(spread / 1.4826)
+        assert kneed.scale == pytest.approx(scale)  # taken below the knee, ramped above
 
 
 def test_the_heading_sigma_learned_follows_the_odometrys_quality(room: World) -> None:

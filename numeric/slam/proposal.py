@@ -127,8 +127,9 @@ class ImprovedConfig(BaseModel):
                                  "(:class:`~numeric.slam.rbpf.OdometryCalibration`); 0: fixed")
     odometry_min_scale: float = Field(0.1, gt=0, le=1, description="... down to this share "
                                       "of the fixed one")
-    odometry_margin: float = Field(1.0, gt=0, description="... as this many times the "
-                                   "residuals' robust spread")
+    odometry_knee: float = Field(0.2, gt=0, le=1, description="a spread up to this is "
+                                 "taken as it is, one of twice this or more keeps the fixed "
+                                 "sigma, linear in between")
     loop_search: bool = Field(True, description="a wide search of the scan against the "
                               "best particle's old keyframes (a loop) once per update; a "
                               "clearly better, well-constrained alignment becomes the start "

@@ -109,7 +109,7 @@ class OdometryCalibration:
 
     window: int
     min_scale: float
-    margin: float = 1.0
+    knee: float = 1.0
     min_count: int = 20
     residuals: deque[float] = field(default_factory=deque)
 
@@ -122,7 +122,9 @@ class OdometryCalibration:
     def scale(self) -> float:
         if self.window == 0 or len(self.residuals) < self.min_count:
             return 1.0
-        spread = self.margin * 1.4826 * float(np.median(np.asarray(self.residuals)))
+        spread = 1.4826 * float(np.median(np.asarray(self.residuals)))
+        if spread > self.knee:  # linear from (knee, knee) to (2 knee, 1)
+            spread = self.knee + (1.0 - self.knee) * (spread - self.knee) / self.knee
         return min(1.0, max(self.min_scale, spread))
 
 
@@ -273,7 +275,7 @@ class RbpfSlam:
         self._loop_shift = np.zeros(3)  # ... on this correction (world frame)
         self.odometry = OdometryCalibration(cfg.improved.odometry_window,
                                             cfg.improved.odometry_min_scale,
-                                            cfg.improved.odometry_margin)
+                                            cfg.improved.odometry_knee)
 
     def sigmas(self, u: np.ndarray) -> np.ndarray:
         """Σ_w of eq. 7 for the increment ``u``, its heading sigma scaled by what
