@@ -128,12 +128,13 @@ class OdometryCalibration:
     min_scale: float
     knee: float = 1.0
     min_count: int = 20
-    residuals: deque[float] = field(default_factory=deque)
+    residuals: deque[float] = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.residuals = deque(maxlen=self.window)  # the last ``window`` residuals
 
     def add(self, normalised: float) -> None:
         self.residuals.append(abs(normalised))
-        while len(self.residuals) > self.window:
-            self.residuals.popleft()
 
     @property
     def scale(self) -> float:
