@@ -31,7 +31,13 @@ from numeric.eigenspace.movement_strategy import (
     session_belief,
     transition,
 )
-from numeric.eigenspace.regions import EntryModel, false_admissions, fit_c_a, fit_entry_model
+from numeric.eigenspace.regions import (
+    EntryModel,
+    RegionConfig,
+    false_admissions,
+    fit_c_a,
+    fit_entry_model,
+)
 from numeric.eigenspace.triplets import TripletConfig, Triplets
 from numeric.geometry import compose, relative, wrap_angle
 from numeric.world import Wall, World, WorldDescription
@@ -532,3 +538,16 @@ def test_probes_from_far_away_reject_a_region_that_admits_them(
     untested = probe_validated(a.triplets, a.model, a.c_a, cfg, probes,
                                only=np.zeros(len(a.triplets), dtype=bool))
     assert len(untested) == len(a.triplets)
+
+
+def test_plane_bound_is_metres_whatever_d_thd_and_reads_stored_ratios() -> None:
+    """The plane test bounds eq. 5's error in metres: a larger D_thd widens the paper's
+    test, not the plane bound. Configs stored before name it as a share of D_thd."""
+    assert RegionConfig().plane_thd_m == pytest.approx(0.1)
+    assert RegionConfig(d_thd_m=0.3).plane_thd_m == pytest.approx(0.1)
+    old = RegionConfig.model_validate({"d_thd_m": 0.3, "plane_ratio": 0.5})
+    assert old.plane_thd_m == pytest.approx(0.15)
+    assert RegionConfig.model_validate({"plane_ratio": None}).plane_thd_m is None
+    assert RegionConfig.model_validate({"plane_ratio": 0.5, "plane_m": 0.2}).plane_thd_m == 0.2
+    with pytest.raises(ValueError):
+        RegionConfig(plane_m=-0.1)
