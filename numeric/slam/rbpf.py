@@ -565,7 +565,7 @@ class RbpfSlam:
         inc, won = robust_increment(
             self.x[self.best], u, cfg.motion.sigmas(u), *maps, np.ascontiguousarray(kf_best),
             cut * cut, 1.0 / (2.0 * imp.sigma_m**2), imp.max_iterations, headings,
-            imp.start_margin, imp.match_prior and not alone, shifts)
+            imp.start_margin, imp.match_prior and not alone, shifts, imp.shift_penalty_max)
         return np.asarray(inc), int(won)
 
     def _calibrate(self, u: np.ndarray, maps: ScanMaps, kf_best: np.ndarray) -> None:
