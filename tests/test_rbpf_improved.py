@@ -340,6 +340,18 @@ def test_the_paper_proposals_keep_their_reference_unless_a_map_is_given() -> Non
     assert given.map.recent_keyframes == 3
 
 
+def _backing_up() -> tuple[Scan, Scan, np.ndarray]:
+    """Two scans in the loop world's corridor: the robot backs up 0.4 m while its
+    odometry reads 0.4 m forward (fr079 at 300 s). Returns them and the true pose."""
+    world = World(from_template("loop", "loop"))
+    laser = Laser(world, LaserConfig(max_range_m=30.0, scan_period_s=0.2))
+    rng = np.random.default_rng(5)
+    p0 = np.array([10.0, 7.0, 0.0])
+    p1 = compose(p0, np.array([-0.4, 0.0, 0.0]))
+    odo1 = compose(p0, np.array([0.4, 0.0, 0.0]))
+    return laser.scan(0.0, p0, p0, rng), laser.scan(0.2, p1, odo1, rng), p1
+
+
 @pytest.mark.parametrize("shifts", [None, ()])
 def test_a_shifted_start_finds_a_robot_that_backs_up_while_its_odometry_reads_forward(
         shifts: tuple[float, ...] | None) -> None:
@@ -348,16 +360,11 @@ def test_a_shifted_start_finds_a_robot_that_backs_up_while_its_odometry_reads_fo
     the default starts moved along the heading, the multi-start match finds the scan's
     place and the particles follow it (measured 0.07 m off). From the odometry's
     prediction alone they stay near where the odometry puts them (0.75 m off)."""
-    world = World(from_template("loop", "loop"))
-    laser = Laser(world, LaserConfig(max_range_m=30.0, scan_period_s=0.2))
-    rng = np.random.default_rng(5)
-    p0 = np.array([10.0, 7.0, 0.0])
-    p1 = compose(p0, np.array([-0.4, 0.0, 0.0]))
-    odo1 = compose(p0, np.array([0.4, 0.0, 0.0]))
+    s0, s1, p1 = _backing_up()
     improved = {} if shifts is None else {"start_shifts_m": shifts}
     slam = RbpfSlam(RbpfConfig(particles=20, seed=1, improved=improved))  # type: ignore[arg-type]
-    slam.process(laser.scan(0.0, p0, p0, rng))
-    slam.process(laser.scan(0.2, p1, odo1, rng))
+    slam.process(s0)
+    slam.process(s1)
     assert slam.matched == 1
     off = float(np.hypot(*(slam.x[:, :2].mean(axis=0) - p1[:2])))
     if shifts is None:
@@ -512,17 +519,12 @@ def test_a_shifted_start_is_charged_at_most_shift_penalty_max_by_the_motion_mode
     Gaussian charges the right, shifted match thousands of nats, more than the beams
     gain, and the multi-start match keeps the odometry's place (the default: no cap);
     capped at ``shift_penalty_max`` (30 nats below the peak) the shifted match wins."""
-    world = World(from_template("loop", "loop"))
-    laser = Laser(world, LaserConfig(max_range_m=30.0, scan_period_s=0.2))
-    rng = np.random.default_rng(5)
-    p0 = np.array([10.0, 7.0, 0.0])
-    p1 = compose(p0, np.array([-0.4, 0.0, 0.0]))
-    odo1 = compose(p0, np.array([0.4, 0.0, 0.0]))
+    s0, s1, p1 = _backing_up()
     improved = {} if cap is None else {"shift_penalty_max": cap}
     slam = RbpfSlam(RbpfConfig(particles=4, seed=1, improved=improved,  # type: ignore[arg-type]
                                motion={"xy_m": 0.002, "xy_per_m": 0.01}))  # type: ignore[arg-type]
-    slam.process(laser.scan(0.0, p0, p0, rng))
-    xy, _ = laser.scan(0.2, p1, odo1, rng).points()
+    slam.process(s0)
+    xy, _ = s1.points()
     inc = slam.track(np.array([0.4, 0.0, 0.0]), xy[slam._beams(xy, True)], None)
     if cap is None:
         assert inc[0] > 0.2
