@@ -78,9 +78,11 @@ class ImprovedConfig(BaseModel):
 
     ``cutoff_m`` caps each beam's residual: a return farther than that from every map
     point counts the same wherever the pose is. A return with no true counterpart in
-    the map -- something that moved (fr-clinic at 2 030-2 060 s: an arc of returns
-    across an 8 m hall, 8-10 m ahead, that moves on with the robot and that the next
-    scans see through), or a wall just beyond where an older scan's view of it ended
+    the map -- something that moved (fr-clinic at 2 030-2 060 s: a straight line of
+    returns across an 8 m hall, 8-10 m ahead, that moves on with the robot and that the
+    next scans see through; most likely the floor, which a tilted scan plane meets in a
+    line whose distance a small pitch wobble moves by metres), or a wall just beyond
+    where an older scan's view of it ended
     -- pulls the match as long as some map point lies within the cap. GMapping's
     matcher looks for a hit in the cells next to the endpoint only. At 0.3 m the RBPF
     lost 1.5 m of 6 m travelled in that hall while the odometry was right to 2 %, and
