@@ -17,7 +17,7 @@ from numeric.laser import Laser, LaserConfig
 from numeric.occupancy import FREE, OCCUPIED, UNKNOWN, OccupancyMap, build_occupancy
 from numeric.scan import Scan
 from numeric.slam.datasets import slam_data_dir
-from numeric.slam.evaluation import relation_errors
+from numeric.slam.evaluation import local_failures, relation_errors
 from numeric.slam.gated import GateConfig, SingleHypothesisSlam, inside_gate
 from numeric.slam.intensity_icp import IcpConfig, Reference, intensity_icp
 from numeric.slam.logs import (
@@ -94,6 +94,30 @@ def test_relation_metric_is_zero_for_the_truth_and_sees_a_bias(tmp_path: Path) -
     assert relation_errors(t, scaled, rel_t, rel).trans_m > 0.03
     with pytest.raises(InvalidInput):
         relation_errors(t + 100, truth, rel_t, rel)
+
+
+def test_local_failures_are_short_relations_the_odometry_gets_right() -> None:
+    """A straight drive at 0.3 m/s, relations 3 s long. The estimate stands still for
+    2 s at t = 20 s (a scan that pulls the match along a hall): the relations that
+    span the stop are 0.3-0.6 m short along the way and counted. Where the odometry is
+    off as well (a 0.5 m sideways slip at t = 40 s, in both), nothing is counted: that
+    is drift the odometry had, not the method's own failure."""
+    t = np.arange(0.0, 60.0, 0.5)
+    truth = np.column_stack([0.3 * t, np.zeros_like(t), np.zeros_like(t)])
+    odom, est = truth.copy(), truth.copy()
+    stop = (t >= 20.0) & (t < 22.0)
+    est[stop, 0] = 0.3 * 20.0
+    est[t >= 22.0, 0] -= 0.6
+    for p in (odom, est):
+        p[t >= 40.0, 1] += 0.5  # a wheel slip both carry
+    rel_t = np.column_stack([t[:-6], t[6:]])
+    rel = relative(truth[:-6], truth[6:])
+    f = local_failures(t, est, t, odom, rel_t, rel)
+    assert len(f) > 0
+    assert np.all((f.t1 > 17.0) & (f.t1 < 22.0))
+    assert np.all((f.error[:, 0] >= -0.6 - 1e-9) & (f.error[:, 0] < -0.3))  # short along
+    assert np.allclose(f.error[:, 1:], 0.0)
+    assert len(local_failures(t, truth, t, odom, rel_t, rel)) == 0
 
 
 def test_tum_and_carmen_round_trip(tmp_path: Path, room_log) -> None:  # type: ignore[no-untyped-def]

@@ -7,7 +7,8 @@ within ``max_dt_s``) and the error is ``E = inv(delta_ref) delta_est``; the
 translational error is ``|t(E)|`` (m), the rotational ``|angle(E)|`` (reported in
 degrees, as the published tables are). Means and sample standard deviations (n - 1) of
 the absolute and squared errors are returned, like the Freiburg metricEvaluator and
-Cartographer's ``compute_relations_metrics``.
+Cartographer's ``compute_relations_metrics``. :func:`local_failures` counts the short
+relations a method gets wrong where the raw odometry gets them right.
 """
 
 from __future__ import annotations
@@ -80,3 +81,40 @@ def relation_errors(times: np.ndarray, poses: np.ndarray, rel_times: np.ndarray,
     rm, rs = _mean_std(rot)
     rq, rqs = _mean_std(rot**2)
     return RelationErrors(int(ok.sum()), int((~ok).sum()), tm, ts, tq, tqs, rm, rs, rq, rqs)
+
+
+@dataclass(frozen=True)
+class LocalFailures:
+    """Short relations the estimate gets wrong where the raw odometry gets them right:
+    their start times ``t1`` and errors ``error (F, 3)`` as (along the reference
+    relation, across it, heading), in the reference relation's frame (m, m, rad)."""
+
+    t1: np.ndarray
+    error: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.t1)
+
+
+def local_failures(times: np.ndarray, poses: np.ndarray, odom_times: np.ndarray,
+                   odom: np.ndarray, rel_times: np.ndarray, rel_delta: np.ndarray,
+                   max_gap_s: float = 20.0, off_m: float = 0.3, odom_ok_m: float = 0.1,
+                   max_dt_s: float = 0.1) -> LocalFailures:
+    """The relations shorter than ``max_gap_s`` on which the trajectory is more than
+    ``off_m`` off while the raw odometry (``odom_times``, ``odom``) is within
+    ``odom_ok_m``: failures of the method's local matching, not drift the odometry
+    already had. Where a relation's whole error comes from (along-track shortfall,
+    lateral, heading) tells a scan that pulls the match along a hall from a heading
+    flip in a corridor."""
+    short = (rel_times[:, 1] - rel_times[:, 0]) < max_gap_s
+    rt, rd = rel_times[short], rel_delta[short]
+    errs = []
+    for t, p in ((times, poses), (odom_times, odom)):
+        p1, ok1 = poses_at(t, p, rt[:, 0], max_dt_s)
+        p2, ok2 = poses_at(t, p, rt[:, 1], max_dt_s)
+        e = compose(relative(rd, np.zeros(3)), relative(p1, p2))  # inv(ref) * est
+        errs.append(np.where((ok1 & ok2)[:, None], e, np.nan))
+    est, odo = errs
+    bad = ((np.hypot(est[:, 0], est[:, 1]) > off_m)
+           & (np.hypot(odo[:, 0], odo[:, 1]) < odom_ok_m))
+    return LocalFailures(rt[bad, 0], est[bad])
