@@ -59,6 +59,17 @@ def poses_at(times: np.ndarray, poses: np.ndarray, query: np.ndarray,
     return poses[order][pick], ok
 
 
+def relation_error_poses(times: np.ndarray, poses: np.ndarray, rel_times: np.ndarray,
+                         rel_delta: np.ndarray, max_dt_s: float) -> tuple[np.ndarray,
+                                                                           np.ndarray]:
+    """``E = inv(delta_ref) delta_est`` ``(R, 3)`` of every relation, in the reference
+    relation's frame, and a mask of the relations whose two ends had a pose within
+    ``max_dt_s`` (E is meaningless elsewhere)."""
+    p1, ok1 = poses_at(times, poses, rel_times[:, 0], max_dt_s)
+    p2, ok2 = poses_at(times, poses, rel_times[:, 1], max_dt_s)
+    return compose(relative(rel_delta, np.zeros(3)), relative(p1, p2)), ok1 & ok2
+
+
 def relation_errors(times: np.ndarray, poses: np.ndarray, rel_times: np.ndarray,
                     rel_delta: np.ndarray, max_dt_s: float = 0.1) -> RelationErrors:
     """Errors of the trajectory (``times (N,)``, ``poses (N, 3)``) on the relations
@@ -66,14 +77,11 @@ def relation_errors(times: np.ndarray, poses: np.ndarray, rel_times: np.ndarray,
     if len(times) == 0 or len(times) != len(poses):
         raise InvalidInput("the trajectory is empty or its times and poses differ in length",
                            field="trajectory")
-    p1, ok1 = poses_at(times, poses, rel_times[:, 0], max_dt_s)
-    p2, ok2 = poses_at(times, poses, rel_times[:, 1], max_dt_s)
-    ok = ok1 & ok2
+    err, ok = relation_error_poses(times, poses, rel_times, rel_delta, max_dt_s)
     if not np.any(ok):
         raise InvalidInput("no relation falls on the trajectory's time stamps "
                            f"(tolerance {max_dt_s} s)", field="relations")
-    est = relative(p1[ok], p2[ok])
-    err = compose(relative(rel_delta[ok], np.zeros(3)), est)  # inv(ref) * est
+    err = err[ok]
     trans = np.hypot(err[:, 0], err[:, 1])
     rot = np.degrees(np.abs(err[:, 2]))
     tm, ts = _mean_std(trans)
@@ -108,13 +116,9 @@ def local_failures(times: np.ndarray, poses: np.ndarray, odom_times: np.ndarray,
     flip in a corridor."""
     short = (rel_times[:, 1] - rel_times[:, 0]) < max_gap_s
     rt, rd = rel_times[short], rel_delta[short]
-    errs = []
-    for t, p in ((times, poses), (odom_times, odom)):
-        p1, ok1 = poses_at(t, p, rt[:, 0], max_dt_s)
-        p2, ok2 = poses_at(t, p, rt[:, 1], max_dt_s)
-        e = compose(relative(rd, np.zeros(3)), relative(p1, p2))  # inv(ref) * est
-        errs.append(np.where((ok1 & ok2)[:, None], e, np.nan))
-    est, odo = errs
-    bad = ((np.hypot(est[:, 0], est[:, 1]) > off_m)
+    est, ok = relation_error_poses(times, poses, rt, rd, max_dt_s)
+    odo, ok_odo = relation_error_poses(odom_times, odom, rt, rd, max_dt_s)
+    ok &= ok_odo
+    bad = (ok & (np.hypot(est[:, 0], est[:, 1]) > off_m)
            & (np.hypot(odo[:, 0], odo[:, 1]) < odom_ok_m))
     return LocalFailures(rt[bad, 0], est[bad])

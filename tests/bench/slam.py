@@ -91,8 +91,7 @@ def one_run(name: str, label: str, quick: bool, out: Path,
             (out / f"map-{name}-{slug}.pgm").write_bytes(res.map.to_pgm())
     write_tum(out / f"traj-{name}-{slug}.tum", times, poses)
     e = relation_errors(times, poses, rt, rd)
-    fails = local_failures(times, poses, np.array([s.t for s in log.scans]),
-                           np.array([s.odom for s in log.scans]), rt, rd)
+    fails = local_failures(times, poses, log.times, log.odometry, rt, rd)
     loop = (rt[:, 1] - rt[:, 0]) > LOOP_GAP_S
     el = relation_errors(times, poses, rt[loop], rd[loop]) if np.any(loop) else None
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
