@@ -25,6 +25,7 @@ import sys
 import time
 from concurrent.futures import Executor
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -52,10 +53,15 @@ METHODS: dict[str, dict[str, str]] = {
     "graph": {"method": "graph"},
     "karto": {}, "small_gicp": {}}
 LOOP_GAP_S = 60.0
+#: one run's figures (slam.json): numbers, names, the local failures' times, and None
+#: where a method has no such figure
+Row = dict[str, Any]
+#: sequential scan-matching peers run by tests/bench/slam_peers.py
+PEERS = ("karto", "small_gicp")
 
 
 def one_run(name: str, label: str, quick: bool, out: Path,
-            seed: int = 0) -> dict[str, float | str | int]:
+            seed: int = 0) -> Row:
     """Run ``label`` over log ``name`` in this process: relation errors on all relations
     and on the loop-spanning ones (time gap > 60 s), seconds, real-time factor, peak
     memory of this process; writes the trajectory and (seed 0) the map under ``out``."""
@@ -74,9 +80,10 @@ def one_run(name: str, label: str, quick: bool, out: Path,
     base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     slug = label.split()[0] + ("-improved" if "improved" in label else "")
     slug += f"-s{seed}" if seed else ""
-    if label in ("karto", "small_gicp"):
+    if label in PEERS:
         times, poses, seconds = peer_odometry(log, label)
         closures = 0
+        slam = None
     else:
         # maps at 5 cm for the methods whose maps are shown; the others drift over
         # hundreds of metres on some logs, so their (unused) maps are kept coarse
@@ -92,6 +99,7 @@ def one_run(name: str, label: str, quick: bool, out: Path,
     write_tum(out / f"traj-{name}-{slug}.tum", times, poses)
     e = relation_errors(times, poses, rt, rd)
     fails = local_failures(times, poses, log.times, log.odometry, rt, rd)
+    starts = getattr(slam, "loop_starts", None)
     loop = (rt[:, 1] - rt[:, 0]) > LOOP_GAP_S
     el = relation_errors(times, poses, rt[loop], rd[loop]) if np.any(loop) else None
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
@@ -105,11 +113,14 @@ def one_run(name: str, label: str, quick: bool, out: Path,
             "seconds": seconds, "realtime": log.duration_s / max(seconds, 1e-9),
             "peak_rss_mb": rss / 1024.0, "peak_rss_base_mb": base / 1024.0,
             "closures": closures, "local_failures": len(fails),
+            # the RBPF's resamplings and accepted loop starts (None for other methods)
+            "resamples": getattr(slam, "resamples", None),
+            "loop_starts": None if starts is None else len(starts),
             "local_failure_t": [round(float(x - log.scans[0].t), 1) for x in fails.t1]}
 
 
 def run_isolated(name: str, label: str, quick: bool, out: Path,
-                 seed: int = 0) -> dict[str, float | str | int]:
+                 seed: int = 0) -> Row:
     """:func:`one_run` in a fresh process, so that peak memory is this run's alone."""
     cmd = [sys.executable, str(Path(__file__)), "--one", name, label, "--out", str(out),
            "--seed", str(seed)]
@@ -153,7 +164,7 @@ def stochastic(label: str) -> bool:
 
 def accuracy(quick: bool, out: Path, names: list[str], labels: list[str],
              lines: list[str], executor: Executor | None = None, seeds: tuple[int, ...] = (0,),
-             ) -> list[dict[str, float | str | int]]:
+             ) -> list[Row]:
     """Every (log, method) run, each in a fresh process: one after the other here, or
     all at once on ``executor`` (a Dask cluster's, :mod:`service.executors`; its
     workers need this repository at the same path). Runs side by side share the cores:
@@ -195,7 +206,7 @@ def accuracy(quick: bool, out: Path, names: list[str], labels: list[str],
     return rows
 
 
-def seed_summary(rows: list[dict[str, float | str | int]], lines: list[str]) -> None:
+def seed_summary(rows: list[Row], lines: list[str]) -> None:
     """Per (log, particle filter): the relation error over the seeds, against GMapping's
     published figure."""
     lines += ["", "## Particle filters over seeds: translational relation error (m)", "",
