@@ -375,7 +375,10 @@ def test_a_cancelled_batch_keeps_store_and_memory_in_step(tmp_path: Any) -> None
         await svc.worlds.create(WorldDescription(name="w", template="loop"))
         rid = (await svc.slam.create("w", SlamOptions(method="graph")))["id"]
         task = asyncio.ensure_future(svc.slam.add_scans("w", rid, items))
-        await asyncio.sleep(0.5)
+        for _ in range(1200):  # cancel once some scans are in (a loaded machine is slow)
+            await asyncio.sleep(0.05)
+            if svc.slam.runs[rid].scans > 0:
+                break
         task.cancel()
         with pytest.raises(asyncio.CancelledError):
             await task
