@@ -91,6 +91,13 @@ def relation_errors(times: np.ndarray, poses: np.ndarray, rel_times: np.ndarray,
     return RelationErrors(int(ok.sum()), int((~ok).sum()), tm, ts, tq, tqs, rm, rs, rq, rqs)
 
 
+#: :func:`local_failures`' defaults: relations shorter than this (s), off by more than
+#: this (m), where the raw odometry is within this (m)
+LOCAL_MAX_GAP_S = 20.0
+LOCAL_OFF_M = 0.3
+LOCAL_ODOM_OK_M = 0.1
+
+
 @dataclass(frozen=True)
 class LocalFailures:
     """Short relations the estimate gets wrong where the raw odometry gets them right:
@@ -106,8 +113,9 @@ class LocalFailures:
 
 def local_failures(times: np.ndarray, poses: np.ndarray, odom_times: np.ndarray,
                    odom: np.ndarray, rel_times: np.ndarray, rel_delta: np.ndarray,
-                   max_gap_s: float = 20.0, off_m: float = 0.3, odom_ok_m: float = 0.1,
-                   max_dt_s: float = 0.1) -> LocalFailures:
+                   max_gap_s: float = LOCAL_MAX_GAP_S, off_m: float = LOCAL_OFF_M,
+                   odom_ok_m: float = LOCAL_ODOM_OK_M, max_dt_s: float = 0.1,
+                   ) -> LocalFailures:
     """The relations shorter than ``max_gap_s`` on which the trajectory is more than
     ``off_m`` off while the raw odometry (``odom_times``, ``odom``) is within
     ``odom_ok_m``: failures of the method's local matching, not drift the odometry

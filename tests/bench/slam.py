@@ -31,7 +31,13 @@ import numpy as np
 
 from numeric.geometry import compose, relative
 from numeric.slam.datasets import slam_data_dir
-from numeric.slam.evaluation import local_failures, relation_errors
+from numeric.slam.evaluation import (
+    LOCAL_MAX_GAP_S,
+    LOCAL_ODOM_OK_M,
+    LOCAL_OFF_M,
+    local_failures,
+    relation_errors,
+)
 from numeric.slam.intensity_icp import IcpConfig, Reference, intensity_icp
 from numeric.slam.logs import read_log, read_relations
 from numeric.slam.runner import SlamOptions, run_log
@@ -116,7 +122,7 @@ def one_run(name: str, label: str, quick: bool, out: Path,
             # the RBPF's resamplings and accepted loop starts (None for other methods)
             "resamples": getattr(slam, "resamples", None),
             "loop_starts": None if starts is None else len(starts),
-            "local_failure_t": [round(float(x - log.scans[0].t), 1) for x in fails.t1]}
+            "local_failure_t": [round(float(x - log.times[0]), 1) for x in fails.t1]}
 
 
 def run_isolated(name: str, label: str, quick: bool, out: Path,
@@ -172,8 +178,9 @@ def accuracy(quick: bool, out: Path, names: list[str], labels: list[str],
     particle filters run once per seed of ``seeds``, the others once."""
     lines += ["## Relation errors (Kümmerle et al. 2009), mean ± std, all relations and "
               f"loop-spanning ones (time gap > {LOOP_GAP_S:.0f} s); local failures: "
-              "relations shorter than 20 s off by more than 0.3 m where the raw odometry "
-              "is within 0.1 m (their start times in slam.json)", "",
+              f"relations shorter than {LOCAL_MAX_GAP_S:g} s off by more than "
+              f"{LOCAL_OFF_M:g} m where the raw odometry is within {LOCAL_ODOM_OK_M:g} m "
+              "(their start times in slam.json)", "",
               "| log | method | seed | trans (m) | rot (deg) | loop trans (m) | loop rot (deg) | "
               "local failures | time (s) | x real time | peak RSS (MB) |",
               "|---|---|---|---|---|---|---|---|---|---|---|"]
