@@ -39,6 +39,7 @@ import numpy as np
 from numeric.camera import Camera, CameraConfig
 from numeric.eigenspace.analysis import EigenspaceAnalysis
 from numeric.eigenspace.image_sets import decode_image, encode_png
+from numeric.eigenspace.learning import EigenspaceModel
 from numeric.eigenspace.localization import Session, TurnCandidates, Vote, turn_candidates
 from numeric.eigenspace.movement_strategy import (
     Decision,
@@ -264,10 +265,13 @@ def turn_task(a: EigenspaceAnalysis, turn: list[str] | np.ndarray,
     return FirstStop(s, vote, stop_report(s, vote))
 
 
-def stop_report(s: Session, vote: Vote) -> dict[str, Any]:
+def stop_report(s: Session, vote: Vote, model: EigenspaceModel | None = None,
+                world: World | None = None) -> dict[str, Any]:
     """What an answer says of a session's vote: up to 10 candidate poses (the best of
     each cluster of agreeing hits, with its votes, triplet and cluster size), whether
-    the vote is unique, and the pose estimate (used when the state is Z)."""
+    the vote is unique, and the pose estimate (used when the state is Z; with the
+    eigenspace and the world's walls it also interpolates the whole latest turn,
+    :func:`numeric.eigenspace.localization.whole_turn_interpolation`)."""
     cands = []
     for cluster, best in list(zip(vote.clusters, s.representatives(vote), strict=True))[:10]:
         p = s.current_pose(best)
@@ -276,7 +280,8 @@ def stop_report(s: Session, vote: Vote) -> dict[str, Any]:
                       "members": len(cluster)})
     est = None
     if vote.winner is not None:
-        p = s.estimate(vote)
+        walls = None if world is None else (world.surfaces.a, world.surfaces.b)
+        p = s.estimate(vote, model, walls)
         est = {"x": float(p[0]), "y": float(p[1]), "theta": float(p[2])}
     return {"candidates": cands, "estimate": est, "unique": vote.unique, "stops": s.stops}
 

@@ -33,6 +33,7 @@ from numeric.eigenspace.image_sets import ImageSet
 from numeric.eigenspace.learning_strategy import learn_with_strategy
 from numeric.eigenspace.localization import (
     Session,
+    Vote,
     session_from_dict,
     session_to_dict,
 )
@@ -198,6 +199,11 @@ class EigenspaceService:
                                 triplets=triplets, unique=unique)
         return dict(r)
 
+    def _report(self, world: str, session: Session, vote: Vote) -> dict[str, Any]:
+        """:func:`service.compute.stop_report` with the eigenspace and the world's walls
+        (the estimate interpolates the whole latest turn too)."""
+        return stop_report(session, vote, self.analysis(world).model, self.worlds.model(world))
+
     @staticmethod
     def _answer(state: dict[str, Any], outcome: str, report: dict[str, Any]) -> dict[str, Any]:
         """The answer: state, outcome, pose (in state Z), candidates (``report``:
@@ -215,7 +221,7 @@ class EigenspaceService:
         assert isinstance(r1, FirstStop)
         r = await self._transition(world, {"state": "x"}, r1.session.stop_triplets(0),
                                    r1.vote.unique)
-        return self._answer(r["state"], r["outcome"], r1.report)
+        return self._answer(r["state"], r["outcome"], self._report(world, r1.session, r1.vote))
 
     async def create_session(self, world: str) -> dict[str, Any]:
         a = self.analysis(world)
@@ -238,7 +244,7 @@ class EigenspaceService:
         st = self._session(world, sid)
         vote = st.session.vote(self.analysis(world).set_of())
         out = self._answer(st.state, st.history[-1]["outcome"] if st.history else "none",
-                           stop_report(st.session, vote))
+                           self._report(world, st.session, vote))
         return {"id": sid, **out}
 
     async def add_stop(self, world: str, sid: str, turn: list[str] | np.ndarray,
@@ -263,7 +269,8 @@ class EigenspaceService:
             st.history.append({"stop": k, "outcome": r["outcome"], "state": r["state"]})
             with self.store.transaction() as conn:
                 self.store.put_session(conn, sid, world, st.to_dict())
-        return {"id": sid, **self._answer(st.state, r["outcome"], stop_report(st.session, vote))}
+        return {"id": sid, **self._answer(st.state, r["outcome"],
+                                          self._report(world, st.session, vote))}
 
     async def next_move(self, world: str, sid: str) -> dict[str, Any]:
         """The movement strategy's action (alpha, l, beta) and its Q(Z) (§3.5),

@@ -20,6 +20,7 @@ from numeric.eigenspace.localization import (
     session_to_dict,
     turn_appearance,
     turn_candidates,
+    whole_turn_interpolation,
 )
 from numeric.eigenspace.movement_strategy import (
     RegionLayout,
@@ -291,6 +292,60 @@ def test_the_estimate_is_the_weighted_mean_of_the_winning_group() -> None:
     th = np.arctan2(w @ np.sin(now[:, 2]), w @ np.cos(now[:, 2]))
     assert np.allclose(s.estimate(v), [*((w @ now[:, :2]) / w.sum()), th])
     assert abs(th) > 3.0  # the mean of 3.1 and -3.1 rad is pi, not 0
+
+
+def test_whole_turn_interpolation_finds_a_learning_point_and_the_middle_of_two(
+        analysis: EigenspaceAnalysis, room: World) -> None:
+    """A noiseless turn at a learning point comes back at that point from an estimate
+    0.4 m off; a turn halfway between two points lands between them, nearer the truth
+    than the estimate it started from. Images of near walls are left out; with every
+    image left out there is no answer."""
+    m = analysis.model
+    walls = (room.surfaces.a, room.surfaces.b)
+    cam = Camera(room, analysis.config.camera)
+    n = len(m.directions)
+    i = int(np.argmin(np.linalg.norm(m.points - [5.0, 5.0], axis=1)))  # a middle point
+    q = m.project(cam.render_turn(m.points[i], 0.3, n))
+    start = np.array([*(m.points[i] + [0.3, -0.25]), 0.3])
+    got = whole_turn_interpolation(m, q, start, walls, 4.0)
+    assert got is not None and np.linalg.norm(got - m.points[i]) < 0.15
+    j = int(np.argmin(np.linalg.norm(m.points - (m.points[i] + [2.0, 0.0]), axis=1)))
+    mid = (m.points[i] + m.points[j]) / 2
+    q = m.project(cam.render_turn(mid, -1.0, n))
+    start = np.array([*(mid + [0.0, 0.4]), -1.0])
+    got = whole_turn_interpolation(m, q, start, walls, 4.0)
+    assert got is not None and np.linalg.norm(got - mid) < 0.4 * 0.75
+    assert whole_turn_interpolation(m, q, start, walls, 100.0) is None
+
+
+def test_the_estimate_averages_eq5_with_the_whole_turn(analysis: EigenspaceAnalysis,
+                                                       room: World) -> None:
+    """Given the eigenspace and the walls, the position is the mean of eq. 5's and the
+    whole turn's (the heading stays eq. 5's); without them, or with
+    turn_min_range_m None, eq. 5's alone. The latest turn survives the store."""
+    m = analysis.model
+    walls = (room.surfaces.a, room.surfaces.b)
+    cam = Camera(room, analysis.config.camera)
+    truth = np.array([4.6, 5.3, 0.7])
+    q = m.project(cam.render_turn(truth[:2], truth[2], len(m.directions)))
+    eq5 = np.array([4.9, 5.0, 0.75])
+    for cfg in (LocalizationConfig(), LocalizationConfig(turn_min_range_m=None)):
+        s = Session(cfg)
+        s.add_stop(TurnCandidates(np.array([0]), np.array([0.0]), eq5[None],
+                                  np.zeros(1, int), projections=q), 0.2)
+        v = s.vote()
+        assert np.allclose(s.estimate(v), eq5)
+        turn = whole_turn_interpolation(m, q, eq5, walls, 4.0)
+        assert turn is not None
+        both = s.estimate(v, m, walls)
+        if cfg.turn_min_range_m is None:
+            assert np.allclose(both, eq5)
+        else:
+            assert np.allclose(both, [*((eq5[:2] + turn) / 2), eq5[2]])
+            assert np.linalg.norm(both[:2] - truth[:2]) < np.linalg.norm(eq5[:2] - truth[:2])
+        back = session_from_dict(session_to_dict(s))
+        assert back.last_turn is not None and np.allclose(back.last_turn, q, atol=1e-5)
+        assert np.allclose(back.estimate(back.vote(), m, walls), both, atol=1e-4)
 
 
 # -- §3.5 movement strategy -------------------------------------------------------------------
