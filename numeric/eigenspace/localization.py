@@ -139,9 +139,10 @@ def whole_turn_interpolation(model: EigenspaceModel, q: np.ndarray, pose: np.nda
 
     Chizu's addition to §2.2: many images average out what one image's interpolation
     gets wrong. Averaged with eq. 5's estimate (:meth:`Session.estimate`), the error of
-    localized sessions fell by 10-20 % (rooms nobody tuned on, 70-90 sessions each:
-    L-shaped 0.231 -> 0.209 m, pentagon 0.214 -> 0.182 m; single turns in room A 0.252
-    -> 0.205 m); either alone does about as well as eq. 5.
+    localized sessions fell by 9-28 % (the benchmark's Table 2 in room A 0.205 -> 0.174
+    m over 798 sessions; rooms nobody tuned on: the pentagon 0.194 -> 0.140 m, the
+    L-shaped room 0.395 -> 0.360 m); either alone does about as well as eq. 5. The 4 m
+    was chosen over 2, 3 and 5 m in those two rooms (README).
 
     None when fewer than ``min_images`` images qualify, the points are nearly
     collinear, or the answer lies more than ``max_shift_m`` from ``pose``."""
@@ -165,23 +166,25 @@ def whole_turn_interpolation(model: EigenspaceModel, q: np.ndarray, pose: np.nda
     heads = pose[2] + 2.0 * np.pi * np.arange(n) / n
     for _ in range(iterations):
         r = free_distance(np.repeat(xy[None], n, axis=0), heads, *walls)
-        use = np.isfinite(r) & (r >= min_range_m)
-        target = xy + r[:, None] * np.column_stack([np.cos(heads), np.sin(heads)])
-        x3 = np.empty((n, 3, q.shape[1]))
-        for c in range(3):
-            to = target - corners[c]
-            dist = np.hypot(to[:, 0], to[:, 1])
-            ang = np.arctan2(to[:, 1], to[:, 0])
-            seen = free_distance(np.repeat(corners[c][None], n, axis=0), ang, *walls)
-            use &= seen >= dist - 0.1  # the target is in sight of this learning point
-            u = (wrap_angle(ang - model.directions[0]) / step) % n_dir
-            j0 = np.floor(u).astype(int) % n_dir
-            f = (u - np.floor(u))[:, None]
-            x3[:, c] = ((1.0 - f) * model.projections[idx[c], j0]
-                        + f * model.projections[idx[c], (j0 + 1) % n_dir])
-        if use.sum() < min_images:
+        use = np.flatnonzero(np.isfinite(r) & (r >= min_range_m))
+        if len(use) < min_images:
             return None
-        x3, qq = x3[use], q[use]
+        target = xy + r[use, None] * np.column_stack([np.cos(heads[use]), np.sin(heads[use])])
+        to = target[None] - corners[:, None]                                 # (3, m, 2)
+        dist = np.hypot(to[..., 0], to[..., 1])
+        ang = np.arctan2(to[..., 1], to[..., 0])
+        # the target is in sight of every learning point (one ray cast for the three)
+        seen = free_distance(np.repeat(corners, len(use), axis=0), ang.reshape(-1), *walls)
+        sight = (seen.reshape(3, -1) >= dist - 0.1).all(axis=0)
+        use, ang = use[sight], ang[:, sight]
+        u = (wrap_angle(ang - model.directions[0]) / step) % n_dir           # (3, m)
+        j0 = np.floor(u).astype(int) % n_dir
+        f = (u - np.floor(u))[..., None]
+        x3 = ((1.0 - f) * model.projections[idx[:, None], j0]
+              + f * model.projections[idx[:, None], (j0 + 1) % n_dir]).transpose(1, 0, 2)
+        if len(use) < min_images:
+            return None
+        qq = q[use]
         a = np.stack([x3[:, 0] - x3[:, 2], x3[:, 1] - x3[:, 2]], axis=-1).reshape(-1, 2)
         k12 = np.linalg.lstsq(a, (qq - x3[:, 2]).reshape(-1), rcond=None)[0]
         xy = np.array([k12[0], k12[1], 1.0 - k12.sum()]) @ corners

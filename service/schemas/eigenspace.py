@@ -106,8 +106,9 @@ class LocalizationCandidate(BaseModel):
 
 class LocalizationOut(BaseModel):
     """The state after this stop, what the stop showed (``outcome``: none, unique,
-    in_set, across, unlisted), the pose when z (the weighted mean of the winning group),
-    the numeric vote and up to 10 candidate groups, strongest first."""
+    in_set, across, unlisted), the pose when z (the weighted mean of the winning group,
+    averaged with the interpolation of the stop's whole turn), the numeric vote and up
+    to 10 candidate groups, strongest first."""
 
     state: LocalizationState
     outcome: Literal["none", "unique", "in_set", "across", "unlisted"]

@@ -388,6 +388,18 @@ def speed(cfg: EigenspaceConfig, a: EigenspaceAnalysis, w: World) -> list[str]:
     nn = (time.perf_counter() - t0) / reps
     rows.append(f"| localize one turn ({len(imgs)} images) | {loc * 1e3:.2f} ms | "
                 f"{loc / nn:.2f} | nearest-learning-image lookup {nn * 1e3:.2f} ms |")
+    walls = (w.surfaces.a, w.surfaces.b)
+    sets = a.set_of()
+    t0 = time.perf_counter()
+    for _ in range(reps):  # the whole answer of a first stop: hits, vote, estimate
+        s = Session(cfg.localization)
+        s.add_stop(turn_candidates(a.regions, imgs), cfg.regions.d_thd_m)
+        v = s.vote(sets)
+        if v.winner is not None:
+            s.estimate(v, a.model, walls)
+    full = (time.perf_counter() - t0) / reps
+    rows.append(f"| the same, with the vote and the estimate (eq. 5 and the whole turn) | "
+                f"{full * 1e3:.2f} ms | {full / nn:.2f} | nearest-learning-image lookup |")
     lay = a.layout(w)
     poses = initial_samples(w.sample_free, cfg.strategy.n_samples, np.random.default_rng(0))
     b = StateBelief.start(len(poses), lay.n_sets)
