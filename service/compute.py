@@ -243,18 +243,18 @@ def check_turn(a: EigenspaceAnalysis, images: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class FirstStop:
-    """A one-stop localization computed in a worker: the session, its vote and what
-    the answer reports of them (:func:`stop_report`)."""
+    """A one-stop localization computed in a worker: the session and its vote (the
+    answer's report, :func:`stop_report`, needs the world's walls and is made by the
+    service)."""
 
     session: Session
     vote: Vote
-    report: dict[str, Any]
 
 
 def turn_task(a: EigenspaceAnalysis, turn: list[str] | np.ndarray,
               first_stop: bool) -> TurnCandidates | FirstStop:
     """One turn's region hits (Ohta et al. §3.4: project, region test); for a first
-    stop, the new session, its vote and the report. ``turn``: base64 PNGs, or images."""
+    stop, the new session and its vote. ``turn``: base64 PNGs, or images."""
     imgs = decode_png_turn(turn, a.model.image_shape) if isinstance(turn, list) else turn
     cands = turn_candidates(a.regions, check_turn(a, imgs))
     if not first_stop:
@@ -262,16 +262,17 @@ def turn_task(a: EigenspaceAnalysis, turn: list[str] | np.ndarray,
     s = Session(a.config.localization)
     s.add_stop(cands, a.config.regions.d_thd_m)
     vote = s.vote(a.set_of())
-    return FirstStop(s, vote, stop_report(s, vote))
+    return FirstStop(s, vote)
 
 
-def stop_report(s: Session, vote: Vote, model: EigenspaceModel | None = None,
-                world: World | None = None) -> dict[str, Any]:
+def stop_report(s: Session, vote: Vote, model: EigenspaceModel,
+                world: World) -> dict[str, Any]:
     """What an answer says of a session's vote: up to 10 candidate poses (the best of
     each cluster of agreeing hits, with its votes, triplet and cluster size), whether
     the vote is unique, and the pose estimate (used when the state is Z; with the
     eigenspace and the world's walls it also interpolates the whole latest turn,
-    :func:`numeric.eigenspace.localization.whole_turn_interpolation`)."""
+    :func:`numeric.eigenspace.localization.whole_turn_interpolation`). Made in the
+    service process, where the world is."""
     cands = []
     for cluster, best in list(zip(vote.clusters, s.representatives(vote), strict=True))[:10]:
         p = s.current_pose(best)
@@ -280,8 +281,7 @@ def stop_report(s: Session, vote: Vote, model: EigenspaceModel | None = None,
                       "members": len(cluster)})
     est = None
     if vote.winner is not None:
-        walls = None if world is None else (world.surfaces.a, world.surfaces.b)
-        p = s.estimate(vote, model, walls)
+        p = s.estimate(vote, model, (world.surfaces.a, world.surfaces.b))
         est = {"x": float(p[0]), "y": float(p[1]), "theta": float(p[2])}
     return {"candidates": cands, "estimate": est, "unique": vote.unique, "stops": s.stops}
 

@@ -21,7 +21,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from numeric.eigenspace.learning import DYNAMIC_RANGE, EigenspaceModel
 from numeric.eigenspace.regions import RegionConfig, agrees, region_candidates
-from numeric.eigenspace.triplets import Triplets
+from numeric.eigenspace.triplets import Triplets, triangle_area
 from numeric.geometry import compose, free_distance, relative, wrap_angle
 
 
@@ -154,8 +154,7 @@ def whole_turn_interpolation(model: EigenspaceModel, q: np.ndarray, pose: np.nda
     order = np.argsort(np.hypot(*(pts - pose[:2]).T))
     d12 = float(np.linalg.norm(pts[order[0]] - pts[order[1]]))
     third = [i for i in order[2:]
-             if abs(_cross2(pts[order[1]] - pts[order[0]], pts[i] - pts[order[0]])) / 2
-             >= 0.25 * d12 ** 2]
+             if triangle_area(pts[[order[0], order[1], i]]) >= 0.25 * d12 ** 2]
     if not third:
         return None
     idx = np.array([order[0], order[1], third[0]])
@@ -191,10 +190,6 @@ def whole_turn_interpolation(model: EigenspaceModel, q: np.ndarray, pose: np.nda
     if np.hypot(*(xy - pose[:2])) > max_shift_m:
         return None
     return np.asarray(xy)
-
-
-def _cross2(a: np.ndarray, b: np.ndarray) -> float:
-    return float(a[0] * b[1] - a[1] * b[0])
 
 
 @lru_cache(maxsize=8)
