@@ -10,7 +10,7 @@ import pytest
 from numeric.camera import Camera, CameraConfig
 from numeric.eigenspace.analysis import EigenspaceAnalysis, EigenspaceConfig, analyse, free_grid
 from numeric.eigenspace.interpolation import affine_weights, interpolate_pose
-from numeric.eigenspace.learning import f_d, learning_grid
+from numeric.eigenspace.learning import LearningStrategyConfig, f_d, learning_grid
 from numeric.eigenspace.learning_strategy import hypothetical_gain
 from numeric.eigenspace.localization import (
     LocalizationConfig,
@@ -217,6 +217,65 @@ def test_a_symmetric_room_keeps_its_twins_in_candidate_multiple_sets() -> None:
         assert len({int(set_of[t]) for t in s.triplet}) == 1 and min(set_of[s.triplet]) >= 0
         assert not s.vote().unique
     assert entered >= 2
+
+
+def test_the_learned_turns_show_a_rooms_symmetry() -> None:
+    """The twin hexagon is symmetric under a half turn about (5, 4): its grid points'
+    turns are matched by far points' turns turned by 180 deg, and those pairs agree on
+    that motion. Room A has no twins."""
+    from numeric.eigenspace.twins import twin_transform
+
+    cfg = EigenspaceConfig.model_validate(SMALL)
+    t = twin_transform(analyse(World(twin_hexagon()), cfg).model)
+    assert t is not None and t.pairs >= 8
+    assert abs(abs(wrap_angle(t.phi)) - np.pi) < 0.1
+    np.testing.assert_allclose(t.apply(np.array([3.0, 2.0])), [7.0, 6.0], atol=0.3)
+    assert twin_transform(analyse(World(room_a()), cfg).model) is None
+
+
+def test_the_learning_strategy_learns_an_added_points_twin_in_a_symmetric_room() -> None:
+    """An added point alone has no look-alike learning point, so its triplets form no
+    candidate-multiple set, and a turn at its twin place enters them and is placed on
+    the wrong side. Learned with its twin, the added triplets are grouped with the
+    twin's (§3.3): no hit outside a set is placed wrong, and no turn there is answered."""
+    from numeric.eigenspace.learning_strategy import learning_strategy
+    from numeric.eigenspace.twins import twin_transform
+
+    w = World(twin_hexagon())
+    cfg = EigenspaceConfig.model_validate(SMALL)
+    base = analyse(w, cfg)
+    lcfg = LearningStrategyConfig(target_probability=1.0, max_additions=6)
+    res = learning_strategy(base, w, lcfg, np.random.default_rng(0))
+    added = [s for s in res.steps if s.added is not None]
+    assert len(added) == 6 and all(s.twin is not None for s in added)
+    for s in added:  # the twin is the point turned half about the hexagon's centre
+        np.testing.assert_allclose(np.add(s.added, s.twin), [10.0, 8.0], atol=0.6)
+    assert len(res.analysis.model.points) == len(base.model.points) + 12
+    single = learning_strategy(base, w, lcfg.model_copy(update={"learn_twins": False}),
+                               np.random.default_rng(0))
+    assert len(single.analysis.model.points) == len(base.model.points) + 6
+    # turns at the twin places of the points added alone, which see what they saw
+    cam, rng = Camera(w, cfg.camera), np.random.default_rng(1)
+    twin = twin_transform(base.model)
+    assert twin is not None
+    poses = [(twin.apply(np.array(st.added)) + rng.uniform(-0.2, 0.2, 2), rng.uniform(-3, 3))
+             for st in single.steps if st.added is not None for _ in range(4)]
+
+    def outcome(a: EigenspaceAnalysis) -> tuple[int, int]:
+        """(unique answers, hits outside any candidate set placed more than 1 m off)"""
+        unique = wrong = 0
+        set_of = a.set_of()
+        for p, th in poses:
+            s = Session(cfg.localization)
+            c = s.add_stop(turn_candidates(a.regions, cam.render_turn(p, th, 72)),
+                           cfg.regions.d_thd_m)
+            unique += bool(s.triplet) and s.vote(set_of).unique
+            off = np.linalg.norm(c.start_pose[:, :2] - p, axis=1) > 1.0
+            wrong += int((off & (set_of[c.t] < 0)).sum())
+        return unique, wrong
+
+    assert outcome(res.analysis) == (0, 0)
+    assert outcome(single.analysis)[1] > 0
 
 
 # -- §2.5 localization ------------------------------------------------------------------------

@@ -53,6 +53,10 @@ class LearningStrategyConfig(BaseModel):
     max_additions: int = Field(10, ge=0, le=200, description="learning points added at most")
     circle_points: int = Field(16, ge=4, le=360,
                                description="step 2's circle around tied candidates")
+    learn_twins: bool = Field(
+        True, description="in a room the learned turns show to be symmetric, learn each "
+                          "added point's twin place too (numeric.eigenspace.twins), so "
+                          "§3.3's candidate-multiple sets can form")
 
 
 @dataclass

@@ -41,6 +41,7 @@ from numeric.eigenspace.movement_strategy import (
     p_z_curve,
 )
 from numeric.eigenspace.triplets import triangle_area
+from numeric.eigenspace.twins import twin_transform
 from numeric.world import World
 
 
@@ -50,6 +51,8 @@ class LearningStep:
     p_z: list[float]
     triplets: int
     learning_points: int
+    #: the added point's twin place, learned with it (:mod:`numeric.eigenspace.twins`)
+    twin: list[float] | None = None
 
 
 @dataclass
@@ -142,16 +145,24 @@ def learning_strategy(analysis: EigenspaceAnalysis, world: World,
                       random_additions: bool = False, executor: Executor | None = None,
                       progress: Callable[[LearningStep], None] | None = None
                       ) -> LearningResult:
-    """Add learning points (§4.2) until P(Z within n observations) >= target."""
+    """Add learning points (§4.2) until P(Z within n observations) >= target.
+
+    Where the learned turns show the room to be symmetric (:func:`twin_transform` of
+    the starting points), each added point's twin place is learned with it (the
+    addition counts once): otherwise the added triplets have no look-alike triplet for
+    §3.3 to group them with, and a robot at the twin place is answered on the wrong
+    side."""
     samples = strategy_samples(world, analysis.config)
     result = LearningResult(analysis)
     added: list[float] | None = None
+    twin: list[float] | None = None
+    symmetry = twin_transform(analysis.model) if config.learn_twins else None
     for _ in range(config.max_additions + 1):
         layout = result.analysis.layout(world)
         curve, acts = p_z_curve(samples, layout, result.analysis.config.strategy,
                                 config.n_observations, executor)
         step = LearningStep(added, curve, len(result.analysis.triplets),
-                            len(result.analysis.model.points))
+                            len(result.analysis.model.points), twin)
         result.steps.append(step)
         if progress:
             progress(step)
@@ -163,7 +174,16 @@ def learning_strategy(analysis: EigenspaceAnalysis, world: World,
         if point is None:
             break
         result.analysis = with_learning_point(result.analysis, world, point)
-        added = [float(point[0]), float(point[1])]
+        added, twin = [float(point[0]), float(point[1])], None
+        if symmetry is not None:
+            other = symmetry.apply(point)
+            # near the symmetry's centre the point is its own twin's neighbourhood
+            if (np.hypot(*(other - point)) >= 2 * config.candidate_spacing_m
+                    and world.is_free(other[None])[0]
+                    and far_from(other[None], result.analysis.model.points,
+                                 config.candidate_spacing_m / 2)[0]):
+                result.analysis = with_learning_point(result.analysis, world, other)
+                twin = [float(other[0]), float(other[1])]
     return result
 
 
@@ -191,7 +211,7 @@ def learn_with_strategy(world: World, config: EigenspaceConfig,
     def step(st: LearningStep) -> None:
         done = len(trace) / max(1, strategy.max_additions)
         trace.append({"added": st.added, "learning_points": st.learning_points,
-                      "triplets": st.triplets, "p_z": st.p_z})
+                      "triplets": st.triplets, "p_z": st.p_z, "twin": st.twin})
         report(f"learning strategy: {st.learning_points} points, P(Z within "
                f"{strategy.n_observations}) {st.p_z[-1]:.2f}", 0.5 + 0.5 * min(1.0, done))
 
