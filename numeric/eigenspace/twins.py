@@ -57,9 +57,10 @@ class TwinTransform:
 def twin_pairs(model: EigenspaceModel, points: int | None = None
                ) -> list[tuple[int, int, float]]:
     """``(q, i, phi)`` for each of the first ``points`` learning points ``q`` whose
-    whole turn the far point ``i``'s turn, turned by ``phi``, explains at most
-    :data:`TWIN_RATIO` times as well as the best near point's (:func:`turn_appearance`:
-    what ``q`` sees in direction a, ``i`` sees in direction a + phi)."""
+    whole turn differs from the far point ``i``'s turn, turned by ``phi``, by at most
+    :data:`TWIN_RATIO` times its difference from the nearest-looking near point's
+    (:func:`turn_appearance`: what ``q`` sees in direction a, ``i`` sees in direction
+    a + phi)."""
     n_pts = len(model.points) if points is None else points
     n_dir = model.projections.shape[1]
     out = []
