@@ -343,6 +343,28 @@ def _mean_sd_max(v: list[int]) -> str:
     return f"{np.mean(v):.1f} ± {np.std(v):.1f} ({max(v)})" if v else "-"
 
 
+def _short_additions(results: list[tuple[float, int, list[int], str, list[float]]]
+                     ) -> tuple[list[int], list[int]]:
+    """The strategy's and the random draws' additions over the :func:`additions_from_grid`
+    results that start short of the target."""
+    short = [r for r in results if r[0] < 0.9]
+    return [r[1] for r in short], [x for r in short for x in r[2]]
+
+
+def _pooled(label: str, results: list[tuple[float, int, list[int], str, list[float]]]
+            ) -> list[str]:
+    """One line on the seeds of ``results`` that start short: additions by the strategy
+    and at random, mean ± std (max), median and how many needed 3 or fewer."""
+    ss, rr = _short_additions(results)
+    if not ss:
+        return []
+    return [f"\n{label} ({len(ss)} seeds short of the target): "
+            + "; ".join(f"{who} {_mean_sd_max(v)}, median {np.median(v):.0f}, "
+                        f"{sum(x <= 3 for x in v)} of {len(v)} ≤ 3"
+                        for who, v in (("strategy", ss), ("random", rr)))
+            + " (paper 3 vs 5; at most 10 additions)."]
+
+
 def section54_thinned() -> list[str]:
     """§5.4 from a start that falls short: the paper's 2 m grid with 8 or 11 of its points
     left out at random (a different draw per seed), in rooms A, C and D, where the full
@@ -356,38 +378,22 @@ def section54_thinned() -> list[str]:
             "of 0.9 | strategy: added, mean ± std (max) | random: added, mean ± std (max) | "
             "seeds where the strategy needed fewer / as many / more than random's mean |",
             "|---|---|---|---|---|---|---|---|"]
-    pooled: dict[int, tuple[list[int], list[int]]] = {8: ([], []), 11: ([], [])}
     for holes in (8, 11):
         for name in ("A", "C", "D"):
             res = [r for (nm, _, h), r in zip(jobs, out, strict=True)
                    if nm == name and h == holes]
-            short = [r for r in res if r[0] < 0.9]
-            ss = [r[1] for r in short]
-            rr = [x for r in short for x in r[2]]
-            pooled[holes][0].extend(ss)
-            pooled[holes][1].extend(rr)
+            ss, rr = _short_additions(res)
             pz = [r[0] for r in res]
-            cmp = [np.sign(r[1] - np.mean(r[2])) for r in short]
+            cmp = [np.sign(r[1] - np.mean(r[2])) for r in res if r[0] < 0.9]
             rows.append(f"| {name} | {holes} of 25 | {len(res)} | {min(pz):.3f}-{max(pz):.3f}"
-                        f" | {len(short)} | {_mean_sd_max(ss)} | {_mean_sd_max(rr)} | "
+                        f" | {len(ss)} | {_mean_sd_max(ss)} | {_mean_sd_max(rr)} | "
                         f"{cmp.count(-1)} / {cmp.count(0)} / {cmp.count(1)} |")
-    short_all = [r for r in out if r[0] < 0.9]
     for lo, hi in ((0.75, 0.9), (0.5, 0.75), (0.0, 0.5)):
-        band = [r for r in short_all if lo <= r[0] < hi]
-        if band:
-            ss = [r[1] for r in band]
-            rr = [x for r in band for x in r[2]]
-            rows.append(f"\nStarting at P(Z within 5) {lo:.2f}-{hi:.2f} ({len(band)} seeds, "
-                        f"both counts of holes): strategy {_mean_sd_max(ss)}, "
-                        f"{sum(x <= 3 for x in ss)} of {len(ss)} ≤ 3; random "
-                        f"{_mean_sd_max(rr)}, {sum(x <= 3 for x in rr)} of {len(rr)} ≤ 3.")
-    for holes, (ss, rr) in pooled.items():
-        if ss:
-            rows.append(f"\n{holes} left out, seeds short of the target in A, C, D pooled: "
-                        f"strategy {np.mean(ss):.1f} ± {np.std(ss):.1f} additions (median "
-                        f"{np.median(ss):.0f}, {sum(x <= 3 for x in ss)} of {len(ss)} ≤ 3), "
-                        f"random {np.mean(rr):.1f} ± {np.std(rr):.1f} (median "
-                        f"{np.median(rr):.0f}); paper 3 vs 5. At most 10 additions.")
+        rows += _pooled(f"Starting at P(Z within 5) {lo:.2f}-{hi:.2f}, both counts of holes",
+                        [r for r in out if lo <= r[0] < hi])
+    for holes in (8, 11):
+        rows += _pooled(f"{holes} left out, A, C and D pooled",
+                        [r for (_, _, h), r in zip(jobs, out, strict=True) if h == holes])
     return rows
 
 
