@@ -58,6 +58,13 @@ def analysis(room: World) -> EigenspaceAnalysis:
     return analyse(room, EigenspaceConfig.model_validate(SMALL))
 
 
+@pytest.fixture(scope="module")
+def hexagon() -> tuple[World, EigenspaceAnalysis]:
+    """The twin hexagon (symmetric under a half turn) and its analysis on the grid."""
+    w = World(twin_hexagon())
+    return w, analyse(w, EigenspaceConfig.model_validate(SMALL))
+
+
 # -- camera ---------------------------------------------------------------------------------
 def corridor(texture: str = "camera") -> World:
     return World(WorldDescription(name="c", walls=[
@@ -191,14 +198,14 @@ def test_triplets_that_place_other_learning_images_wrong_are_rejected(
     assert len(bad) == len(analysis.triplets) > 0 and not bad.any()
 
 
-def test_a_symmetric_room_keeps_its_twins_in_candidate_multiple_sets() -> None:
+def test_a_symmetric_room_keeps_its_twins_in_candidate_multiple_sets(
+        hexagon: tuple[World, EigenspaceAnalysis]) -> None:
     """In the twin hexagon every place has a look-alike. Its triplets admit each
     other's images, which alone would reject them all; as twins grouped by §3.3's
     candidate-multiple sets they stay, and a stop that enters regions is ambiguous
     (hits within one set, no unique vote) instead of a confident pose."""
-    w = World(twin_hexagon())
-    cfg = EigenspaceConfig.model_validate(SMALL)
-    a = analyse(w, cfg)
+    w, a = hexagon
+    cfg = a.config
     r, loc = cfg.regions, cfg.localization
     bad, twins = false_admissions(a.model, a.triplets, a.c_a, r.d_thd_m,
                                   loc.same_position_m, loc.same_heading_rad, r.plane_thd_m)
@@ -219,21 +226,22 @@ def test_a_symmetric_room_keeps_its_twins_in_candidate_multiple_sets() -> None:
     assert entered >= 2
 
 
-def test_the_learned_turns_show_a_rooms_symmetry() -> None:
+def test_the_learned_turns_show_a_rooms_symmetry(hexagon: tuple[World, EigenspaceAnalysis],
+                                                 analysis: EigenspaceAnalysis) -> None:
     """The twin hexagon is symmetric under a half turn about (5, 4): its grid points'
     turns are matched by far points' turns turned by 180 deg, and those pairs agree on
     that motion. Room A has no twins."""
     from numeric.eigenspace.twins import twin_transform
 
-    cfg = EigenspaceConfig.model_validate(SMALL)
-    t = twin_transform(analyse(World(twin_hexagon()), cfg).model)
+    t = twin_transform(hexagon[1].model)
     assert t is not None and t.pairs >= 8
     assert abs(abs(wrap_angle(t.phi)) - np.pi) < 0.1
     np.testing.assert_allclose(t.apply(np.array([3.0, 2.0])), [7.0, 6.0], atol=0.3)
-    assert twin_transform(analyse(World(room_a()), cfg).model) is None
+    assert twin_transform(analysis.model) is None
 
 
-def test_the_learning_strategy_learns_an_added_points_twin_in_a_symmetric_room() -> None:
+def test_the_learning_strategy_learns_an_added_points_twin_in_a_symmetric_room(
+        hexagon: tuple[World, EigenspaceAnalysis]) -> None:
     """An added point alone has no look-alike learning point, so its triplets form no
     candidate-multiple set, and a turn at its twin place enters them and is placed on
     the wrong side. Learned with its twin, the added triplets are grouped with the
@@ -241,9 +249,8 @@ def test_the_learning_strategy_learns_an_added_points_twin_in_a_symmetric_room()
     from numeric.eigenspace.learning_strategy import learning_strategy
     from numeric.eigenspace.twins import twin_transform
 
-    w = World(twin_hexagon())
-    cfg = EigenspaceConfig.model_validate(SMALL)
-    base = analyse(w, cfg)
+    w, base = hexagon
+    cfg = base.config
     lcfg = LearningStrategyConfig(target_probability=1.0, max_additions=6)
     res = learning_strategy(base, w, lcfg, np.random.default_rng(0))
     added = [s for s in res.steps if s.added is not None]
