@@ -195,17 +195,16 @@ class Frame:
     misses: np.ndarray | None = None
 
 
-def build_occupancy(frames: Sequence[ScanFrame], poses: np.ndarray, resolution_m: float = 0.05,
-                    margin_m: float = 1.0, max_cells: int = 16_000_000,
-                    miss_cap_m: float = 5.0,
-                    grid: GridConfig | None = None) -> OccupancyMap:
-    """The occupancy grid of the scans ``frames`` placed at ``poses (K, 3)``: every scan
-    is ray-cast into one :class:`~numeric.probability_grid.ProbabilityGrid` (hits
-    raise a cell's odds, cells a beam passes through lower them, once per scan with hits
-    winning, clamped), then thresholded the way ``map_server`` reads a map: occupied at
-    ``p >= 0.65``, free below 0.5, unknown where never observed or undecided.
-    A scan's ``misses`` (the ends of its no-return beams) clear free space up to
-    ``miss_cap_m`` and mark nothing occupied."""
+def build_probability_grid(frames: Sequence[ScanFrame], poses: np.ndarray,
+                           resolution_m: float = 0.05, margin_m: float = 1.0,
+                           max_cells: int = 16_000_000, miss_cap_m: float = 5.0,
+                           grid: GridConfig | None = None,
+                           ) -> tuple[ProbabilityGrid, list[np.ndarray]]:
+    """The :class:`~numeric.probability_grid.ProbabilityGrid` the scans ``frames`` placed
+    at ``poses (K, 3)`` make (each ray-cast into it: hits raise a cell's odds, cells a
+    beam passes through lower them, clamped; a scan's ``misses`` clear free space up to
+    ``miss_cap_m``), sized to them with ``margin_m``, and each scan's returns in the
+    world frame."""
     if len(frames) == 0:
         raise InvalidInput("the run has no keyframes yet", field="run")
     cfg = (grid or GridConfig()).model_copy(update={"resolution_m": resolution_m,
@@ -232,6 +231,22 @@ def build_occupancy(frames: Sequence[ScanFrame], poses: np.ndarray, resolution_m
     g.ensure(lo, hi)
     for k, pts in enumerate(kept):
         g.insert(poses[k, :2], pts, clear[k])
+    return g, world
+
+
+def build_occupancy(frames: Sequence[ScanFrame], poses: np.ndarray, resolution_m: float = 0.05,
+                    margin_m: float = 1.0, max_cells: int = 16_000_000,
+                    miss_cap_m: float = 5.0,
+                    grid: GridConfig | None = None) -> OccupancyMap:
+    """The occupancy grid of the scans ``frames`` placed at ``poses (K, 3)``: every scan
+    is ray-cast into one :class:`~numeric.probability_grid.ProbabilityGrid` (hits
+    raise a cell's odds, cells a beam passes through lower them, once per scan with hits
+    winning, clamped), then thresholded the way ``map_server`` reads a map: occupied at
+    ``p >= 0.65``, free below 0.5, unknown where never observed or undecided.
+    A scan's ``misses`` (the ends of its no-return beams) clear free space up to
+    ``miss_cap_m`` and mark nothing occupied."""
+    g, world = build_probability_grid(frames, poses, resolution_m, margin_m, max_cells,
+                                      miss_cap_m, grid)
     nx, ny = g.shape
     isum = np.zeros(nx * ny)
     icnt = np.zeros(nx * ny)

@@ -176,7 +176,7 @@ class ImprovedConfig(BaseModel):
     odometry_window: int = Field(200, ge=0, description="the motion model's heading sigma "
                                  "is learned from the last this many updates "
                                  "(:class:`~numeric.slam.rbpf.OdometryCalibration`); 0: fixed")
-    odometry_min_scale: float = Field(0.1, gt=0, le=1, description="... down to this share "
+    odometry_min_scale: float = Field(0.03, gt=0, le=1, description="... down to this share "
                                       "of the fixed one")
     odometry_knee: float = Field(0.2, gt=0, le=1, description="a spread up to this is "
                                  "taken as it is, one of twice this or more keeps the fixed "
@@ -216,6 +216,31 @@ class ImprovedConfig(BaseModel):
     loop_persistence: int = Field(2, ge=1, description="consecutive updates that must agree "
                                   "on the correction (within loop_min_sep_m) before it is "
                                   "taken")
+    reloc_every: int = Field(5, ge=0, description="updates between two relocalisations "
+                             "against the old map (RbpfSlam._relocalise); 0: none")
+    reloc_min_age_s: float = Field(120.0, ge=0, description="keyframes at least this old "
+                                   "make the old map")
+    reloc_radius_m: float = Field(12.0, gt=0, description="... those the best particle "
+                                  "placed this close to its estimate")
+    reloc_max_keyframes: int = Field(60, ge=3, description="... at most this many (evenly "
+                                     "picked)")
+    reloc_resolution_m: float = Field(0.1, gt=0, description="cell of its probability grid")
+    reloc_window_m: float = Field(10.0, gt=0, description="half width of the branch-and-"
+                                  "bound window in position")
+    reloc_angle_rad: float = Field(0.35, ge=0, description="... and in heading")
+    reloc_min_score: float = Field(0.35, gt=0, le=1, description="mean probability of the "
+                                   "cells the scan falls in at the match")
+    reloc_min_gain: float = Field(0.1, ge=0, le=1, description="... this much more than "
+                                  "at the current estimate")
+    reloc_min_fraction: float = Field(0.3, ge=0, le=1, description="the refined match must "
+                                      "explain this share of the beams within "
+                                      "loop_inlier_m")
+    reloc_persistence: int = Field(3, ge=1, description="consecutive searches that must "
+                                   "agree (within loop_min_sep_m)")
+    reloc_unique_m: float = Field(1.0, gt=0, description="no second pose this far from the "
+                                  "match ...")
+    reloc_unique_ratio: float = Field(0.9, gt=0, le=1, description="... scores this share "
+                                      "of its score")
 
 
 @dataclass(frozen=True)
