@@ -227,7 +227,7 @@ class SlamService:
     async def commit(self, world: str, rid: str) -> dict[str, Any]:
         """Make the run's map the world's map: facts into the knowledge base, grid stored."""
         run = await self._run(world, rid)
-        if run.scans:  # graph SLAM: global scan alignment first (the filters: nothing)
+        if run.scans:  # global scan alignment first (graph SLAM, the improved RBPF)
             async with run.lock:
                 await asyncio.to_thread(run.slam.finish)
         g = await self.grid(world, rid)

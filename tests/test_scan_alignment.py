@@ -16,6 +16,7 @@ from numeric.slam.scan_alignment import (
     AlignmentConfig,
     align_scans,
     candidate_pairs,
+    estimate_closures,
     match_pair,
 )
 from numeric.slam.simulate import simulated_log
@@ -61,6 +62,30 @@ def test_candidate_pairs_take_sequential_scans_and_other_passes() -> None:
     assert revisits and all(np.hypot(*(poses[a] - poses[b])[:2]) <= 1.5 and b - a > 5
                             for a, b in revisits)
     assert max(sum(1 for a, b in revisits if b == k) for k in range(40)) <= 3
+
+
+def test_estimate_closures_take_the_pairs_the_revisits_leave_out() -> None:
+    """A corridor driven out and back: the return leg faces away from the way out, so
+    the revisit matches skip it, and the online estimate's relative pose of each
+    returning scan to its nearest outgoing one becomes a closure instead."""
+    out = np.array([[0.5 * k, 0.0, 0.0] for k in range(20)])
+    back = np.array([[9.5 - 0.5 * k, 0.1, np.pi - 0.05] for k in range(20)])
+    poses = np.vstack([out, back])
+    cfg = AlignmentConfig(revisit_min_gap=5)
+    closures = estimate_closures(poses, cfg)
+    assert len({b for _, b, _ in closures}) == len(closures)  # one per scan at most
+    assert {b for _, b, _ in closures} >= set(range(22, 40))  # the return leg, past the turn
+    for a, b, delta in closures:
+        assert a < b - 5 and np.hypot(*(poses[a] - poses[b])[:2]) <= 1.5
+        assert abs(wrap_angle(poses[b, 2] - poses[a, 2])) >= cfg.revisit_max_turn_rad
+        assert np.allclose(delta, relative(poses[a], poses[b]))
+        near = [j for j in range(b - 5) if abs(wrap_angle(poses[b, 2] - poses[j, 2])) >= 1.0]
+        assert np.hypot(*(poses[a] - poses[b])[:2]) == min(
+            np.hypot(*(poses[j] - poses[b])[:2]) for j in near)
+    revisits = {(a, b) for a, b in candidate_pairs(poses, cfg) if b - a > 8}
+    assert not revisits & {(a, b) for a, b, _ in closures}
+    same_way = np.array([[0.5 * (k % 20), 0.0, 0.0] for k in range(40)])  # twice, same way
+    assert estimate_closures(same_way, cfg) == []
 
 
 @pytest.fixture(scope="module")

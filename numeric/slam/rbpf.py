@@ -53,7 +53,15 @@ from numeric.scan import Scan
 from numeric.slam.correlative import PrecomputedGrid
 from numeric.slam.gated import GateConfig, inside_gate
 from numeric.slam.intensity_icp import IcpConfig, Reference, intensity_icp
-from numeric.slam.keyframes import FieldCache, FieldConfig, Keyframes, MapConfig, moved
+from numeric.slam.keyframes import (
+    FieldCache,
+    FieldConfig,
+    Keyframes,
+    MapConfig,
+    moved,
+    voxel_downsample,
+)
+from numeric.slam.pose_graph import GraphConfig
 from numeric.slam.proposal import (
     FieldPack,
     ImprovedConfig,
@@ -63,6 +71,7 @@ from numeric.slam.proposal import (
     propose_all,
     robust_increment,
 )
+from numeric.slam.scan_alignment import AlignmentConfig, align_scans, estimate_closures
 from numeric.threads import default_threads, thread_map
 
 #: the scan and the chosen fields as the proposal kernels take them: points, intensities,
@@ -215,11 +224,25 @@ class RbpfConfig(BaseModel):
                                                              open_points_m=30.0))
     field: FieldConfig = Field(default_factory=FieldConfig)
     seed: int = Field(0, ge=0, le=2**32 - 1)
+    #: The end of a run (:meth:`RbpfSlam.finish`, beyond Grisetti et al.): the best
+    #: particle's trajectory is refined by graph SLAM's global scan alignment
+    #: (:mod:`numeric.slam.scan_alignment`, after Lu & Milios 1997). The filter's own
+    #: increments are the chain between consecutive scans, point-to-line ICP between
+    #: overlapping scans refines them, and the pairs of scans the filter placed close
+    #: together facing away from each other keep their relative pose as loop closures
+    #: (:func:`~numeric.slam.scan_alignment.estimate_closures`): a correction of
+    #: centimetres, it never re-decides a loop. The paper's proposals leave their
+    #: estimate as it is unless ``alignment`` is given.
+    alignment: AlignmentConfig | None = Field(
+        default_factory=AlignmentConfig, description="global scan alignment when the "
+        "run ends (the improved proposal); None: the filter's estimate as it is")
 
     @model_validator(mode="after")
     def _paper_reference(self) -> RbpfConfig:
         if self.proposal != "improved" and "map" not in self.model_fields_set:
             self.map = MapConfig(recent_keyframes=8, nearby_keyframes=8)
+        if self.proposal != "improved" and "alignment" not in self.model_fields_set:
+            self.alignment = None
         return self
 
 
@@ -324,6 +347,11 @@ class RbpfSlam:
         self._reloc_agree = Persistence(imp.reloc_persistence, imp.loop_min_sep_m)
         self._reloc_tick = 0  # updates since the last relocalisation search
         self._kf_times: list[float] = []  # per keyframe: its scan's time (s)
+        # per scan, for finish()'s alignment: its returns (voxel-filtered) and intensities
+        self._scan_xy: list[np.ndarray] = []
+        self._scan_inten: list[np.ndarray | None] = []
+        self._aligned: np.ndarray | None = None  # finish()'s poses, until the next scan
+        self.alignment_matches = 0
         self.odometry = OdometryCalibration(cfg.improved.odometry_window,
                                             cfg.improved.odometry_min_scale,
                                             cfg.improved.odometry_knee)
@@ -757,6 +785,11 @@ class RbpfSlam:
         proposal), maybe resample, update the maps."""
         xy, inten = scan.points()
         self.times.append(scan.t)
+        self._aligned = None  # a new scan: the filter's estimate is current again
+        if self.config.alignment is not None:
+            pts, pin = voxel_downsample(xy, inten, self.config.map.voxel_m)
+            self._scan_xy.append(pts)
+            self._scan_inten.append(pin)
         if self._anchor_odom is None:
             self._first(scan, xy, inten)
             return RbpfStep(scan.t, "first", keyframe=True)
@@ -867,13 +900,27 @@ class RbpfSlam:
         return np.asarray(self._kf_pose[np.arange(k), self._lineage[:k, particle]])
 
     def finish(self) -> int:
-        """The end of a run: nothing to do (the filter's estimate is already its
-        answer; graph SLAM aligns its scans here)."""
-        return 0
+        """The end of a run: global scan alignment of every scan so far from the best
+        particle's trajectory (``config.alignment``, see :class:`RbpfConfig`); until the
+        next scan arrives, the trajectory, the pose and the map's poses are the aligned
+        ones. Returns how many pairwise matches held (0 when alignment is off)."""
+        cfg = self.config.alignment
+        if cfg is None or len(self.times) < 2:
+            return 0
+        if self._aligned is not None:
+            return self.alignment_matches
+        _, poses = self._filter_trajectory()
+        if self.config.alpha > 0 and cfg.alpha == 0:
+            cfg = cfg.model_copy(update={"alpha": self.config.alpha})
+        self._aligned, self.alignment_matches = align_scans(
+            self._scan_xy, self._scan_inten, poses, poses, estimate_closures(poses, cfg),
+            cfg, GraphConfig())
+        return self.alignment_matches
 
     @property
     def aligned(self) -> bool:
-        return False
+        """Whether the outputs are finish()'s aligned poses."""
+        return self._aligned is not None
 
     # -- outputs ------------------------------------------------------------------------
     @property
@@ -883,13 +930,22 @@ class RbpfSlam:
 
     @property
     def pose(self) -> np.ndarray:
-        """Current pose of the best particle, with the odometry since its last update."""
+        """Current pose of the best particle, with the odometry since its last update
+        (after :meth:`finish`, the last scan's aligned pose)."""
+        if self._aligned is not None:
+            return self._aligned[-1].copy()
         if not self._scan_delta:
             return np.zeros(3)
         return compose(self.x[self.best], self._scan_delta[-1])
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
-        """Times and poses ``(N, 3)`` of every scan along the best particle's history."""
+        """Times and poses ``(N, 3)`` of every scan along the best particle's history
+        (after :meth:`finish`, aligned)."""
+        if self._aligned is not None:
+            return np.array(self.times), self._aligned.copy()
+        return self._filter_trajectory()
+
+    def _filter_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         steps = len(self._hist_pose)
         path = np.zeros((steps, 3))
         i = self.best
@@ -900,5 +956,8 @@ class RbpfSlam:
         return np.array(self.times), poses
 
     def map_poses(self) -> np.ndarray:
-        """The best particle's keyframe poses ``(K, 3)``: its map."""
+        """The best particle's keyframe poses ``(K, 3)``: its map (after :meth:`finish`,
+        their scans' aligned poses)."""
+        if self._aligned is not None:
+            return self._aligned[[kf.scan_index for kf in self.keyframes.frames]]
         return self._kf_poses_of(self.best)

@@ -60,7 +60,8 @@ class SlamOptions(BaseModel):
 
 class Slam(Protocol):
     """What every estimator offers. ``finish()`` ends a run: graph SLAM's global scan
-    alignment; the filters have nothing to do there. ``aligned``: whether the outputs
+    alignment, and the improved RBPF's (its best particle's trajectory); the paper's
+    filters have nothing to do there. ``aligned``: whether the outputs
     are finish()'s (until the next scan)."""
 
     keyframes: Keyframes

@@ -110,6 +110,33 @@ def candidate_pairs(poses: np.ndarray, cfg: AlignmentConfig) -> list[tuple[int, 
     return pairs
 
 
+def estimate_closures(poses: np.ndarray, cfg: AlignmentConfig,
+                      ) -> list[tuple[int, int, np.ndarray]]:
+    """Loop closures an online estimate holds that the revisit matches cannot check:
+    each scan's nearest earlier scan of another pass (more than ``revisit_min_gap``
+    scans before it) within ``revisit_radius_m`` that faces away from it by at least
+    ``revisit_max_turn_rad`` -- a corridor driven both ways, where a 180° laser sees
+    too little of the same walls for ICP -- with their relative pose in ``poses``.
+
+    The particle filter places a scan against its map, keyframes from every pass and
+    direction, so it relates such pairs where no scan pair can; without them a loop
+    driven the other way back is held only through the chain of sequential matches
+    (full mit-csail, 512 particles: 0.038 -> 0.035 m but 0.064 -> 0.124 m on the
+    loop-spanning relations; with them 0.027 / 0.045)."""
+    n = len(poses)
+    out: list[tuple[int, int, np.ndarray]] = []
+    if n == 0 or cfg.revisit_radius_m <= 0:
+        return out
+    near = cKDTree(poses[:, :2]).query_ball_point(poses[:, :2], cfg.revisit_radius_m)
+    for b, js in enumerate(near):
+        js = [j for j in js if j < b - cfg.revisit_min_gap
+              and abs(wrap_angle(poses[b, 2] - poses[j, 2])) >= cfg.revisit_max_turn_rad]
+        if js:
+            j = min(js, key=lambda j: float(np.hypot(*(poses[j, :2] - poses[b, :2]))))
+            out.append((j, b, relative(poses[j], poses[b])))
+    return out
+
+
 def match_pair(ref: Reference, xy: np.ndarray, intensity: np.ndarray | None,
                guess: np.ndarray, cfg: AlignmentConfig) -> tuple[np.ndarray, np.ndarray] | None:
     """Align scan points ``xy`` (own frame) to ``ref`` (the other scan, its frame) from
