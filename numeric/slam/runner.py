@@ -89,10 +89,15 @@ def create(options: SlamOptions) -> Slam:
 
 @dataclass
 class SlamResult:
+    """A run over a log: its trajectory, map and seconds; ``online_poses``, the
+    trajectory before finish()'s global scan alignment (None when nothing was
+    aligned)."""
+
     times: np.ndarray
     poses: np.ndarray
     map: OccupancyMap
     seconds: float
+    online_poses: np.ndarray | None = None
 
 
 def run_log(log: LaserLog, options: SlamOptions,
@@ -106,10 +111,12 @@ def run_log(log: LaserLog, options: SlamOptions,
         slam.process(scan)
         if progress is not None:
             progress(i + 1)
-    slam.finish()  # graph SLAM's global scan alignment, once the log is over
+    online = slam.trajectory()[1]
+    slam.finish()  # global scan alignment (graph, improved RBPF), once the log is over
     seconds = time.perf_counter() - t0
     times, poses = slam.trajectory()
-    return slam, SlamResult(times, poses, whole_map(slam, options.map_resolution_m), seconds)
+    return slam, SlamResult(times, poses, whole_map(slam, options.map_resolution_m), seconds,
+                            online if slam.aligned else None)
 
 
 def whole_map(slam: Slam, resolution_m: float) -> OccupancyMap:
