@@ -141,6 +141,21 @@ def test_the_uniqueness_test_flags_a_scan_that_fits_two_places(room_grid) -> Non
     assert m is not None and room.second_score(r_pts, r_guess, 2.0, 0.2, m, 1.0, 0.9) == 0.0
 
 
+def test_a_pose_scores_what_branch_and_bound_would_give_it(room_grid) -> None:  # type: ignore[no-untyped-def]
+    """PrecomputedGrid.score: the mean probability (as the matcher stores it, in 1/255)
+    of the cells the points fall in, 0 outside the grid; at a match's pose, its score."""
+    pre = PrecomputedGrid(room_grid, 7)
+    pts = scan_at(np.array([3.0, 4.0, 0.3]), ROOM)[::2]
+    base = np.round(np.clip(room_grid.prob, 0, 1) * 255) / 255
+    for pose in (np.array([3.1, 3.9, 0.32]), np.array([-2.0, 4.0, 1.0])):  # in; partly out
+        c = np.floor(room_grid.to_cells(place(pts, pose))).astype(int)
+        inside = ((c >= 0) & (c < np.array(room_grid.shape))).all(axis=1)
+        assert pre.score(pts, pose) == pytest.approx(
+            base[c[inside, 0], c[inside, 1]].sum() / len(pts), abs=1e-6)
+    m = pre.match(pts, np.array([3.3, 3.8, 0.4]), 1.0, 0.2, 0.3)
+    assert m is not None and pre.score(pts, m.pose) == pytest.approx(m.score, abs=0.01)
+
+
 def test_loop_closure_matcher_finds_a_scan_far_from_its_guess(room_grid) -> None:  # type: ignore[no-untyped-def]
     true = np.array([3.0, 4.0, 0.3])
     pts = scan_at(true, ROOM)[::2]

@@ -395,6 +395,13 @@ class PrecomputedGrid:
         cells = np.floor(rotated_cells(points, pose, thetas, g.origin, res)).astype(np.int64)
         return thetas, cells - w + self.pad, w
 
+    def score(self, points: np.ndarray, pose: np.ndarray) -> float:
+        """The score :meth:`match` gives ``pose`` itself: the mean probability of the
+        cells the robot-frame ``points`` fall in at ``pose`` (outside the grid: 0)."""
+        g = self.grid
+        cells = np.floor(rotated_cells(points, pose, np.zeros(1), g.origin, g.resolution_m))
+        return float(_score(self.stack, 0, cells.astype(np.int64) + self.pad, 0, 0, 0))
+
     def match(self, points: np.ndarray, pose: np.ndarray, linear_window_m: float,
               angular_window_rad: float, min_score: float,
               min_step_rad: float = 0.0) -> Match | None:

@@ -621,10 +621,7 @@ class RbpfSlam:
                 and abs(shift[2]) <= imp.loop_angle_rad):
             self._reloc_agree.reset()  # the loop start's window covers it
             return None
-        c = np.floor(grid.to_cells(place(xy, cur))).astype(int)
-        inside = ((c[:, 0] >= 0) & (c[:, 1] >= 0) & (c[:, 0] < grid.shape[0])
-                  & (c[:, 1] < grid.shape[1]))
-        s_cur = float(np.sum(np.clip(grid.prob[c[inside, 0], c[inside, 1]], 0, 1))) / n_b
+        s_cur = pre.score(xy, cur)
         if (m.score - s_cur < imp.reloc_min_gain
                 or pre.second_score(xy, cur, imp.reloc_window_m, imp.reloc_angle_rad, m,
                                     imp.reloc_unique_m, imp.reloc_unique_ratio) > 0):
