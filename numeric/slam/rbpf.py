@@ -254,6 +254,12 @@ def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.nda
     return np.asarray(np.searchsorted(c, (rng.random() + np.arange(n)) / n), dtype=np.intp)
 
 
+def world_shift(frm: np.ndarray, to: np.ndarray) -> np.ndarray:
+    """``to`` minus ``frm`` in the world frame, the heading wrapped: the correction a
+    loop start or relocalisation makes, as :class:`Persistence` compares them."""
+    return np.array([to[0] - frm[0], to[1] - frm[1], wrap_angle(to[2] - frm[2])])
+
+
 @dataclass(frozen=True)
 class RbpfStep:
     """What one scan did to the filter (:meth:`RbpfSlam.step`): ``kind`` "first" (the
@@ -346,7 +352,6 @@ class RbpfSlam:
         self._loop_agree = Persistence(imp.loop_persistence, imp.loop_min_sep_m)
         self._reloc_agree = Persistence(imp.reloc_persistence, imp.loop_min_sep_m)
         self._reloc_tick = 0  # updates since the last relocalisation search
-        self._kf_times: list[float] = []  # per keyframe: its scan's time (s)
         # per scan, for finish()'s alignment: its returns (voxel-filtered) and intensities
         self._scan_xy: list[np.ndarray] = []
         self._scan_inten: list[np.ndarray | None] = []
@@ -533,7 +538,7 @@ class RbpfSlam:
         alt = poses[r]
         apart = np.hypot(poses[:, 0] - alt[0], poses[:, 1] - alt[1]) >= imp.loop_min_sep_m
         second = int(inl[apart].max()) if np.any(apart) else 0
-        shift = np.array([alt[0] - cur[0], alt[1] - cur[1], wrap_angle(alt[2] - cur[2])])
+        shift = world_shift(cur, alt)
         good = (inl[r] >= imp.loop_min_fraction * n_b
                 and inl[r] - n_cur >= imp.loop_min_gain * n_b
                 and inl[r] - second >= imp.loop_ambiguity * n_b
@@ -600,7 +605,7 @@ class RbpfSlam:
         kfp = self._kf_poses_of(best)
         frames = self.keyframes.frames
         t_now = self.times[-1]
-        age = t_now - np.asarray(self._kf_times)
+        age = t_now - np.asarray(self.times)[[f.scan_index for f in frames]]
         near = np.hypot(kfp[:, 0] - cur[0], kfp[:, 1] - cur[1]) <= imp.reloc_radius_m
         old = np.flatnonzero(near & (age >= imp.reloc_min_age_s))
         if len(old) < imp.loop_min_old:
@@ -615,8 +620,7 @@ class RbpfSlam:
         if m is None:
             self._reloc_agree.reset()
             return None
-        shift = np.array([m.pose[0] - cur[0], m.pose[1] - cur[1],
-                          wrap_angle(m.pose[2] - cur[2])])
+        shift = world_shift(cur, m.pose)
         if (np.hypot(shift[0], shift[1]) <= imp.loop_radius_m
                 and abs(shift[2]) <= imp.loop_angle_rad):
             self._reloc_agree.reset()  # the loop start's window covers it
@@ -649,7 +653,7 @@ class RbpfSlam:
         if free_cur - free < imp.loop_min_free_drop:
             self._reloc_agree.reset()
             return None
-        shift = np.array([alt[0] - cur[0], alt[1] - cur[1], wrap_angle(alt[2] - cur[2])])
+        shift = world_shift(cur, alt)
         if not self._reloc_agree.confirm(shift):
             return None
         self.relocalisations.append((t_now, float(np.hypot(shift[0], shift[1])),
@@ -760,7 +764,6 @@ class RbpfSlam:
 
     def add_keyframe(self, scan_index: int, xy: np.ndarray, inten: np.ndarray | None) -> None:
         self.keyframes.add(scan_index, xy, inten)
-        self._kf_times.append(self.times[scan_index])
         if self._n_kf == len(self._kf_pose):  # grow by doubling: amortised O(1)
             self._kf_pose = np.concatenate([self._kf_pose, np.zeros_like(self._kf_pose)])
         if self._n_kf == len(self._lineage_buf):
