@@ -255,6 +255,22 @@ class ImprovedConfig(BaseModel):
                                   "match ...")
     reloc_unique_ratio: float = Field(0.9, gt=0, le=1, description="... scores this share "
                                       "of its score")
+    reloc_max_seen: float | None = Field(None, ge=0, le=1, description="a current "
+                                         "estimate that puts at most this share of the "
+                                         "returns in cells the old keyframes saw (free or "
+                                         "hit) cannot be contradicted by them: the match "
+                                         "then needs no drop in the free-space share, only "
+                                         "its own below loop_min_free_drop ... (None: the "
+                                         "drop is always needed; 0.3 tried in session 25)")
+    reloc_unseen_travel_m: float = Field(3.0, ge=0, description="... and the searches "
+                                         "that agree on it must span this much of the "
+                                         "estimate's path (a room that looks like an old "
+                                         "one fits from where the robot stands)")
+    rigid_persistence: bool = Field(False, description="loop starts and relocalisations "
+                                    "agree when one rigid correction (alt (+) cur^-1) "
+                                    "moves each estimate onto its alternative, not when "
+                                    "the position differences agree (RbpfSlam's "
+                                    "Persistence; session 25, not yet the default)")
 
 
 @dataclass(frozen=True)
