@@ -151,13 +151,16 @@ def test_unknowns(client: TestClient, world: str) -> None:
 
 
 def test_runs_and_maps_survive_restart(tmp_path: Any) -> None:
-    settings = Settings(data_dir=tmp_path, demo_world="")
+    # a loaded machine (make test beside SLAM runs) once took 30 s for 6 scans: the
+    # default request budget then cut the batch short, which this test is not about
+    settings = Settings(data_dir=tmp_path, demo_world="", request_budget_s=600.0)
     with TestClient(create_app(settings)) as c:
         c.post("/worlds", json={"name": "slam_r", "template": "room_a"})
         rid = c.post("/worlds/slam_r/slam-runs", json={"method": "rbpf", "particles": 32,
                                                        "seed": 5}).json()["id"]
-        c.post(f"/worlds/slam_r/slam-runs/{rid}/scans",
-               json={"scans": [scan_json(i) for i in range(80)]})
+        fed = c.post(f"/worlds/slam_r/slam-runs/{rid}/scans",
+                     json={"scans": [scan_json(i) for i in range(80)]})
+        assert fed.status_code == 200, fed.text
         before = c.get(f"/worlds/slam_r/slam-runs/{rid}").json()
         assert c.post(f"/worlds/slam_r/slam-runs/{rid}/commit").status_code == 200
         committed = c.get("/worlds/slam_r/map").json()
