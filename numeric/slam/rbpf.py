@@ -605,8 +605,8 @@ class RbpfSlam:
         explains ``reloc_min_fraction`` of the beams within ``loop_inlier_m``, well
         constrained (``loop_min_eig``), it lowers the share of returns in the old free
         space by ``loop_min_free_drop`` (:meth:`_free_space_share`), and
-        ``reloc_persistence`` consecutive searches agree (:class:`Persistence`: on one
-        rigid correction). Shifts :meth:`_loop_start` could take (within
+        ``reloc_persistence`` consecutive searches agree (:class:`Persistence`; on one
+        rigid correction with ``rigid_persistence``). Shifts :meth:`_loop_start` could take (within
         ``loop_radius_m`` and ``loop_angle_rad``) are left to it.
 
         Opt-in (``reloc_max_seen``, with ``rigid_persistence``; session 25): an
