@@ -675,28 +675,26 @@ def test_relocalisation_from_where_the_old_map_never_was() -> None:
     nothing there contradicts the estimate, so the free-space test cannot decide. Then
     the old map must explain the scan with no return in its free space, over
     ``reloc_unseen_travel_m`` of the robot's path: three searches 1.6 m apart bring
-    the estimate back to within 5 cm and 0.01 rad (opt-in: ``reloc_max_seen`` 0.3,
-    ``rigid_persistence``, a ±30 m reach); the same scans with the robot standing still do not (a
-    room that looks like an old one fits from where it stands, as the room next door
-    above), nor with the defaults."""
+    the estimate back to within 5 cm and 0.01 rad (``reloc_max_seen`` 0.3, rigid
+    persistence, a ±30 m reach: the defaults since session 26); the same scans with the
+    robot standing still do not (a room that looks like an old one fits from where it
+    stands, as the room next door above), nor without the rule (``reloc_max_seen``
+    None: the free-space drop is always needed)."""
     room = World(from_template("room_a", "room_a"))
     rng = np.random.default_rng(5)
     kfs = np.array([(2.0, 2.0, 0.0), (5.0, 2.5, 0.5), (8.0, 3.0, 1.5), (8.0, 7.0, 2.5),
                     (4.0, 8.0, -2.5)])
     drift = np.array([20.0, 15.0, 0.3])
     path = [np.array([3.0 + 1.13 * k, 4.0 + 1.13 * k, 0.8]) for k in range(3)]
-    opt_in = {"reloc_max_seen": 0.3, "rigid_persistence": True, "reloc_window_m": 30.0,
-              "reloc_radius_m": 32.0, "reloc_angle_rad": 0.45}  # session 25's variant
-    slam, laser = _old_map_filter(room, kfs, 300.0, rng, **opt_in)
+    slam, laser = _old_map_filter(room, kfs, 300.0, rng)
     got = None
     for truth in path:
         got = _relocalise(slam, laser, truth, compose(drift, truth), rng, searches=1)
     assert got is not None
     assert np.hypot(*(got[:2] - path[-1][:2])) < 0.05 and abs(got[2] - path[-1][2]) < 0.01
-    still, laser = _old_map_filter(room, kfs, 300.0, rng, **opt_in)
+    still, laser = _old_map_filter(room, kfs, 300.0, rng)
     assert _relocalise(still, laser, path[0], compose(drift, path[0]), rng, searches=4) is None
-    reach = {k: v for k, v in opt_in.items() if k.startswith("reloc_") and k != "reloc_max_seen"}
-    default, laser = _old_map_filter(room, kfs, 300.0, rng, **reach)  # the drop is needed
+    drop, laser = _old_map_filter(room, kfs, 300.0, rng, reloc_max_seen=None)
     for truth in path:
-        got = _relocalise(default, laser, truth, compose(drift, truth), rng, searches=1)
+        got = _relocalise(drop, laser, truth, compose(drift, truth), rng, searches=1)
     assert got is None

@@ -238,14 +238,14 @@ class ImprovedConfig(BaseModel):
                              "against the old map (RbpfSlam._relocalise); 0: none")
     reloc_min_age_s: float = Field(120.0, ge=0, description="keyframes at least this old "
                                    "make the old map")
-    reloc_radius_m: float = Field(22.0, gt=0, description="... those the best particle "
+    reloc_radius_m: float = Field(32.0, gt=0, description="... those the best particle "
                                   "placed this close to its estimate")
     reloc_max_keyframes: int = Field(60, ge=3, description="... at most this many (evenly "
                                      "picked)")
     reloc_resolution_m: float = Field(0.1, gt=0, description="cell of its probability grid")
-    reloc_window_m: float = Field(20.0, gt=0, description="half width of the branch-and-"
+    reloc_window_m: float = Field(30.0, gt=0, description="half width of the branch-and-"
                                   "bound window in position")
-    reloc_angle_rad: float = Field(0.35, ge=0, description="... and in heading")
+    reloc_angle_rad: float = Field(0.45, ge=0, description="... and in heading")
     reloc_min_score: float = Field(0.35, gt=0, le=1, description="mean probability of the "
                                    "cells the scan falls in at the match")
     reloc_min_gain: float = Field(0.1, ge=0, le=1, description="... this much more than "
@@ -259,22 +259,22 @@ class ImprovedConfig(BaseModel):
                                   "match ...")
     reloc_unique_ratio: float = Field(0.9, gt=0, le=1, description="... scores this share "
                                       "of its score")
-    reloc_max_seen: float | None = Field(None, ge=0, le=1, description="a current "
+    reloc_max_seen: float | None = Field(0.3, ge=0, le=1, description="a current "
                                          "estimate that puts at most this share of the "
                                          "returns in cells the old keyframes saw (free or "
                                          "hit) cannot be contradicted by them: the match "
                                          "then needs no drop in the free-space share, only "
                                          "its own below loop_min_free_drop ... (None: the "
-                                         "drop is always needed; 0.3 tried in session 25)")
+                                         "drop is always needed)")
     reloc_unseen_travel_m: float = Field(3.0, ge=0, description="... and the searches "
                                          "that agree on it must span this much of the "
                                          "estimate's path (a room that looks like an old "
                                          "one fits from where the robot stands)")
-    rigid_persistence: bool = Field(False, description="loop starts and relocalisations "
+    rigid_persistence: bool = Field(True, description="loop starts and relocalisations "
                                     "agree when one rigid correction (alt (+) cur^-1) "
                                     "moves each estimate onto its alternative, not when "
                                     "the position differences agree (RbpfSlam's "
-                                    "Persistence; session 25, not yet the default)")
+                                    "Persistence)")
 
 
 @dataclass(frozen=True)

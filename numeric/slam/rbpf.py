@@ -287,8 +287,8 @@ class Persistence:
     onto the alternative, not the difference of the two: with a heading error the
     difference changes as the robot drives on (by 2 sin(dθ/2) per metre: 0.32 m per
     metre at fr-clinic seed 5's 0.32 rad), while the transform stays the same.
-    ``rigid`` False compares the differences (``ImprovedConfig.rigid_persistence``,
-    off by default until it is measured on every log)."""
+    ``rigid`` False compares the differences (session 24's rule;
+    ``ImprovedConfig.rigid_persistence`` False)."""
 
     need: int
     sep_m: float
@@ -601,15 +601,23 @@ class RbpfSlam:
         pose. The match is taken when it scores ``reloc_min_score`` and
         ``reloc_min_gain`` more than the current estimate, no pose ``reloc_unique_m``
         away scores ``reloc_unique_ratio`` of it (a corridor's repeated doors), the
-        scan matcher refines it against the old keyframes near it to a pose that
-        explains ``reloc_min_fraction`` of the beams within ``loop_inlier_m``, well
+        scan matcher refines it against the old keyframes nearest it (all those old
+        enough, not only the ones picked for the grid) to a pose that explains
+        ``reloc_min_fraction`` of the beams within ``loop_inlier_m``, well
         constrained (``loop_min_eig``), it lowers the share of returns in the old free
         space by ``loop_min_free_drop`` (:meth:`_free_space_share`), and
-        ``reloc_persistence`` consecutive searches agree (:class:`Persistence`; on one
-        rigid correction with ``rigid_persistence``). Shifts :meth:`_loop_start` could take (within
-        ``loop_radius_m`` and ``loop_angle_rad``) are left to it.
+        ``reloc_persistence`` consecutive searches agree (:class:`Persistence`: on one
+        rigid correction, ``rigid_persistence``). Shifts :meth:`_loop_start` could take
+        (within ``loop_radius_m`` and ``loop_angle_rad``) are left to it.
 
-        Opt-in (``reloc_max_seen``, with ``rigid_persistence``; session 25): an
+        Why the refinement takes the nearest of all the old keyframes (session 26):
+        with keyframes within 32 m, the 60 picked evenly for the grid are half as dense
+        as within 22 m, and on fr-clinic seed 1 the 12.8 m return at 4 386-4 410 s,
+        found by every search there, refined to only 11-25 of 90 beams against the
+        picked ones (27 needed); against the nearest of all it refined to 32-36 and was
+        taken at 4 398 s (0.473 -> 0.180).
+
+        From where the old map never was (``reloc_max_seen``; session 25): an
         estimate that has drifted into space the old keyframes never saw (at most
         ``reloc_max_seen`` of its returns in cells they saw) cannot be contradicted by
         them, and then the free-space drop cannot decide. Such a match is taken when it
@@ -673,9 +681,11 @@ class RbpfSlam:
                                     imp.reloc_unique_m, imp.reloc_unique_ratio) > 0):
             self._reloc_agree.reset()
             return None
-        # refine against the old keyframes near the match, with the scan matcher
-        d = np.hypot(kfp[old, 0] - m.pose[0], kfp[old, 1] - m.pose[1])
-        ref = old[np.argsort(d)[:max(cfg.map.nearby_keyframes, imp.loop_min_old)]]
+        # refine against the old keyframes nearest the match (all of them, not only
+        # those picked for the grid), with the scan matcher
+        aged = np.flatnonzero(age >= imp.reloc_min_age_s)
+        d = np.hypot(kfp[aged, 0] - m.pose[0], kfp[aged, 1] - m.pose[1])
+        ref = aged[np.argsort(d)[:max(cfg.map.nearby_keyframes, imp.loop_min_old)]]
         fp = FieldPack.of([self.fields.get(int(k)) for k in ref], alpha > 0)
         kf_ref = np.ascontiguousarray(kfp[ref][:, None, :])
         in2 = imp.loop_inlier_m ** 2
