@@ -145,8 +145,8 @@ class ImprovedConfig(BaseModel):
 
     The ``reloc_*`` fields are the relocalisation (``RbpfSlam._relocalise``): a return
     from a long loop farther off than the loop start's ±2 m, found by branch and bound
-    in a probability grid of the whole old map around the estimate (±20 m, ±0.35 rad;
-    the keyframes within 22 m).
+    in a probability grid of the whole old map around the estimate (±30 m, ±0.45 rad;
+    the keyframes within 32 m, since session 26).
     Full logs, 512 particles, with ``odometry_min_scale`` 0.03 (both defaults since
     session 23): fr-clinic seeds 0 / 1 / 2 / 4 / 5 0.242 / 0.476 / 0.794 / 0.169 /
     1.757 (before 0.412 / 0.615 / 0.924 / 1.267 / 0.701); it fired at seeds 0 (5.4 m)
@@ -155,11 +155,13 @@ class ImprovedConfig(BaseModel):
     with ±20 m (keyframes within 22 m), session 24: fr-clinic seeds 0-5 0.183 / 0.179 /
     0.245 / 0.165 / 0.279 / 1.757 (seed 4 took a 10.9 m match whose heading was 6° off
     before a second one mended it; seed 5 comes back 28 m and 21° off), and again none
-    on aces, fr079 and mit-csail. Session 25's opt-in (``reloc_max_seen`` 0.3,
-    ``rigid_persistence``, ±30 m / ±0.45 rad, keyframes within 32 m) takes seed 5's
-    return 29 m and 0.32 rad off (1.575 -> 0.284; 0.260 without the 3 m of travel)
-    but costs seeds 0 and 1 (0.188 / 0.182 -> 0.207 / 0.473: seed 1's 12.8 m return is
-    no longer taken); aces, fr079 and mit-csail seed 0 unchanged (README).
+    on aces, fr079 and mit-csail. Session 25's variant (``reloc_max_seen`` 0.3,
+    ``rigid_persistence``, ±30 m / ±0.45 rad, keyframes within 32 m) took seed 5's
+    return 29 m and 0.32 rad off (1.575 -> 0.284) but lost seed 1's 12.8 m return
+    (0.182 -> 0.473), which the refinement against the picked keyframes alone refused.
+    With the refinement against all old keyframes it is the default since session 26:
+    fr-clinic seeds 0-5 0.242 / 0.207 / 0.180 / 0.170 / 0.174 / 0.276, all below
+    GMapping's 0.637 (README, "Session 26").
     """
 
     sigma_m: float = Field(0.05, gt=0, description="σ of the likelihood field (m)")
