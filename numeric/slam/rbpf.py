@@ -615,7 +615,8 @@ class RbpfSlam:
         as within 22 m, and on fr-clinic seed 1 the 12.8 m return at 4 386-4 410 s,
         found by every search there, refined to only 11-25 of 90 beams against the
         picked ones (27 needed); against the nearest of all it refined to 32-36 and was
-        taken at 4 398 s (0.473 -> 0.180).
+        taken at 4 398 s (from a snapshot at 4 000 s: 0.473 -> 0.180; the full run with
+        the session-26 defaults 0.207).
 
         From where the old map never was (``reloc_max_seen``; session 25): an
         estimate that has drifted into space the old keyframes never saw (at most
