@@ -657,8 +657,9 @@ class RbpfSlam:
         frames = self.keyframes.frames
         t_now = self.times[-1]
         age = t_now - np.asarray(self.times)[[f.scan_index for f in frames]]
+        aged = age >= imp.reloc_min_age_s
         near = np.hypot(kfp[:, 0] - cur[0], kfp[:, 1] - cur[1]) <= imp.reloc_radius_m
-        old = np.flatnonzero(near & (age >= imp.reloc_min_age_s))
+        old = np.flatnonzero(near & aged)
         if len(old) < imp.loop_min_old:
             self._reloc_agree.reset()
             return None
@@ -684,9 +685,9 @@ class RbpfSlam:
             return None
         # refine against the old keyframes nearest the match (all of them, not only
         # those picked for the grid), with the scan matcher
-        aged = np.flatnonzero(age >= imp.reloc_min_age_s)
-        d = np.hypot(kfp[aged, 0] - m.pose[0], kfp[aged, 1] - m.pose[1])
-        ref = aged[np.argsort(d)[:max(cfg.map.nearby_keyframes, imp.loop_min_old)]]
+        cand = np.flatnonzero(aged)
+        d = np.hypot(kfp[cand, 0] - m.pose[0], kfp[cand, 1] - m.pose[1])
+        ref = cand[np.argsort(d)[:max(cfg.map.nearby_keyframes, imp.loop_min_old)]]
         fp = FieldPack.of([self.fields.get(int(k)) for k in ref], alpha > 0)
         kf_ref = np.ascontiguousarray(kfp[ref][:, None, :])
         in2 = imp.loop_inlier_m ** 2

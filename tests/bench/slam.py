@@ -325,10 +325,11 @@ def reference_lattice(lines: list[str]) -> None:
         i1 = np.clip(np.searchsorted(log.times, rt[short, 0] - 1e-4), 0, len(log.times) - 1)
         i2 = np.clip(np.searchsorted(log.times, rt[short, 1] - 1e-4), 0, len(log.times) - 1)
         odom = np.array([s.odom for s in log.scans])
-        d = rd[short, :2] - relative(odom[i1], odom[i2])[:, :2]
+        od = relative(odom[i1], odom[i2])
+        d = rd[short, :2] - od[:, :2]
         n = np.hypot(d[:, 0], d[:, 1])
         on = np.min(np.abs(n[:, None] - norms[None, :]), axis=1) < 1e-3
-        rot = np.abs(np.degrees(wrap_angle(rd[short, 2] - relative(odom[i1], odom[i2])[:, 2])))
+        rot = np.abs(np.degrees(wrap_angle(rd[short, 2] - od[:, 2])))
         bins = np.bincount(np.floor((rot % 0.25) / 0.005).astype(int), minlength=50)
         two = np.sort(bins)[-2:].sum() / max(len(rot), 1)
         lines.append(f"| {name} | {len(n)} | {100 * on.mean():.1f} % | "
