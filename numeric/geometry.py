@@ -191,6 +191,13 @@ def relative(pose: ArrayLike, other: ArrayLike) -> FloatArray:
     return out
 
 
+def invert(pose: ArrayLike) -> FloatArray:
+    """``pose^-1`` for poses (..., 3): the origin expressed in ``pose``'s frame, so that
+    ``compose(pose, invert(pose))`` is the identity."""
+    p = np.asarray(pose, dtype=float)
+    return relative(p, np.zeros(p.shape))
+
+
 def free_distance(origins: ArrayLike, angles: ArrayLike, wall_a: FloatArray,
                   wall_b: FloatArray) -> FloatArray:
     """Distance ``(N,)`` from each origin ``(N, 2)`` along its own direction ``(N,)`` to

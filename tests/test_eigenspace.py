@@ -40,7 +40,7 @@ from numeric.eigenspace.regions import (
     fit_entry_model,
 )
 from numeric.eigenspace.triplets import TripletConfig, Triplets
-from numeric.geometry import compose, relative, wrap_angle
+from numeric.geometry import compose, invert, relative, wrap_angle
 from numeric.world import Wall, World, WorldDescription
 from numeric.worlds import room_a, room_b, room_c, room_d, twin_hexagon
 
@@ -142,6 +142,15 @@ def test_interpolation_recovers_affine_weights_and_wraps_theta() -> None:
 def test_compose_and_relative_are_inverse() -> None:
     p, d = np.array([1.0, 2.0, 2.5]), np.array([0.5, -0.3, 1.0])
     np.testing.assert_allclose(relative(p, compose(p, d)), d, atol=1e-12)
+
+
+def test_invert_undoes_a_pose_on_either_side() -> None:
+    poses = np.array([[1.0, 2.0, 2.5], [-3.0, 0.5, -3.0], [0.0, 0.0, 0.0]])
+    for p in poses:
+        np.testing.assert_allclose(compose(p, invert(p)), 0.0, atol=1e-12)
+        np.testing.assert_allclose(compose(invert(p), p), 0.0, atol=1e-12)
+    np.testing.assert_allclose(invert(poses), [relative(p, np.zeros(3)) for p in poses])
+    assert invert(poses[0])[2] == pytest.approx(-2.5)
 
 
 # -- §2.3 triplets, §2.4 regions --------------------------------------------------------------

@@ -22,7 +22,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from numeric.eigenspace.learning import DYNAMIC_RANGE, EigenspaceModel
 from numeric.eigenspace.regions import RegionConfig, agrees, region_candidates
 from numeric.eigenspace.triplets import Triplets, triangle_area
-from numeric.geometry import compose, free_distance, relative, wrap_angle
+from numeric.geometry import compose, free_distance, invert, wrap_angle
 
 
 class LocalizationConfig(BaseModel):
@@ -247,7 +247,7 @@ class Session:
         self.appearance.append(cands.appearance)
         self.last_turn = cands.projections
         o = self.odometry[-1]
-        inv = relative(o, np.zeros(3))  # o^-1
+        inv = invert(o)
         k = self.stops - 1
         for i in range(len(cands)):
             self.stop_of.append(k)

@@ -18,7 +18,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from numeric.errors import InvalidInput
-from numeric.geometry import compose, relative
+from numeric.geometry import compose, invert, relative
 
 
 @dataclass(frozen=True)
@@ -67,7 +67,7 @@ def relation_error_poses(times: np.ndarray, poses: np.ndarray, rel_times: np.nda
     ``max_dt_s`` (E is meaningless elsewhere)."""
     p1, ok1 = poses_at(times, poses, rel_times[:, 0], max_dt_s)
     p2, ok2 = poses_at(times, poses, rel_times[:, 1], max_dt_s)
-    return compose(relative(rel_delta, np.zeros(3)), relative(p1, p2)), ok1 & ok2
+    return compose(invert(rel_delta), relative(p1, p2)), ok1 & ok2
 
 
 def relation_errors(times: np.ndarray, poses: np.ndarray, rel_times: np.ndarray,

@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from numeric.geometry import compose, place, relative
+from numeric.geometry import compose, invert, place, relative
 from numeric.scan import LaserLog, Scan
 from numeric.slam.datasets import slam_data_dir
 from numeric.slam.evaluation import poses_at, relation_errors
@@ -190,7 +190,7 @@ def karto_odometry(log: LaserLog, range_threshold_m: float = RANGE_THRESHOLD_M,
             best = matcher.match_scan(kscan, running, True, True).best_pose
             sensor = np.array([best.x, best.y, best.yaw])
             kscan.corrected_pose = ks.Pose2(*sensor)
-            pose = compose(sensor, relative(scan.sensor_pose, np.zeros(3)))
+            pose = compose(sensor, invert(scan.sensor_pose))
         running.append(kscan)
         while len(running) > 1:
             front, back = running[0].corrected_pose, running[-1].corrected_pose
@@ -270,7 +270,7 @@ def _row(name: str, log: LaserLog, peer: str, times: np.ndarray, poses: np.ndarr
     e = relation_errors(times, poses, rt, rd)
     (p1, ok1), (p2, ok2) = (poses_at(times, poses, col, 0.1) for col in rt.T)
     ok = ok1 & ok2
-    err = compose(relative(rd[ok], np.zeros(3)), relative(p1[ok], p2[ok]))  # inv(ref) * est
+    err = compose(invert(rd[ok]), relative(p1[ok], p2[ok]))  # inv(ref) * est
     median = float(np.median(np.hypot(err[:, 0], err[:, 1])))
     rt_x = f"{log.duration_s / wall:.0f}" if wall > 0.01 else "-"
     return (f"| {name} | {len(log)} | {log.duration_s:.0f} | {peer} | "
