@@ -37,6 +37,7 @@ bench: install
 	$(PY) tests/bench/run.py
 	$(PY) tests/bench/eigenspace.py
 	$(PY) tests/bench/slam.py
+	$(PY) tests/bench/slam_unseen.py
 	$(PY) tests/bench/slam_stream.py
 	$(PY) tests/bench/viewpoint.py
 	$(PY) tests/bench/restart.py

@@ -575,10 +575,11 @@ def test_a_shifted_start_is_charged_at_most_shift_penalty_max_by_the_motion_mode
 
 
 def _old_map_filter(world: World, kf_poses: np.ndarray, t_now: float,
-                    rng: np.random.Generator, **improved: object,
+                    rng: np.random.Generator, path_m: float = 120.0, **improved: object,
                     ) -> tuple[RbpfSlam, Laser]:
     """A one-particle filter whose map is scans of ``world`` at ``kf_poses``, taken at
-    0-10 s, and whose clock reads ``t_now``: the old map a long loop returns to."""
+    0-10 s, and whose clock reads ``t_now`` after ``path_m`` of odometry path since:
+    the old map a long loop returns to."""
     laser = Laser(world, LASER)
     slam = RbpfSlam(RbpfConfig(particles=1, improved=ImprovedConfig(
         reloc_every=1, **improved)))  # type: ignore[arg-type]
@@ -587,6 +588,7 @@ def _old_map_filter(world: World, kf_poses: np.ndarray, t_now: float,
         slam.times.append(float(k))
         slam.add_keyframe(k, laser.scan(0.0, p, p, rng).points()[0], None)
     slam.times.append(t_now)
+    slam._odom_path = [0.0] * len(kf_poses) + [path_m]
     return slam, laser
 
 
@@ -679,18 +681,22 @@ def test_relocalisation_from_where_the_old_map_never_was() -> None:
     persistence, a ±30 m reach: the defaults since session 26); the same scans with the
     robot standing still do not (a room that looks like an old one fits from where it
     stands, as the room next door above), nor without the rule (``reloc_max_seen``
-    None: the free-space drop is always needed)."""
+    None: the free-space drop is always needed), nor after only 60 m of path since the
+    old map was made: no estimate drifts 25 m in 60 m (``reloc_drift_m`` +
+    ``reloc_drift_per_m`` per m; a simulated office of identical rooms took the room
+    three doors down, 20.6 m off, 50 m of path after it saw the first)."""
     room = World(from_template("room_a", "room_a"))
     rng = np.random.default_rng(5)
     kfs = np.array([(2.0, 2.0, 0.0), (5.0, 2.5, 0.5), (8.0, 3.0, 1.5), (8.0, 7.0, 2.5),
                     (4.0, 8.0, -2.5)])
     drift = np.array([20.0, 15.0, 0.3])
     path = [np.array([3.0 + 1.13 * k, 4.0 + 1.13 * k, 0.8]) for k in range(3)]
-    slam, laser = _old_map_filter(room, kfs, 300.0, rng)
+    slam, laser = _old_map_filter(room, kfs, 300.0, rng, path_m=1000.0)
     got = None
     for truth in path:
         got = _relocalise(slam, laser, truth, compose(drift, truth), rng, searches=1)
     assert got is not None
+    assert slam.reloc_refused == []
     assert np.hypot(*(got[:2] - path[-1][:2])) < 0.05 and abs(got[2] - path[-1][2]) < 0.01
     still, laser = _old_map_filter(room, kfs, 300.0, rng)
     assert _relocalise(still, laser, path[0], compose(drift, path[0]), rng, searches=4) is None
@@ -698,3 +704,10 @@ def test_relocalisation_from_where_the_old_map_never_was() -> None:
     for truth in path:
         got = _relocalise(drop, laser, truth, compose(drift, truth), rng, searches=1)
     assert got is None
+    near, laser = _old_map_filter(room, kfs, 300.0, rng, path_m=60.0)
+    for truth in path:
+        got = _relocalise(near, laser, truth, compose(drift, truth), rng, searches=1)
+    assert got is None
+    assert len(near.reloc_refused) == 3
+    assert all(shift > 20.0 and bound == pytest.approx(4.0)
+               for _, shift, bound in near.reloc_refused)

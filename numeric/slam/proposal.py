@@ -272,6 +272,12 @@ class ImprovedConfig(BaseModel):
                                          "that agree on it must span this much of the "
                                          "estimate's path (a room that looks like an old "
                                          "one fits from where the robot stands)")
+    reloc_drift_m: float = Field(1.0, ge=0, description="a relocalisation moves the "
+                                 "estimate at most this far ...")
+    reloc_drift_per_m: float = Field(0.05, ge=0, description="... plus this much per m "
+                                     "of odometry path since the robot was last at the "
+                                     "old keyframes it matched (the drift it can have "
+                                     "gathered since)")
     rigid_persistence: bool = Field(True, description="loop starts and relocalisations "
                                     "agree when one rigid correction (alt (+) cur^-1) "
                                     "moves each estimate onto its alternative, not when "

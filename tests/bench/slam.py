@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from numeric.geometry import compose, relative, wrap_angle
+from numeric.geometry import compose, invert, relative, wrap_angle
 from numeric.slam.datasets import slam_data_dir
 from numeric.slam.evaluation import (
     LOCAL_MAX_GAP_S,
@@ -283,7 +283,7 @@ def peers(lines: list[str], pairs_per_log: int) -> None:
                 t0 = time.perf_counter()
                 est = align(label, small_gicp, xa, xb, init)
                 dt = time.perf_counter() - t0
-                err = compose(relative(rd[k], np.zeros(3)), est)
+                err = compose(invert(rd[k]), est)
                 results.setdefault(label, []).append(
                     (float(np.hypot(err[0], err[1])), float(np.degrees(abs(err[2]))), dt))
     base = np.mean([r[2] for r in results["small_gicp GICP"]])

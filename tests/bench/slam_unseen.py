@@ -1,0 +1,172 @@
+"""SLAM on offices nobody tuned it on: random floors, random tours, two lasers.
+
+    .venv/bin/python tests/bench/slam_unseen.py [--seeds 1,2] [--methods graph,rbpf,karto]
+                                                [--out bench-out]
+
+Every parameter of chizu's SLAM was chosen on the four Freiburg logs. This bench drives
+the simulator (one world model, one laser model, one odometry model: ``numeric.worlds``,
+``numeric.laser``, ``numeric.simulator``) through office floors made from a seed -- 3 to
+5 rooms a side of random width and depth, a corridor of random width -- on a tour that
+visits every room's doorway and centre on the way down the corridor and back, then
+re-enters the first room (so the last part of the tour returns to places seen 2-5
+minutes before). The odometry has a random distance bias of up to ±3 %, 5 % distance
+and turn noise and a heading random walk of 0.02 rad per √m. Two lasers: the
+URG-04LX of Hara et al. (5.6 m, 240°, the simulator's default) and an LMS-like
+scanner (30 m, 180° in 1° steps, as on the benchmark logs).
+
+The references are the true poses: relations (Kümmerle et al. 2009) between scans 1 s
+apart every 0.5 s, and between every pair of scans more than 60 s apart whose true
+poses lie within 2 m and 0.5 rad of each other (at most 600, evenly picked): the
+loop-spanning ones. Each method runs with its defaults (the same parameters as on the
+real logs; the improved RBPF with 512 particles, seed 0). Writes OUT/slam_unseen.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from numeric.geometry import relative, wrap_angle
+from numeric.laser import Laser, LaserConfig, record_log
+from numeric.scan import LaserLog
+from numeric.simulator import OdometryConfig, follow_path, odometry_along
+from numeric.slam.evaluation import RelationErrors, relation_errors
+from numeric.slam.runner import SlamOptions, run_log
+from numeric.world import World
+from numeric.worlds import office_world
+
+LASERS = {
+    "urg": LaserConfig(),
+    "lms": LaserConfig(max_range_m=30.0, fov_rad=float(np.pi), step_rad=float(np.radians(1.0)),
+                       scan_period_s=0.2),
+}
+LOOP_GAP_S = 60.0
+
+
+def unseen_office(seed: int) -> tuple[World, np.ndarray]:
+    """An office floor and a tour of it (waypoints ``(W, 2)``) made from ``seed``."""
+    rng = np.random.default_rng(seed)
+    k = int(rng.integers(3, 6))
+    rw, rd = float(rng.uniform(4.5, 7.0)), float(rng.uniform(4.5, 7.0))
+    cw = float(rng.uniform(1.8, 2.6))
+    desc = office_world(name=f"unseen{seed}", rooms_per_side=k, room_width_m=rw,
+                        room_depth_m=rd, corridor_width_m=cw)
+    yc = 0.5 * cw
+    way: list[tuple[float, float]] = [(0.8, yc)]
+
+    def visit(i: int, north: bool) -> None:
+        cx = (i + 0.5) * rw + float(rng.uniform(-0.15, 0.15))
+        sign = 1.0 if north else -1.0
+        wall_y = cw if north else 0.0
+        inside = (cx + float(rng.uniform(-0.25, 0.25)) * rw,
+                  wall_y + sign * float(rng.uniform(0.35, 0.6)) * rd)
+        way.extend([(cx, yc), (cx, wall_y + sign * 0.7), inside, (cx, wall_y + sign * 0.7),
+                    (cx, yc)])
+
+    order = [(i, bool(rng.random() < 0.5)) for i in range(k)]
+    for i, north in order:  # down the corridor, one side's room per section
+        visit(i, north)
+    way.append((k * rw - 0.8, yc))
+    for i, north in reversed(order):  # and back, the other side's
+        visit(i, not north)
+    way.append((0.8, yc))
+    visit(*order[0])  # the first room again
+    return World(desc), np.array(way)
+
+
+def unseen_log(seed: int, laser: str) -> LaserLog:
+    """The simulated log of ``unseen_office(seed)``'s tour with the laser ``laser``."""
+    world, way = unseen_office(seed)
+    rng = np.random.default_rng(1000 + seed)
+    odo = OdometryConfig(distance_noise_ratio=0.05, turn_noise_ratio=0.05,
+                         heading_drift_rad_per_m=0.02,
+                         distance_bias_ratio=float(rng.uniform(-0.03, 0.03)))
+    sensor = Laser(world, LASERS[laser])
+    truth = follow_path(way, 0.4, sensor.config.scan_period_s)
+    odom = odometry_along(truth, odo, rng)
+    return record_log(world, truth, odom, sensor, rng, name=f"unseen{seed}-{laser}")
+
+
+def true_relations(log: LaserLog) -> tuple[tuple[np.ndarray, np.ndarray],
+                                           tuple[np.ndarray, np.ndarray]]:
+    """``(times (R, 2), deltas (R, 3))`` of the short and of the loop-spanning relations
+    between the log's true poses (see the module docstring)."""
+    t = np.array([s.t for s in log.scans])
+    truth = np.asarray(log.truth)
+    dt = float(np.median(np.diff(t)))
+    gap, every = max(1, round(1.0 / dt)), max(1, round(0.5 / dt))
+    i = np.arange(0, len(t) - gap, every)
+    short = (np.column_stack([t[i], t[i + gap]]), relative(truth[i], truth[i + gap]))
+    a, b = np.triu_indices(len(t), k=1)
+    far = t[b] - t[a] > LOOP_GAP_S
+    a, b = a[far], b[far]
+    near = ((np.hypot(*(truth[b, :2] - truth[a, :2]).T) < 2.0)
+            & (np.abs(wrap_angle(truth[b, 2] - truth[a, 2])) < 0.5))
+    a, b = a[near], b[near]
+    if len(a) > 600:
+        pick = np.unique(np.linspace(0, len(a) - 1, 600).astype(int))
+        a, b = a[pick], b[pick]
+    loop = (np.column_stack([t[a], t[b]]), relative(truth[a], truth[b]))
+    return short, loop
+
+
+def estimate(log: LaserLog, method: str) -> tuple[np.ndarray, np.ndarray, float]:
+    """``(times, poses, seconds)`` of ``method`` (chizu's, or the peer ``karto``) on ``log``."""
+    if method == "karto":
+        from tests.bench.slam_peers import peer_odometry
+
+        return peer_odometry(log, "karto")
+    if method == "odom":
+        return (np.array([s.t for s in log.scans]),
+                np.array([s.odom for s in log.scans]), 0.0)
+    t0 = time.perf_counter()
+    _, res = run_log(log, SlamOptions(method=method))  # type: ignore[arg-type]
+    return res.times, res.poses, time.perf_counter() - t0
+
+
+def _fmt(e: RelationErrors | None) -> str:
+    return "-" if e is None else f"{e.trans_m:.3f} ± {e.trans_std_m:.3f} / {e.rot_deg:.2f}°"
+
+
+def main() -> None:
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # tests.bench.slam_peers
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seeds", default="1,2")
+    ap.add_argument("--lasers", default="urg,lms")
+    ap.add_argument("--methods", default="odom,karto,graph,rbpf")
+    ap.add_argument("--out", default="bench-out")
+    a = ap.parse_args()
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    lines = ["# SLAM on unseen offices (simulated; references are the true poses)", "",
+             "Relation error (Kümmerle et al. 2009), translational mean ± std (m) / "
+             "rotational mean (deg), on the relations 1 s apart and on the loop-spanning "
+             "ones (more than 60 s apart, true poses within 2 m); speed as a multiple of "
+             "the log's real time.", "",
+             "| office | laser | scans | tour (m) | method | 1 s relations | loop-spanning "
+             "| x real time |", "|---|---|---|---|---|---|---|---|"]
+    print("\n".join(lines), flush=True)
+    for seed in (int(s) for s in a.seeds.split(",")):
+        for laser in a.lasers.split(","):
+            log = unseen_log(seed, laser)
+            truth = np.asarray(log.truth)
+            tour = float(np.sum(np.hypot(*np.diff(truth[:, :2], axis=0).T)))
+            (st, sd), (lt, ld) = true_relations(log)
+            for method in a.methods.split(","):
+                times, poses, sec = estimate(log, method)
+                e = relation_errors(times, poses, st, sd)
+                el = relation_errors(times, poses, lt, ld) if len(lt) else None
+                speed = f"{log.duration_s / sec:.1f}" if sec > 0 else "-"
+                row = (f"| {seed} | {laser} | {len(log)} | {tour:.0f} | {method} | {_fmt(e)} "
+                       f"| {_fmt(el)} | {speed} |")
+                lines.append(row)
+                print(row, flush=True)
+    (out / "slam_unseen.md").write_text("\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    main()
