@@ -723,10 +723,11 @@ class RbpfSlam:
         # scan fits it)
         last_seen = max(frames[int(k)].scan_index for k in ref)
         since = self._odom_path[-1] - self._odom_path[last_seen]
-        moved_by = world_shift(cur, alt)
+        shift = world_shift(cur, alt)
+        dist = float(np.hypot(shift[0], shift[1]))
         bound = imp.reloc_drift_m + imp.reloc_drift_per_m * since
-        if np.hypot(moved_by[0], moved_by[1]) > bound:
-            self.reloc_refused.append((t_now, float(np.hypot(moved_by[0], moved_by[1])), bound))
+        if dist > bound:
+            self.reloc_refused.append((t_now, dist, bound))
             self._reloc_agree.reset()
             return None
         (free_cur, free), (seen_cur, _) = self._free_space_share(np.stack([cur, alt]), xy,
@@ -737,12 +738,10 @@ class RbpfSlam:
         if not (contradicted or unseen):
             self._reloc_agree.reset()
             return None
-        shift = world_shift(cur, alt)
         travel = 0.0 if contradicted else imp.reloc_unseen_travel_m
         if not self._reloc_agree.confirm(cur, alt, travel):
             return None
-        self.relocalisations.append((t_now, float(np.hypot(shift[0], shift[1])),
-                                     float(shift[2]), s_cur, m.score))
+        self.relocalisations.append((t_now, dist, float(shift[2]), s_cur, m.score))
         return np.asarray(relative(x0, alt))
 
     def _free_space_share(self, poses: np.ndarray, xy: np.ndarray, frames: np.ndarray,

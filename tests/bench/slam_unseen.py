@@ -95,7 +95,7 @@ def true_relations(log: LaserLog) -> tuple[tuple[np.ndarray, np.ndarray],
                                            tuple[np.ndarray, np.ndarray]]:
     """``(times (R, 2), deltas (R, 3))`` of the short and of the loop-spanning relations
     between the log's true poses (see the module docstring)."""
-    t = np.array([s.t for s in log.scans])
+    t = log.times
     truth = np.asarray(log.truth)
     dt = float(np.median(np.diff(t)))
     gap, every = max(1, round(1.0 / dt)), max(1, round(0.5 / dt))
@@ -121,8 +121,7 @@ def estimate(log: LaserLog, method: str) -> tuple[np.ndarray, np.ndarray, float]
 
         return peer_odometry(log, "karto")
     if method == "odom":
-        return (np.array([s.t for s in log.scans]),
-                np.array([s.odom for s in log.scans]), 0.0)
+        return log.times, log.odometry, 0.0
     t0 = time.perf_counter()
     _, res = run_log(log, SlamOptions(method=method))  # type: ignore[arg-type]
     return res.times, res.poses, time.perf_counter() - t0
