@@ -49,12 +49,13 @@ def _odds_update(p: float, odds_factor: float, lo: float, hi: float) -> float:
 
 @njit(cache=True)
 def insert_rays(prob: np.ndarray, stamp: np.ndarray, scan_id: int, ox: float, oy: float,
-                ends: np.ndarray, is_hit: np.ndarray, hit_odds: float, miss_odds: float,
-                lo: float, hi: float) -> None:
+                ends: np.ndarray, is_hit: np.ndarray, cast: np.ndarray, hit_odds: float,
+                miss_odds: float, lo: float, hi: float) -> None:
     """Update ``prob`` with one scan: ``(ox, oy)`` the sensor and ``ends (n, 2)`` the
     beam ends, both in continuous cell coordinates. Hit ends get the hit update, every
-    cell a beam passes through (before its end) the miss update; a cell is updated once
-    per scan (``stamp``), hits first."""
+    cell a beam passes through (before its end) the miss update where ``cast`` (a
+    surface point between two returns is a hit without a beam of its own); a cell is
+    updated once per scan (``stamp``), hits first."""
     nx, ny = prob.shape
     for k in range(ends.shape[0]):
         if not is_hit[k]:
@@ -65,6 +66,8 @@ def insert_rays(prob: np.ndarray, stamp: np.ndarray, scan_id: int, ox: float, oy
             stamp[i, j] = scan_id
             prob[i, j] = _odds_update(prob[i, j], hit_odds, lo, hi)
     for k in range(ends.shape[0]):
+        if not cast[k]:
+            continue
         ex, ey = ends[k, 0], ends[k, 1]
         dx, dy = ex - ox, ey - oy
         i, j = int(math.floor(ox)), int(math.floor(oy))
@@ -169,13 +172,21 @@ class ProbabilityGrid:
         self.origin, self.prob, self.stamp = lo, prob, stamp
 
     def insert(self, sensor_xy: np.ndarray, hits: np.ndarray,
-               misses: np.ndarray | None = None) -> None:
+               misses: np.ndarray | None = None, surface: np.ndarray | None = None) -> None:
         """Insert one scan: ``sensor_xy (2,)`` the sensor position, ``hits (n, 2)`` the
-        returns and ``misses (m, 2)`` the ends of no-return beams, world frame (m).
+        returns and ``misses (m, 2)`` the ends of no-return beams, world frame (m);
+        ``surface (s, 2)``: more occupied points, hit without ray casting (the surface
+        between neighbouring returns, :func:`numeric.slam.keyframes.connect_returns`).
         Hits farther than ``max_range_m`` are ignored; misses are cut at ``miss_cap_m``."""
         cfg = self.config
         d = hits - sensor_xy
-        hits = hits[np.hypot(d[:, 0], d[:, 1]) <= cfg.max_range_m]
+        keep = np.hypot(d[:, 0], d[:, 1]) <= cfg.max_range_m
+        hits = hits[keep]
+        if surface is not None and len(surface):
+            d = surface - sensor_xy
+            surface = surface[np.hypot(d[:, 0], d[:, 1]) <= cfg.max_range_m]
+            hits = np.vstack([hits, surface])
+        n_cast = len(hits) - (0 if surface is None else len(surface))
         ends = [hits]
         if misses is not None and len(misses) and cfg.miss_cap_m > 0:
             d = misses - sensor_xy
@@ -185,11 +196,13 @@ class ProbabilityGrid:
         self.ensure(allp.min(axis=0), allp.max(axis=0))
         is_hit = np.zeros(sum(len(e) for e in ends), dtype=np.bool_)
         is_hit[:len(hits)] = True
+        cast = np.ones_like(is_hit)
+        cast[n_cast:len(hits)] = False
         cells = self.to_cells(np.vstack(ends))
         o = self.to_cells(sensor_xy)
         self.scans += 1
         insert_rays(self.prob, self.stamp, self.scans, float(o[0]), float(o[1]), cells,
-                    is_hit, cfg.p_hit / (1 - cfg.p_hit), cfg.p_miss / (1 - cfg.p_miss),
+                    is_hit, cast, cfg.p_hit / (1 - cfg.p_hit), cfg.p_miss / (1 - cfg.p_miss),
                     cfg.p_min, cfg.p_max)
 
     def known(self) -> np.ndarray:

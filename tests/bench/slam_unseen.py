@@ -31,64 +31,12 @@ from pathlib import Path
 import numpy as np
 
 from numeric.geometry import relative, wrap_angle
-from numeric.laser import Laser, LaserConfig, record_log
 from numeric.scan import LaserLog
-from numeric.simulator import OdometryConfig, follow_path, odometry_along
 from numeric.slam.evaluation import RelationErrors, relation_errors
 from numeric.slam.runner import SlamOptions, run_log
-from numeric.world import World
-from numeric.worlds import office_world
+from numeric.slam.simulate import office_log
 
-LASERS = {
-    "urg": LaserConfig(),
-    "lms": LaserConfig(max_range_m=30.0, fov_rad=float(np.pi), step_rad=float(np.radians(1.0)),
-                       scan_period_s=0.2),
-}
 LOOP_GAP_S = 60.0
-
-
-def unseen_office(seed: int) -> tuple[World, np.ndarray]:
-    """An office floor and a tour of it (waypoints ``(W, 2)``) made from ``seed``."""
-    rng = np.random.default_rng(seed)
-    k = int(rng.integers(3, 6))
-    rw, rd = float(rng.uniform(4.5, 7.0)), float(rng.uniform(4.5, 7.0))
-    cw = float(rng.uniform(1.8, 2.6))
-    desc = office_world(name=f"unseen{seed}", rooms_per_side=k, room_width_m=rw,
-                        room_depth_m=rd, corridor_width_m=cw)
-    yc = 0.5 * cw
-    way: list[tuple[float, float]] = [(0.8, yc)]
-
-    def visit(i: int, north: bool) -> None:
-        cx = (i + 0.5) * rw + float(rng.uniform(-0.15, 0.15))
-        sign = 1.0 if north else -1.0
-        wall_y = cw if north else 0.0
-        inside = (cx + float(rng.uniform(-0.25, 0.25)) * rw,
-                  wall_y + sign * float(rng.uniform(0.35, 0.6)) * rd)
-        way.extend([(cx, yc), (cx, wall_y + sign * 0.7), inside, (cx, wall_y + sign * 0.7),
-                    (cx, yc)])
-
-    order = [(i, bool(rng.random() < 0.5)) for i in range(k)]
-    for i, north in order:  # down the corridor, one side's room per section
-        visit(i, north)
-    way.append((k * rw - 0.8, yc))
-    for i, north in reversed(order):  # and back, the other side's
-        visit(i, not north)
-    way.append((0.8, yc))
-    visit(*order[0])  # the first room again
-    return World(desc), np.array(way)
-
-
-def unseen_log(seed: int, laser: str) -> LaserLog:
-    """The simulated log of ``unseen_office(seed)``'s tour with the laser ``laser``."""
-    world, way = unseen_office(seed)
-    rng = np.random.default_rng(1000 + seed)
-    odo = OdometryConfig(distance_noise_ratio=0.05, turn_noise_ratio=0.05,
-                         heading_drift_rad_per_m=0.02,
-                         distance_bias_ratio=float(rng.uniform(-0.03, 0.03)))
-    sensor = Laser(world, LASERS[laser])
-    truth = follow_path(way, 0.4, sensor.config.scan_period_s)
-    odom = odometry_along(truth, odo, rng)
-    return record_log(world, truth, odom, sensor, rng, name=f"unseen{seed}-{laser}")
 
 
 def true_relations(log: LaserLog) -> tuple[tuple[np.ndarray, np.ndarray],
@@ -151,7 +99,7 @@ def main() -> None:
     print("\n".join(lines), flush=True)
     for seed in (int(s) for s in a.seeds.split(",")):
         for laser in a.lasers.split(","):
-            log = unseen_log(seed, laser)
+            log = office_log(seed, laser)
             truth = np.asarray(log.truth)
             tour = float(np.sum(np.hypot(*np.diff(truth[:, :2], axis=0).T)))
             (st, sd), (lt, ld) = true_relations(log)
