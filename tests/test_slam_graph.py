@@ -15,7 +15,7 @@ from numeric.slam.correlative import (
     correlative_search,
     refine,
 )
-from numeric.slam.graph import GraphSlam, GraphSlamConfig, Submap
+from numeric.slam.graph import GraphSlam, GraphSlamConfig, Submap, tie
 from numeric.slam.keyframes import grazing_returns
 from numeric.slam.pose_graph import PoseGraph
 from numeric.slam.simulate import office_log, simulated_log
@@ -408,6 +408,22 @@ def test_the_loop_search_widens_with_the_path_since_the_last_closure() -> None:
         searched[growth] = s.searches
         assert s._travel[-1] > 30 and np.all(np.diff(s._travel) >= 0)
     assert searched[0.1] > searched[0.0] > 0
+
+
+def test_a_small_loop_does_not_tie_the_trajectory_to_submaps_left_long_ago() -> None:
+    """Submaps every 10 m of path; at 300 m a closure to the submap of 280-290 m (a
+    small loop) ties the trajectory to it and, through the old trajectory, to the one
+    before it as if at 290 m, but to the first submap (0-10 m) through 270 m of old
+    path: as if at 30 m, not at 300 m (until session 28 any closure restarted every
+    submap's drift). A later closure to the first submap ties its neighbours in turn."""
+    lo = np.arange(0.0, 300.0, 10.0)
+    hi = lo + 10.0
+    tied = np.full(len(lo), -np.inf)
+    tie(tied, lo, hi, 28, 300.0)
+    assert tied[28] == 300.0 and tied[27] == 300.0 and tied[26] == 290.0
+    assert tied[0] == 30.0
+    tie(tied, lo, hi, 0, 400.0)
+    assert tied[0] == tied[1] == 400.0 and tied[5] == 360.0 and tied[28] == 300.0
 
 
 def test_no_closure_is_accepted_twice() -> None:

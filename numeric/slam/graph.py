@@ -9,7 +9,10 @@ Gauss-Newton refinement on the interpolated probability grid with priors towards
 prediction; when the search's best lies on its window's edge it is repeated in a
 ``local_escalation`` times wider window and kept if it fits clearly better -- and
 inserted into both active submaps (a submap is finished after
-``scans_per_submap`` nodes; a new one starts halfway, so two always overlap). Scans
+``scans_per_submap`` nodes; a new one starts halfway, so two always overlap) with the
+surface between neighbouring returns (``submap_connect_gap_m``: one scan of a wall
+seen at a slant in 1° steps is otherwise a dotted line that moves with the robot, and
+the next scan fits it best where the first was taken). Scans
 between nodes are matched the same way but inserted nowhere: their pose relative to
 their node comes from the match, not from the odometry (:meth:`GraphSlam.track`).
 
@@ -19,7 +22,8 @@ the finished submaps within ``loop_max_distance_m`` of it -- each stitched with 
 those grids overlapping, every ``loop_neighbours + 1``-th of them per search in turn
 -- in a window of
 ``loop_linear_window_m`` / ``loop_angular_window_rad`` (both growing with the path
-travelled since the last accepted closure; the linear one at most
+along which local SLAM may have drifted from that submap, :meth:`GraphSlam.drift_path`;
+the linear one at most
 ``loop_near_window_m`` plus ``loop_near_rate`` times the path since the submap was
 left, which local SLAM cannot have drifted beyond); a match above ``loop_min_score``
 with no second pose as good beyond ``loop_unique_m`` in the window (a scan that fits
@@ -158,8 +162,9 @@ class GraphSlamConfig(BaseModel):
                                           "max-pooling inflates the first; fr-clinic's "
                                           "correct local matches score 0.42-0.46)")
     loop_window_growth: float = Field(0.01, ge=0, description="the candidate radius and "
-                                      "linear window grow by this many m per m travelled "
-                                      "since the last accepted closure (drift) ...")
+                                      "linear window of a submap grow by this many m per "
+                                      "m of path since the trajectory was last tied to "
+                                      "it (GraphSlam.drift_path) ...")
     loop_window_growth_rad: float = Field(0.0002, ge=0, description="... and the angular "
                                           "window by this many rad per m")
     loop_max_growth_m: float = Field(20.0, ge=0, description="cap of the linear growth")
@@ -265,6 +270,16 @@ def adaptive_voxel(xy: np.ndarray, max_points: int, voxel_m: float = 0.05) -> np
     return out
 
 
+def tie(tied_at: np.ndarray, span_lo: np.ndarray, span_hi: np.ndarray, k: int,
+        travel: float) -> None:
+    """A closure at path length ``travel`` to submap ``k`` ties the trajectory to every
+    submap ``j``, through the old trajectory between ``k`` and ``j``: as if it had been at
+    ``j`` that much path earlier. ``tied_at[j]`` (in place) keeps the latest such tie;
+    ``span_lo / span_hi`` are the path lengths of each submap's first and last nodes."""
+    gap = np.maximum(0.0, np.maximum(span_lo - span_hi[k], span_lo[k] - span_hi))
+    np.maximum(tied_at, travel - gap, out=tied_at)
+
+
 @dataclass
 class GraphSlam:
     """Feed scans with :meth:`process`; read :meth:`trajectory` and :meth:`map_poses`."""
@@ -307,7 +322,11 @@ class GraphSlam:
         self._prev: tuple[np.ndarray, np.ndarray | None] | None = None  # for alpha > 0
         self.rng = np.random.default_rng(self.seed)
         self._travel: list[float] = []  # path length (local frame) up to each node
-        self._closed_at = 0.0  # path length at the last accepted closure
+        # per submap: the path lengths of its first and last nodes, and where the
+        # trajectory was tied to it by a closure (GraphSlam.drift_path)
+        self._span_lo = np.zeros(0)
+        self._span_hi = np.zeros(0)
+        self._tied_at = np.zeros(0)
         # per recent node: did the search beat the odometry by odometry_score_margin?
         self._search_won: deque[bool] = deque(maxlen=self.config.odometry_rate_nodes)
 
@@ -430,6 +449,10 @@ class GraphSlam:
         act = self.active()
         if not act or len(act[-1].nodes) >= cfg.scans_per_submap // 2:
             self.submaps.append(Submap(node, ProbabilityGrid(cfg.submap)))
+            travel = self._travel[node]
+            self._span_lo = np.append(self._span_lo, travel)
+            self._span_hi = np.append(self._span_hi, travel)
+            self._tied_at = np.append(self._tied_at, -np.inf)
         pose = self.local[node]
         hits, miss = place(xy, pose), place(misses, pose) if len(misses) else None
         surface = None
@@ -440,6 +463,7 @@ class GraphSlam:
         for s in self.active():
             s.grid.insert(pose[:2], hits, miss, surface)
             s.nodes.append(node)
+        self._span_hi[len(self.submaps) - len(self.active()):] = self._travel[node]
         for s in self.active():
             if len(s.nodes) >= cfg.scans_per_submap:
                 s.finished = True
@@ -478,16 +502,18 @@ class GraphSlam:
         pts = adaptive_voxel(self.node_xy[node], cfg.loop_max_points)
         found = 0
         near = []
-        # the longer since the last closure, the farther the estimate may have drifted
-        # from the old submaps: the radius and the window grow with the path since then
-        since = self._travel[node] - self._closed_at
-        grow = min(cfg.loop_window_growth * since, cfg.loop_max_growth_m)
-        grow_rad = min(cfg.loop_window_growth_rad * since, np.pi - cfg.loop_angular_window_rad)
+        # the longer the path since the trajectory was tied to a submap, the farther the
+        # estimate may have drifted from it: the radius and the window grow with it
+        grow, grow_rad = {}, {}
         for k, s in enumerate(self.submaps):
             if not s.finished or node in s.nodes:
                 continue
+            since = self.drift_path(node, k)
+            grow[k] = min(cfg.loop_window_growth * since, cfg.loop_max_growth_m)
+            grow_rad[k] = min(cfg.loop_window_growth_rad * since,
+                              np.pi - cfg.loop_angular_window_rad)
             d = float(np.hypot(*(g[s.anchor, :2] - g[node, :2])))
-            if d <= cfg.loop_max_distance_m + grow:
+            if d <= cfg.loop_max_distance_m + grow[k]:
                 near.append((d, k))
         wide = 0
         jobs = []
@@ -509,8 +535,8 @@ class GraphSlam:
             near_m = (cfg.loop_near_window_m + cfg.loop_near_rate
                       * (self._travel[node] - self._travel[s.nodes[-1]]))
             lin, ang = ((cfg.loop_track_linear_window_m, cfg.loop_track_angular_window_rad)
-                        if tracking else (min(cfg.loop_linear_window_m + grow, near_m),
-                                          cfg.loop_angular_window_rad + grow_rad))
+                        if tracking else (min(cfg.loop_linear_window_m + grow[k], near_m),
+                                          cfg.loop_angular_window_rad + grow_rad[k]))
             jobs.append((k, a, tracking, guess, lin, ang))
         self.searches += len(jobs)
         # the branch-and-bound searches are independent of each other (and release the
@@ -602,7 +628,18 @@ class GraphSlam:
         self.graph.add_loop(c.anchor, c.node, c.delta)
         self.closures.append(c)
         self._last_closed[c.submap] = c.node
-        self._closed_at = max(self._closed_at, self._travel[c.node])
+        tie(self._tied_at, self._span_lo, self._span_hi, c.submap, self._travel[c.node])
+
+    def drift_path(self, node: int, k: int) -> float:
+        """The path (m) along which local SLAM may have drifted between ``node`` and
+        submap ``k``: from where the trajectory was last tied to ``k`` -- when it left
+        the submap, or at a closure, the closure's own submap that much path away from
+        ``k`` along the old trajectory. A closure to a submap just built (a small loop)
+        ties the node to the recent past only, not to a submap left long ago; until
+        session 28 any closure restarted the drift of every submap, and fr-clinic's
+        return to its first halls after a small loop at 3300 s was searched in 11 m
+        windows for a drift of 20 m (odometry perturbed by 0.1°/m)."""
+        return self._travel[node] - max(float(self._tied_at[k]), float(self._span_hi[k]))
 
     # -- driver -------------------------------------------------------------------------
     def process(self, scan: Scan) -> None:
