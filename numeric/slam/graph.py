@@ -453,6 +453,7 @@ class GraphSlam:
             self._span_lo = np.append(self._span_lo, travel)
             self._span_hi = np.append(self._span_hi, travel)
             self._tied_at = np.append(self._tied_at, -np.inf)
+            act = self.active()
         pose = self.local[node]
         hits, miss = place(xy, pose), place(misses, pose) if len(misses) else None
         surface = None
@@ -460,11 +461,11 @@ class GraphSlam:
             joined, _ = connect_returns(xy, None, cfg.submap_connect_gap_m,
                                         0.5 * cfg.submap.resolution_m)
             surface = place(joined[len(xy):], pose)
-        for s in self.active():
+        for s in act:
             s.grid.insert(pose[:2], hits, miss, surface)
             s.nodes.append(node)
-        self._span_hi[len(self.submaps) - len(self.active()):] = self._travel[node]
-        for s in self.active():
+        self._span_hi[len(self.submaps) - len(act):] = self._travel[node]
+        for s in act:
             if len(s.nodes) >= cfg.scans_per_submap:
                 s.finished = True
                 s.grid = s.grid.cropped().frozen()
@@ -533,7 +534,7 @@ class GraphSlam:
             # the node's pose in the submap's (local-SLAM) frame, from the global estimate
             guess = compose(self.local[a], relative(g[a], g[node]))
             near_m = (cfg.loop_near_window_m + cfg.loop_near_rate
-                      * (self._travel[node] - self._travel[s.nodes[-1]]))
+                      * (self._travel[node] - self._span_hi[k]))
             lin, ang = ((cfg.loop_track_linear_window_m, cfg.loop_track_angular_window_rad)
                         if tracking else (min(cfg.loop_linear_window_m + grow[k], near_m),
                                           cfg.loop_angular_window_rad + grow_rad[k]))

@@ -30,12 +30,19 @@ def simulated_log(template: str, seed: int = 0, speed_m_s: float = 0.4,
                   laser: LaserConfig | None = None) -> LaserLog:
     """Drive the tour of ``template`` at ``speed_m_s``, one scan per laser period."""
     waypoints, odo = TOURS[template]
-    world = World(from_template(template, template))
-    rng = np.random.default_rng(seed)
+    return drive(World(from_template(template, template)), np.array(waypoints), odo,
+                 laser, speed_m_s, np.random.default_rng(seed), template)
+
+
+def drive(world: World, waypoints: np.ndarray, odo: OdometryConfig,
+          laser: LaserConfig | None, speed_m_s: float, rng: np.random.Generator,
+          name: str) -> LaserLog:
+    """The log of a robot driving ``waypoints`` through ``world`` at ``speed_m_s``: true
+    poses one laser period apart, odometry with the errors of ``odo``, scans."""
     sensor = Laser(world, laser)
-    truth = follow_path(np.array(waypoints), speed_m_s, sensor.config.scan_period_s)
+    truth = follow_path(waypoints, speed_m_s, sensor.config.scan_period_s)
     odom = odometry_along(truth, odo, rng)
-    return record_log(world, truth, odom, sensor, rng, name=template)
+    return record_log(world, truth, odom, sensor, rng, name=name)
 
 
 #: the lasers of :func:`office_log`: the URG-04LX of Hara et al. (5.6 m, 240°, the
@@ -92,7 +99,4 @@ def office_log(seed: int, laser: str) -> LaserLog:
     odo = OdometryConfig(distance_noise_ratio=0.05, turn_noise_ratio=0.05,
                          heading_drift_rad_per_m=0.02,
                          distance_bias_ratio=float(rng.uniform(-0.03, 0.03)))
-    sensor = Laser(world, OFFICE_LASERS[laser])
-    truth = follow_path(way, 0.4, sensor.config.scan_period_s)
-    odom = odometry_along(truth, odo, rng)
-    return record_log(world, truth, odom, sensor, rng, name=f"unseen{seed}-{laser}")
+    return drive(world, way, odo, OFFICE_LASERS[laser], 0.4, rng, f"unseen{seed}-{laser}")

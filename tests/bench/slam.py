@@ -353,6 +353,7 @@ def reference_scan_fit(lines: list[str]) -> None:
     the reference times by ±0.2-2 s fits worse). fr-clinic's errors, chizu's and the
     published ones alike, carry that."""
     from numeric.probability_grid import GridConfig, ProbabilityGrid
+    from numeric.slam.correlative import PrecomputedGrid
     from numeric.slam.keyframes import connect_returns
 
     lines += ["", "## Reference relations against the scans (relations under 5 s)", "",
@@ -374,7 +375,8 @@ def reference_scan_fit(lines: list[str]) -> None:
             g.insert(np.zeros(2), xa, None,
                      connect_returns(xa, None, 0.5, 0.025)[0][len(xa):])
             o = relative(odom[ia], odom[ib])
-            sr, so = (_cell_score(g, xb, x) for x in (r, o))
+            grid = PrecomputedGrid(g, depth=0)  # the grid itself, for its score()
+            sr, so = (grid.score(xb, x) for x in (r, o))
             fix = max(float(np.hypot(*(r[:2] - o[:2]))) / 0.1,
                       float(np.degrees(abs(wrap_angle(r[2] - o[2])))) / 2.0)
             rows.append((a - t[0], sr, so, fix))
@@ -386,17 +388,6 @@ def reference_scan_fit(lines: list[str]) -> None:
         lines.append(f"| {name} | {len(rr)} | {rr[:, 1].mean():.3f} / {rr[:, 2].mean():.3f} | "
                      f"{100 * good.mean():.1f} % | {100 * bad.mean():.1f} % | {at} |")
         print(lines[-1], flush=True)
-
-
-def _cell_score(grid, xy: np.ndarray, pose: np.ndarray) -> float:  # type: ignore[no-untyped-def]
-    """Mean probability of the cells ``xy`` (robot frame) fall in at ``pose``."""
-    from numeric.geometry import place
-
-    c = np.floor(grid.to_cells(place(xy, pose))).astype(int)
-    ok = np.all((c >= 0) & (c < np.array(grid.shape)), axis=1)
-    v = np.zeros(len(c))
-    v[ok] = grid.prob[c[ok, 0], c[ok, 1]]
-    return float(v.mean())
 
 
 ALIGNERS = ["Intensity-ICP point (eq. 2)", "Intensity-ICP point-to-line", "small_gicp GICP",
