@@ -30,8 +30,11 @@ install: prolog $(STAMP)
 run: install
 	$(VENV)/bin/chizu serve
 
+# two pytest workers (pytest-xdist): the suite runs in about 7 minutes instead of 11 on
+# a 2-core machine; `PYTEST_WORKERS=0 make test` runs it in one process
+PYTEST_WORKERS ?= 2
 test: install
-	$(PY) -m pytest
+	$(PY) -m pytest -n $(PYTEST_WORKERS)
 
 bench: install
 	$(PY) tests/bench/run.py
