@@ -545,3 +545,35 @@ def test_the_loop_map_cache_keeps_to_its_memory_budget_and_changes_nothing() -> 
     assert peak > 2**20  # the budget did evict
     assert len(roomy.closures) > 0 and len(tight.closures) == len(roomy.closures)
     assert np.array_equal(roomy.trajectory()[1], tight.trajectory()[1])
+
+
+def test_the_odometry_heading_sigma_learned_follows_the_odometrys_quality() -> None:
+    """The same drive around room_a with two odometries: near-exact, and one
+    whose heading random-walks 0.2 rad per sqrt(m) with 10 % turn noise. The heading
+    changes the scan matches find against the odometry's put the first's heading sigma
+    well below the fixed model's and leave the second's at it."""
+    from numeric.simulator import OdometryConfig
+    from numeric.slam.simulate import drive
+    from numeric.world import World
+    from numeric.worlds import from_template
+
+    world = World(from_template("room_a", "room_a"))
+    waypoints = np.array([(1.5, 1.5), (9.2, 1.5), (9.2, 9.2), (1.0, 9.2), (1.0, 1.5)])
+    scales = {}
+    for name, odo in (("exact", OdometryConfig(distance_noise_ratio=0.001,
+                                                turn_noise_ratio=0.001,
+                                                heading_drift_rad_per_m=0.0)),
+                      ("drifting", OdometryConfig(distance_noise_ratio=0.05,
+                                                  turn_noise_ratio=0.1,
+                                                  heading_drift_rad_per_m=0.2))):
+        log = drive(world, waypoints, odo, None, 0.5, np.random.default_rng(1), name)
+        s = GraphSlam(GraphSlamConfig(odometry_window=100, odometry_lag=10,
+                                      alignment=None))
+        for scan in log.scans:
+            s.process(scan)
+        assert len(s.odometry.residuals) >= 50
+        scales[name] = s.odometry.scale
+    assert scales["exact"] < 0.3  # measured 0.1, the floor (odometry_min_scale)
+    assert scales["drifting"] > 0.8  # measured 1.0
+    off = GraphSlam(GraphSlamConfig(odometry_window=0))
+    assert off.odometry.scale == 1.0

@@ -62,7 +62,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, Field
 
-from numeric.geometry import compose, invert, place, relative
+from numeric.geometry import compose, invert, place, relative, wrap_angle
 from numeric.probability_grid import GridConfig, ProbabilityGrid
 from numeric.scan import Scan
 from numeric.slam.correlative import (
@@ -82,7 +82,7 @@ from numeric.slam.keyframes import (
     moved,
     voxel_downsample,
 )
-from numeric.slam.pose_graph import GraphConfig, PoseGraph
+from numeric.slam.pose_graph import GraphConfig, OdometryCalibration, PoseGraph
 from numeric.slam.scan_alignment import AlignmentConfig, align_scans
 from numeric.threads import default_threads, thread_map
 
@@ -136,6 +136,17 @@ class GraphSlamConfig(BaseModel):
     rotation_weight: float = Field(40.0, ge=0)
     refine_prior: Literal["search", "odometry"] = "odometry"
     local_residual_floor: float = Field(0.01, gt=0)
+    odometry_window: int = Field(400, ge=0, description="nodes over which the odometry's "
+                                 "heading sigma (odometry edges, the local matches' prior) "
+                                 "is learned from the local matches (OdometryCalibration; "
+                                 "0: the fixed graph.odom_sigma_rad). Session 29: learned "
+                                 "0.1-0.3 of the fixed one on fr-clinic, 1 on mit-csail "
+                                 "and fr079; see the README's 'fr-clinic is fragile'")
+    odometry_min_scale: float = Field(0.1, gt=0, le=1, description="... down to this "
+                                      "share of the fixed one")
+    odometry_knee: float = Field(1.0, gt=0, le=1, description="OdometryCalibration.knee")
+    odometry_lag: int = Field(20, ge=1, description="each residual compares the heading "
+                              "change over this many nodes (GraphSlam.calibrate_odometry)")
     odometry_score_margin: float = Field(0.05, ge=0, description="the search's match "
                                          "replaces the odometry-held one when it scores "
                                          "this much better, while the scans keep "
@@ -329,6 +340,12 @@ class GraphSlam:
         self._tied_at = np.zeros(0)
         # per recent node: did the search beat the odometry by odometry_score_margin?
         self._search_won: deque[bool] = deque(maxlen=self.config.odometry_rate_nodes)
+        self.odometry = OdometryCalibration(cfg.odometry_window, cfg.odometry_min_scale,
+                                            cfg.odometry_knee)
+        self._free_heading: float | None = None  # the last node's match without odometry
+        # per node: that heading (nan: none), the odometry's, the model's summed variance
+        self._heading_log: deque[tuple[float, float, float]] = deque(
+            maxlen=cfg.odometry_lag + 1)
 
     # -- local SLAM ---------------------------------------------------------------------
     def active(self) -> list[Submap]:
@@ -375,6 +392,10 @@ class GraphSlam:
             # unless the scan fits clearly better where the search alone puts it (an
             # odometry jump; how clearly: search_overrides_odometry)
             sig = self.graph.odometry_sigmas(np.zeros(3) if u is None else u)
+            if record:
+                self._free_heading = (float(r.pose[2]) if r.score >= cfg.local_min_score
+                                      else None)
+            sig[2] *= self.odometry.scale
             ro = refine(grid, pts, start, prior=predicted, occupied_weight=1.0,
                         translation_weight=1.0 / sig[0], rotation_weight=1.0 / sig[2],
                         residual_floor=cfg.local_residual_floor)
@@ -405,6 +426,25 @@ class GraphSlam:
                                           window=(cfg.track_linear_window_m,
                                                   cfg.track_angular_window_rad))
         return relative(self.local[last], pose) if score >= cfg.local_min_score else u
+
+    def calibrate_odometry(self, u: np.ndarray, free: float | None) -> None:
+        """One residual for :class:`OdometryCalibration` at the node just added: the
+        heading change the scan matches found over the last ``odometry_lag`` nodes
+        (``free``: this node's match refined without the odometry prior) minus the
+        odometry's, over the fixed model's sigma of that change. Over one node the
+        match's own noise dominates on a good odometry (fr-clinic: about 0.4° a node
+        against the odometry's 0.04°/m); over K nodes the odometry's error grows as
+        √K while the match's, each against its submap, does not."""
+        cfg = self.config
+        var = float(self.graph.odometry_sigmas(u)[2] ** 2)
+        log = self._heading_log
+        total = (log[-1][2] if log else 0.0) + var
+        log.append((np.nan if free is None else free, float(self.node_odom[-1][2]), total))
+        then = log[0]
+        if free is None or len(log) <= cfg.odometry_lag or np.isnan(then[0]):
+            return
+        e = wrap_angle((free - then[0]) - (log[-1][1] - then[1]))
+        self.odometry.add(float(e) / np.sqrt(total - then[2]))
 
     def search_overrides_odometry(self, gain: float, record: bool = True) -> bool:
         """Whether the search's match, scoring ``gain`` more than the match held near
@@ -678,7 +718,8 @@ class GraphSlam:
         if score >= cfg.local_min_score:  # else odometry alone links the nodes
             self.graph.add_local(last, node, delta, None if weak is None
                                  else rotate_xy(weak, -self.local[last][2]))
-        self.graph.add_odometry(last, node, u)
+        self.graph.add_odometry(last, node, u, self.odometry.scale)
+        self.calibrate_odometry(u, self._free_heading if cfg.local_matching else None)
         if node % cfg.loop_every == 0 and self.search_loops(node):
             self.graph.update()
             est = self.graph.estimate()
