@@ -38,6 +38,7 @@ from numeric.slam.rbpf import (
 )
 from numeric.world import World
 from numeric.worlds import from_template, office_world
+from tests.drives import room_a_drives
 
 #: a 12 m laser sees the whole 10 m room: the scans pin the pose down
 LASER = LaserConfig(max_range_m=12.0, scan_period_s=0.2)
@@ -531,18 +532,8 @@ def test_the_heading_sigma_learned_follows_the_odometrys_quality(room: World) ->
     and leave the second's at the fixed one (measured 0.03 and 1.0; 0.05 rad per
     sqrt(m) and 5 % turn noise gives 0.22: the match leaves heading errors within about
     1 degree where they are, so the spread is a lower bound)."""
-    truth = follow_path(np.array([(1.5, 1.5), (9.2, 1.5), (9.2, 9.2), (1.0, 9.2), (1.0, 1.5)]),
-                        0.5, LASER.scan_period_s)
     scales = {}
-    for name, noise in (("exact", OdometryConfig(distance_noise_ratio=0.001,
-                                                  turn_noise_ratio=0.001,
-                                                  heading_drift_rad_per_m=0.0)),
-                        ("drifting", OdometryConfig(distance_noise_ratio=0.05,
-                                                    turn_noise_ratio=0.1,
-                                                    heading_drift_rad_per_m=0.2))):
-        rng = np.random.default_rng(1)
-        log = record_log(room, truth, odometry_along(truth, noise, rng), Laser(room, LASER),
-                         rng, name=name)
+    for name, log in room_a_drives(room, LASER).items():
         s = _run(log, RbpfConfig(particles=4, seed=0,
                                  improved=ImprovedConfig(odometry_window=100)))
         assert len(s.odometry.residuals) == 100

@@ -552,21 +552,12 @@ def test_the_odometry_heading_sigma_learned_follows_the_odometrys_quality() -> N
     whose heading random-walks 0.2 rad per sqrt(m) with 10 % turn noise. The heading
     changes the scan matches find against the odometry's put the first's heading sigma
     well below the fixed model's and leave the second's at it."""
-    from numeric.simulator import OdometryConfig
-    from numeric.slam.simulate import drive
     from numeric.world import World
     from numeric.worlds import from_template
+    from tests.drives import room_a_drives
 
-    world = World(from_template("room_a", "room_a"))
-    waypoints = np.array([(1.5, 1.5), (9.2, 1.5), (9.2, 9.2), (1.0, 9.2), (1.0, 1.5)])
     scales = {}
-    for name, odo in (("exact", OdometryConfig(distance_noise_ratio=0.001,
-                                                turn_noise_ratio=0.001,
-                                                heading_drift_rad_per_m=0.0)),
-                      ("drifting", OdometryConfig(distance_noise_ratio=0.05,
-                                                  turn_noise_ratio=0.1,
-                                                  heading_drift_rad_per_m=0.2))):
-        log = drive(world, waypoints, odo, None, 0.5, np.random.default_rng(1), name)
+    for name, log in room_a_drives(World(from_template("room_a", "room_a")), None).items():
         s = GraphSlam(GraphSlamConfig(odometry_window=100, odometry_lag=10,
                                       alignment=None))
         for scan in log.scans:
