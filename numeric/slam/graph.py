@@ -391,11 +391,10 @@ class GraphSlam:
             # the motion model's own sigmas against a scan weighed by its residuals; kept
             # unless the scan fits clearly better where the search alone puts it (an
             # odometry jump; how clearly: search_overrides_odometry)
-            sig = self.graph.odometry_sigmas(np.zeros(3) if u is None else u)
+            sig = self.odometry_sigmas(np.zeros(3) if u is None else u)
             if record:
                 self._free_heading = (float(r.pose[2]) if r.score >= cfg.local_min_score
                                       else None)
-            sig[2] *= self.odometry.scale
             ro = refine(grid, pts, start, prior=predicted, occupied_weight=1.0,
                         translation_weight=1.0 / sig[0], rotation_weight=1.0 / sig[2],
                         residual_floor=cfg.local_residual_floor)
@@ -426,6 +425,14 @@ class GraphSlam:
                                           window=(cfg.track_linear_window_m,
                                                   cfg.track_angular_window_rad))
         return relative(self.local[last], pose) if score >= cfg.local_min_score else u
+
+    def odometry_sigmas(self, u: np.ndarray) -> np.ndarray:
+        """Sigmas (x, y, theta) of the odometry increment ``u``: the fixed model's, the
+        heading's scaled by what :meth:`calibrate_odometry` has learned. The odometry
+        edges and the local matches' odometry prior both use them."""
+        sig = self.graph.odometry_sigmas(u)
+        sig[2] *= self.odometry.scale
+        return sig
 
     def calibrate_odometry(self, u: np.ndarray, free: float | None) -> None:
         """One residual for :class:`OdometryCalibration` at the node just added: the
@@ -721,7 +728,7 @@ class GraphSlam:
         if score >= cfg.local_min_score:  # else odometry alone links the nodes
             self.graph.add_local(last, node, delta, None if weak is None
                                  else rotate_xy(weak, -self.local[last][2]))
-        self.graph.add_odometry(last, node, u, self.odometry.scale)
+        self.graph.add_odometry(last, node, u, self.odometry_sigmas(u))
         self.calibrate_odometry(u, self._free_heading if cfg.local_matching else None)
         if node % cfg.loop_every == 0 and self.search_loops(node):
             self.graph.update()

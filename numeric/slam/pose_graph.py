@@ -170,12 +170,12 @@ class PoseGraph:
         return self.config.odometry_sigmas(delta)
 
     def add_odometry(self, a: int, b: int, delta: np.ndarray,
-                     heading_scale: float = 1.0) -> None:
-        """An odometry edge; ``heading_scale`` scales its heading sigma (what
-        :class:`OdometryCalibration` has learned)."""
-        sig = self.odometry_sigmas(delta)
-        sig[2] *= heading_scale
-        self.add_between(a, b, delta, sig)
+                     sigmas: np.ndarray | None = None) -> None:
+        """An odometry edge with ``sigmas`` (x, y, theta), by default
+        :meth:`odometry_sigmas` (graph SLAM hands its calibrated ones,
+        :meth:`~numeric.slam.graph.GraphSlam.odometry_sigmas`)."""
+        self.add_between(a, b, delta, self.odometry_sigmas(delta) if sigmas is None
+                         else sigmas)
 
     def add_loop(self, a: int, b: int, delta: np.ndarray, weight: float = 1.0) -> None:
         self._graph.add(gtsam.BetweenFactorPose2(a, b, as_pose2(delta),
