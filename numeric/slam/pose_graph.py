@@ -58,8 +58,12 @@ class OdometryCalibration:
     mit-csail 1.1-1.3°/m. With the fixed sigma the scan match decides the heading
     alone, also where the scan hardly constrains it (an atrium's curved wall), and
     there small pulls of the matcher add up. Each update, the best particle's scan is
-    also matched on the likelihood alone from the odometry prediction, and the heading
-    difference, divided by the fixed sigma, is kept for the last ``window`` updates.
+    also matched on the likelihood alone against the keyframe 3 m of path back, and the
+    heading change it finds minus the odometry's, divided by the fixed sigma of that
+    change, is kept for the last ``window`` updates
+    (:meth:`~numeric.slam.rbpf.RbpfSlam._calibrate`; until session 30 the match was
+    against the whole reference from the odometry prediction, one update's heading
+    difference, which a heading walk within the matcher's flat basin hides).
     The sigma is then the fixed one times their robust spread (1.4826 x the median of
     their absolute values: a stretch where the matcher is off does not move it),
     clamped to ``[min_scale, 1]``. This is odometry calibration from scan matching; it

@@ -196,6 +196,16 @@ class ImprovedConfig(BaseModel):
     odometry_window: int = Field(200, ge=0, description="the motion model's heading sigma "
                                  "is learned from the last this many updates "
                                  "(:class:`~numeric.slam.rbpf.OdometryCalibration`); 0: fixed")
+    odometry_lag_m: float = Field(3.0, ge=0, description="the residuals it learns from: "
+                                  "0, the heading of each update's match from the odometry "
+                                  "start minus the odometry's; else the heading change since "
+                                  "the newest keyframe at least this much odometry path back, "
+                                  "matched against that keyframe alone, minus the odometry's "
+                                  "(:meth:`~numeric.slam.rbpf.RbpfSlam._calibrate`)")
+    odometry_lag_headings_rad: tuple[float, ...] = Field(
+        (0.0, -0.035, 0.035, -0.07, 0.07),
+        description="heading offsets of that lagged match's starts (the best by the scan "
+                    "alone wins)")
     odometry_min_scale: float = Field(0.03, gt=0, le=1, description="... down to this share "
                                       "of the fixed one")
     odometry_knee: float = Field(0.2, gt=0, le=1, description="a spread up to this is "
