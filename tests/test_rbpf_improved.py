@@ -527,11 +527,10 @@ def test_odometry_calibration_is_a_robust_clamped_spread() -> None:
 
 def test_the_heading_sigma_learned_follows_the_odometrys_quality(room: World) -> None:
     """The same drive around room_a with two odometries: near-exact, and one whose
-    heading random-walks 0.2 rad per sqrt(m) with 10 % turn noise. The scan-matched
-    residuals put the first's heading sigma at the floor (0.03 of the fixed model's)
-    and leave the second's at the fixed one (measured 0.03 and 1.0; 0.05 rad per
-    sqrt(m) and 5 % turn noise gives 0.22: the match leaves heading errors within about
-    1 degree where they are, so the spread is a lower bound)."""
+    heading random-walks 0.2 rad per sqrt(m) with 10 % turn noise. The lagged
+    residuals (the default ``odometry_lag_m``, 3 m) put the first's heading sigma well
+    below the fixed model's and leave the second's at the fixed one (measured 0.085
+    and 1.0; with the one-update residual 0.03 and 1.0, and see the next test)."""
     scales = {}
     for name, log in room_a_drives(room, LASER).items():
         s = _run(log, RbpfConfig(particles=4, seed=0,
@@ -551,7 +550,8 @@ def test_the_lagged_heading_residual_sees_a_walk_the_one_update_match_hides(
     inside the matcher's flat basin and the sigma learned is 0.22 of the fixed one
     (measured); the heading change since a keyframe 3 m back, matched against that
     keyframe alone, shows it (measured 1.0, spread 1.6). The near-exact odometry
-    still learns a small sigma that way (0.085; the one-update residual 0.03)."""
+    still learns a small sigma that way (0.085; the one-update residual 0.03), which
+    the test above asserts at the default lag, 3 m; here it is asserted explicitly."""
     drives = room_a_drives(room, LASER, {"moderate": MODERATE_ODOMETRY,
                                          "exact": ODOMETRY_QUALITIES["exact"]})
     scales = {}

@@ -813,6 +813,8 @@ class RbpfSlam:
         one: ScanMaps = (xy, li, alpha, fp.grid, fp.inten, fp.meta, fp.origins, fp.inv_res)
         cut = min(imp.cutoff_m, self.config.field.cutoff_m)
         x0 = self.x[best]
+        # sigmas of 1e6: the motion model neither pulls nor scores the starts (the
+        # prior is off), so the best start is the one the scan alone fits best
         inc, _ = robust_increment(
             x0, u, np.full(3, 1e6), *one, np.ascontiguousarray(kf), cut * cut,
             1.0 / (2.0 * imp.sigma_m**2), imp.max_iterations,
