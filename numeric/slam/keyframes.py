@@ -97,8 +97,36 @@ def grazing_returns(xy: np.ndarray) -> np.ndarray:
     return out
 
 
+#: a return lies on the line through its two neighbours when it is within this of it
+COLLINEAR_M = 0.03
+
+
+def collinear_grazing_segments(xy: np.ndarray, max_gap_m: float) -> np.ndarray:
+    """Mask over the segments between consecutive returns (beam order, robot frame):
+    those within :data:`MIN_SURFACE_ANGLE_RAD` of the ray, at most ``max_gap_m`` long,
+    whose two ends each lie within :data:`COLLINEAR_M` of the line through their own
+    neighbours. A wall seen at grazing incidence is such a run of collinear returns
+    spaced ever farther apart; a depth jump (an edge in front of a farther wall) breaks
+    the line at the edge, since the jump's two ends each have a neighbour off it."""
+    m = len(xy) - 1
+    out = np.zeros(max(m, 0), dtype=bool)
+    if len(xy) < 4:
+        return out
+    _, gap, sin_to_ray = _segments(xy)
+    a, b, c = xy[:-2], xy[1:-1], xy[2:]
+    ac = c - a
+    dist = np.abs(ac[:, 0] * (b - a)[:, 1] - ac[:, 1] * (b - a)[:, 0]) / np.maximum(
+        np.hypot(ac[:, 0], ac[:, 1]), 1e-12)
+    on_line = np.zeros(len(xy), dtype=bool)
+    on_line[1:-1] = dist < COLLINEAR_M  # return i: between returns i - 1 and i + 1
+    out[:] = ((sin_to_ray < np.sin(MIN_SURFACE_ANGLE_RAD)) & (gap <= max_gap_m)
+              & on_line[:-1] & on_line[1:])
+    return out
+
+
 def connect_returns(xy: np.ndarray, intensity: np.ndarray | None, max_gap_m: float,
-                    step_m: float) -> tuple[np.ndarray, np.ndarray | None]:
+                    step_m: float, grazing_gap_m: float | None = None,
+                    ) -> tuple[np.ndarray, np.ndarray | None]:
     """The scan as a polyline: points every ``step_m`` along the segment between two
     consecutive returns (beam order, robot frame) when they are at most ``max_gap_m``
     apart and the segment is not within :data:`MIN_SURFACE_ANGLE_RAD` of the ray.
@@ -108,12 +136,20 @@ def connect_returns(xy: np.ndarray, intensity: np.ndarray | None, max_gap_m: flo
     between two of them for the gap; against the polyline it is charged for its
     distance to the surface, the point-to-line residual of Censi's PL-ICP
     ("An ICP variant using a point-to-line metric", ICRA 2008). Intensities are
-    interpolated along the segment."""
+    interpolated along the segment.
+
+    With ``grazing_gap_m`` the segments of a wall seen at grazing incidence are joined
+    too, up to that length (:func:`collinear_grazing_segments`): one scan draws such a
+    wall as dots that move with the robot, and a scan from a little farther fits those
+    dots best where the first was taken; drawn as a line the wall fixes the scan
+    across itself and leaves it free along itself."""
     if len(xy) < 2:
         return xy, intensity
     a = xy[:-1]
     seg, gap, sin_to_ray = _segments(xy)
     join = (gap > step_m) & (gap <= max_gap_m) & (sin_to_ray >= np.sin(MIN_SURFACE_ANGLE_RAD))
+    if grazing_gap_m is not None:
+        join |= (gap > step_m) & collinear_grazing_segments(xy, grazing_gap_m)
     k = np.flatnonzero(join)
     if len(k) == 0:
         return xy, intensity
