@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from numeric.geometry import compose, place, ray_cast, relative
+from numeric.geometry import compose, place, point_segment_distance, ray_cast, relative
 from numeric.probability_grid import GridConfig, ProbabilityGrid
 from numeric.slam.correlative import (
     PrecomputedGrid,
@@ -107,11 +107,7 @@ def test_grazing_returns_are_the_far_side_walls_of_a_corridor() -> None:
 def _off_walls(pts: np.ndarray, pose: np.ndarray,
                walls: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
     """Distance of each robot-frame point to the nearest wall segment."""
-    w = place(pts, pose)
-    a, b = walls
-    ab = b - a
-    t = np.clip(((w[:, None, :] - a) * ab).sum(-1) / (ab * ab).sum(-1), 0.0, 1.0)
-    return np.linalg.norm(w[:, None, :] - (a + t[..., None] * ab), axis=-1).min(axis=1)
+    return point_segment_distance(place(pts, pose), *walls).min(axis=1)
 
 
 def test_a_wall_seen_at_grazing_incidence_is_joined_into_a_line_a_depth_jump_is_not() -> None:

@@ -14,10 +14,9 @@ surface between neighbouring returns (``submap_connect_gap_m``: one scan of a wa
 seen at a slant in 1° steps is otherwise a dotted line that moves with the robot, and
 the next scan fits it best where the first was taken; optionally,
 ``submap_grazing_gap_m``, the collinear returns of a wall seen at grazing incidence
-are joined too, farther apart).
-Scans
-between nodes are matched the same way but inserted nowhere: their pose relative to
-their node comes from the match, not from the odometry (:meth:`GraphSlam.track`).
+are joined too, farther apart). Scans between nodes are matched the same way but
+inserted nowhere: their pose relative to their node comes from the match, not from
+the odometry (:meth:`GraphSlam.track`).
 
 Loop closure (§V): every ``loop_every``-th node is matched by branch and bound against
 the finished submaps within ``loop_max_distance_m`` of it -- each stitched with its
@@ -120,7 +119,8 @@ class GraphSlamConfig(BaseModel):
         "-> 0.0338, mit-csail 0.0273 -> 0.0272, fr079 0.0408 -> 0.0413, fr-clinic "
         "0.1118 -> 0.1092; but on the simulated loop of test_graph_slam_closes_a_"
         "simulated_loop (URG-04LX) the heading error over 10 scans goes 0.38 -> 0.51 "
-        "deg and the mean position error 0.21 -> 0.34 m")
+        "deg and the mean position error 0.21 -> 0.34 m (its seed 1; over seeds 1-4 "
+        "0.201 -> 0.228 m, 0.43 -> 0.47 deg)")
     local_grazing: Literal["keep", "search", "drop"] = Field(
         "keep", description="local matching's correlative search (search) or also its "
         "refinement (drop) leaves out the returns of surfaces seen at grazing incidence "

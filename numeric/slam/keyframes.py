@@ -108,10 +108,8 @@ def collinear_grazing_segments(xy: np.ndarray, max_gap_m: float) -> np.ndarray:
     neighbours. A wall seen at grazing incidence is such a run of collinear returns
     spaced ever farther apart; a depth jump (an edge in front of a farther wall) breaks
     the line at the edge, since the jump's two ends each have a neighbour off it."""
-    m = len(xy) - 1
-    out = np.zeros(max(m, 0), dtype=bool)
     if len(xy) < 4:
-        return out
+        return np.zeros(max(len(xy) - 1, 0), dtype=bool)
     _, gap, sin_to_ray = _segments(xy)
     a, b, c = xy[:-2], xy[1:-1], xy[2:]
     ac = c - a
@@ -119,9 +117,8 @@ def collinear_grazing_segments(xy: np.ndarray, max_gap_m: float) -> np.ndarray:
         np.hypot(ac[:, 0], ac[:, 1]), 1e-12)
     on_line = np.zeros(len(xy), dtype=bool)
     on_line[1:-1] = dist < COLLINEAR_M  # return i: between returns i - 1 and i + 1
-    out[:] = ((sin_to_ray < np.sin(MIN_SURFACE_ANGLE_RAD)) & (gap <= max_gap_m)
-              & on_line[:-1] & on_line[1:])
-    return out
+    return ((sin_to_ray < np.sin(MIN_SURFACE_ANGLE_RAD)) & (gap <= max_gap_m)
+            & on_line[:-1] & on_line[1:])
 
 
 def connect_returns(xy: np.ndarray, intensity: np.ndarray | None, max_gap_m: float,
