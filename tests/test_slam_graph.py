@@ -321,7 +321,7 @@ def test_graph_slam_closes_simulated_loops() -> None:
     0.237, with the grazing lines; 0.09-0.56 m, mean 0.232, without; seed 1 alone, this
     test's until then, 0.34 against 0.21), so the bounds hold over seeds, not per seed."""
     runs = [_close_simulated_loop(seed) for seed in (1, 2, 3, 4)]
-    before, after, err, odom = (np.array(v) for v in list(zip(*runs))[:4])
+    before, after, err, odom = (np.array([r[k] for r in runs]) for k in range(4))
     assert after.max() < 0.1, after
     assert before.mean() > 4 * after.mean(), (before, after)
     assert err.sum() < odom.sum() / 3, (err, odom)
