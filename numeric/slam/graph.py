@@ -120,8 +120,8 @@ class GraphSlamConfig(BaseModel):
         "-> 0.0338, mit-csail 0.0273 -> 0.0272, fr079 0.0408 -> 0.0413, fr-clinic "
         "0.1118 -> 0.1092; simulated loop (URG-04LX, seeds 1-16) mean position error "
         "0.232 -> 0.237 m; fr-clinic with perturbed odometry (seeds 1-12) the return at "
-        "4390 s closed late in the same share of runs either way (README, 'Grazing "
-        "walls')")
+        "4390 s closed late in the same share of runs either way "
+        "(docs/notes/slam-graph-unseen.md, sessions 31-32)")
     local_grazing: Literal["keep", "search", "drop"] = Field(
         "keep", description="local matching's correlative search (search) or also its "
         "refinement (drop) leaves out the returns of surfaces seen at grazing incidence "
@@ -130,8 +130,8 @@ class GraphSlamConfig(BaseModel):
         "fails the uniqueness test (0.113 -> 0.293 search, 0.356 drop). Session 31, "
         "with the learned odometry heading sigma: fr-clinic 0.112 search, 0.110 drop, "
         "offices with the 30 m laser fixed (1: 0.053 -> 0.004), but fr-clinic with "
-        "perturbed odometry loses its return by metres more often (README, 'Grazing "
-        "walls')")
+        "perturbed odometry loses its return by metres more often "
+        "(docs/notes/slam-graph-unseen.md, session 31)")
     local_linear_window_m: float = Field(0.15, ge=0)
     local_angular_window_rad: float = Field(0.2, ge=0)
     local_matching: bool = Field(True, description="off: nodes follow odometry (a front "
@@ -159,7 +159,7 @@ class GraphSlamConfig(BaseModel):
                                  "is learned from the local matches (OdometryCalibration; "
                                  "0: the fixed graph.odom_sigma_rad). Session 29: learned "
                                  "0.1-0.3 of the fixed one on fr-clinic, 1 on mit-csail "
-                                 "and fr079; see the README's 'fr-clinic is fragile'")
+                                 "and fr079; docs/notes/slam-graph-unseen.md, session 29")
     odometry_min_scale: float = Field(0.1, gt=0, le=1, description="... down to this "
                                       "share of the fixed one")
     odometry_knee: float = Field(1.0, gt=0, le=1, description="OdometryCalibration.knee")
@@ -708,8 +708,8 @@ class GraphSlam:
         ties the node to the recent past only, not to a submap left long ago (until
         session 28 any closure restarted the drift of every submap; the change moved
         fr-clinic from 0.113 to 0.112 m and no other log or office, and it does not
-        rescue fr-clinic's runs with perturbed odometry: README, "fr-clinic is
-        fragile")."""
+        rescue fr-clinic's runs with perturbed odometry:
+        docs/notes/slam-graph-unseen.md, session 28)."""
         return self._travel[node] - max(float(self._tied_at[k]), float(self._span_hi[k]))
 
     # -- driver -------------------------------------------------------------------------

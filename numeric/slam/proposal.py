@@ -161,7 +161,7 @@ class ImprovedConfig(BaseModel):
     (0.182 -> 0.473), which the refinement against the picked keyframes alone refused.
     With the refinement against all old keyframes it is the default since session 26:
     fr-clinic seeds 0-5 0.242 / 0.207 / 0.180 / 0.170 / 0.174 / 0.276, all below
-    GMapping's 0.637 (README, "Session 26").
+    GMapping's 0.637 (docs/notes/slam-rbpf-fr-clinic.md, "Session 26").
     """
 
     sigma_m: float = Field(0.05, gt=0, description="σ of the likelihood field (m)")
