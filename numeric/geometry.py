@@ -6,7 +6,10 @@ angles in radians wrapped to (-pi, pi].
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
 FloatArray = NDArray[np.float64]
@@ -17,6 +20,24 @@ def wrap_angle(a: ArrayLike) -> FloatArray:
     """Wrap angles to (-pi, pi]."""
     w = np.mod(np.asarray(a, dtype=float) + np.pi, 2.0 * np.pi) - np.pi
     return np.where(w <= -np.pi, w + 2.0 * np.pi, w)
+
+
+@njit(cache=True, nogil=True)
+def wrap_scalar(a: float) -> float:
+    """:func:`wrap_angle` of one angle, for compiled kernels."""
+    w = (a + math.pi) % (2.0 * math.pi) - math.pi
+    return w + 2.0 * math.pi if w <= -math.pi else w
+
+
+@njit(cache=True, nogil=True)
+def compose_into(x0: np.ndarray, u: np.ndarray, out: np.ndarray) -> None:
+    """``out = x0 (+) u`` (:func:`compose` of one pose, for compiled kernels), the
+    heading left unwrapped."""
+    c = math.cos(x0[2])
+    s = math.sin(x0[2])
+    out[0] = x0[0] + c * u[0] - s * u[1]
+    out[1] = x0[1] + s * u[0] + c * u[1]
+    out[2] = x0[2] + u[2]
 
 
 def heading_bin(theta: ArrayLike, n: int) -> NDArray[np.intp]:

@@ -14,6 +14,12 @@ aligned to the reference scan m by repeating three steps:
    (Gauss-Newton on the reference's normals, for long straight walls);
 3. re-place the scan with ``T_r`` (eq. 3) and repeat until the update is below the
    tolerances.
+
+The iterations run in one compiled kernel (:func:`icp_iterations`, numba, releasing the GIL) on a
+bucket index of the reference (:class:`Reference`: its points sorted by cells of the
+correspondence radius); graph SLAM's global scan alignment runs tens of thousands of
+these matches per log on a thread pool, where per-iteration NumPy calls on a few
+hundred points cost more than the arithmetic.
 """
 
 from __future__ import annotations
@@ -23,11 +29,12 @@ from functools import cached_property
 from typing import Literal
 
 import numpy as np
+from numba import njit
 from pydantic import BaseModel, Field
 from scipy.spatial import cKDTree
 
 from numeric.errors import InvalidInput
-from numeric.geometry import compose, place, relative
+from numeric.geometry import compose, relative, wrap_scalar
 
 
 class IcpConfig(BaseModel):
@@ -70,17 +77,23 @@ class IcpResult:
 
 class Reference:
     """Reference scan m (world-frame points ``(M, 2)`` with intensities) indexed in the
-    augmented space of eq. 1."""
+    augmented space of eq. 1: its points sorted into square cells of ``cell_m`` (the
+    nearest point within a radius ``r`` lies in the ``ceil(r / cell_m)`` rings of cells
+    around a query's own, since the augmented distance is never below the planar one)."""
 
-    def __init__(self, xy: np.ndarray, intensity: np.ndarray | None, alpha: float) -> None:
+    def __init__(self, xy: np.ndarray, intensity: np.ndarray | None, alpha: float,
+                 cell_m: float = 0.3) -> None:
         if len(xy) == 0:
             raise InvalidInput("the reference scan is empty", field="reference")
-        self.xy = np.asarray(xy, dtype=float)
+        self.xy = np.ascontiguousarray(xy, dtype=float)
         self.alpha = alpha if intensity is not None else 0.0
         self.intensity = intensity
         self._w = np.sqrt(self.alpha)
-        aug = self.xy if self.alpha == 0 else np.column_stack([self.xy, self._w * intensity])
-        self.tree = cKDTree(aug)
+        self.aug = np.ascontiguousarray(
+            self.xy if self.alpha == 0 else np.column_stack([self.xy, self._w * intensity]))
+        self.cell_m = float(cell_m)
+        self.origin = self.xy.min(axis=0)
+        self.keys, self.order = _bucket(self.xy, self.origin, self.cell_m)
 
     def augment(self, xy: np.ndarray, intensity: np.ndarray | None) -> np.ndarray:
         if self.alpha == 0 or intensity is None:
@@ -93,8 +106,10 @@ class Reference:
                 upper_m: float) -> tuple[np.ndarray, np.ndarray]:
         """Augmented distance and reference index per point (eq. 1); ``inf`` / ``M``
         beyond ``upper_m``."""
-        d, i = self.tree.query(self.augment(xy, intensity), distance_upper_bound=upper_m)
-        return d, i
+        q = np.ascontiguousarray(self.augment(np.asarray(xy, dtype=float), intensity),
+                                 dtype=float)
+        return nearest_points(self.aug, self.keys, self.order, self.origin[0], self.origin[1],
+                        self.cell_m, q, float(upper_m))
 
     @cached_property
     def normals(self) -> np.ndarray:
@@ -106,31 +121,60 @@ class Reference:
         c = nb - nb.mean(axis=1, keepdims=True)
         cov = np.einsum("nki,nkj->nij", c, c)
         _, vec = np.linalg.eigh(cov)
-        return np.asarray(vec[:, :, 0])
+        return np.ascontiguousarray(vec[:, :, 0])
 
 
-def rigid_step_point(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """The (x, y, theta) minimising eq. 2, ``sum ||dst - (R src + t)||^2``, in closed
-    form (centroids and the SVD of the 2x2 cross-covariance)."""
-    cs, cd = src.mean(axis=0), dst.mean(axis=0)
-    h = (src - cs).T @ (dst - cd)
-    u, _, vt = np.linalg.svd(h)
-    r = vt.T @ u.T
-    if np.linalg.det(r) < 0:
-        vt[1] *= -1
-        r = vt.T @ u.T
-    t = cd - r @ cs
-    return np.array([t[0], t[1], np.arctan2(r[1, 0], r[0, 0])])
+#: cell keys: (ix + _OFF) * _STRIDE + (iy + _OFF), cells clipped to +-_OFF
+_OFF = 1 << 20
+_STRIDE = 1 << 22
 
 
-def rigid_step_line(src: np.ndarray, dst: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """One Gauss-Newton step of the point-to-line objective
-    ``sum (n . (R src + t - dst))^2`` (small-angle linearisation)."""
-    n = normals
-    j = np.column_stack([n[:, 0], n[:, 1], n[:, 1] * src[:, 0] - n[:, 0] * src[:, 1]])
-    r = np.einsum("ij,ij->i", n, src - dst)
-    h = j.T @ j + 1e-9 * np.eye(3)
-    return np.asarray(-np.linalg.solve(h, j.T @ r))
+@njit(cache=True, nogil=True)
+def _cell(v: float, o: float, cell: float) -> int:
+    c = np.floor((v - o) / cell)
+    return int(min(max(c, -_OFF), _OFF))
+
+
+@njit(cache=True, nogil=True)
+def _bucket(xy: np.ndarray, origin: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
+    """Cell keys of the points, sorted, and the points' order under them."""
+    keys = np.empty(len(xy), dtype=np.int64)
+    for i in range(len(xy)):
+        keys[i] = ((_cell(xy[i, 0], origin[0], cell) + _OFF) * _STRIDE
+                   + _cell(xy[i, 1], origin[1], cell) + _OFF)
+    order = np.argsort(keys, kind="mergesort")
+    return keys[order], order
+
+
+@njit(cache=True, nogil=True)
+def nearest_points(ref: np.ndarray, keys: np.ndarray, order: np.ndarray, ox: float, oy: float,
+             cell: float, q: np.ndarray, upper: float) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 1's nearest reference point (augmented distance) of each query row, closer
+    than ``upper``: distances (``inf`` for none) and indices (``len(ref)`` for none)."""
+    n, dim = q.shape
+    span = int(np.ceil(upper / cell))
+    dist = np.full(n, np.inf)
+    idx = np.full(n, len(ref), dtype=np.int64)
+    up2 = upper * upper
+    for i in range(n):
+        cx, cy = _cell(q[i, 0], ox, cell), _cell(q[i, 1], oy, cell)
+        best, bi = up2, -1
+        for gx in range(cx - span, cx + span + 1):
+            lo_key = (gx + _OFF) * _STRIDE + cy - span + _OFF
+            lo = np.searchsorted(keys, lo_key)
+            hi = np.searchsorted(keys, lo_key + 2 * span, side="right")
+            for j in range(lo, hi):
+                r = order[j]
+                d2 = 0.0
+                for k in range(dim):
+                    e = ref[r, k] - q[i, k]
+                    d2 += e * e
+                if d2 < best or (d2 == best and bi >= 0 and r < bi):
+                    best, bi = d2, r
+        if bi >= 0 and best < up2:
+            dist[i] = np.sqrt(best)
+            idx[i] = bi
+    return dist, idx
 
 
 def intensity_icp(reference: Reference, scan_xy: np.ndarray, scan_intensity: np.ndarray | None,
@@ -140,31 +184,96 @@ def intensity_icp(reference: Reference, scan_xy: np.ndarray, scan_intensity: np.
     init = np.asarray(initial_pose, dtype=float)
     if len(scan_xy) < config.min_inliers:
         return IcpResult(init.copy(), np.zeros(3), False, 0, 0, np.inf)
-    z1 = place(scan_xy, init)
-    total = np.zeros(3)  # world-frame transform applied to z1 (eq. 3)
-    cur = z1
+    xy = np.ascontiguousarray(scan_xy, dtype=float)
+    extra = (np.zeros((len(xy), 0)) if reference.alpha == 0 else
+             np.ascontiguousarray(reference.augment(np.zeros((len(xy), 2)), scan_intensity)[:, 2:]))
+    line = config.metric == "line"
+    normals = reference.normals if line else np.zeros((0, 2))
+    total, converged, iterations, inl, resid = icp_iterations(
+        reference.xy, reference.aug, normals, reference.keys, reference.order,
+        reference.origin[0], reference.origin[1], reference.cell_m, xy, extra, init, line,
+        config.max_iterations, config.max_correspondence_m, config.trim_factor,
+        config.trim_floor_m, config.tolerance_m, config.tolerance_rad, config.min_inliers)
+    pose = compose(total, init)  # the pose whose scan lands where the last step put it
+    return IcpResult(pose, relative(init, pose), bool(converged), int(iterations), int(inl),
+                     float(resid))
+
+
+@njit(cache=True, nogil=True)
+def icp_iterations(ref_xy: np.ndarray, ref_aug: np.ndarray, normals: np.ndarray, keys: np.ndarray,
+         order: np.ndarray, ox: float, oy: float, cell: float, xy: np.ndarray,
+         extra: np.ndarray, init: np.ndarray, line: bool, max_iterations: int,
+         max_corr: float, trim_factor: float, trim_floor: float, tol_m: float,
+         tol_rad: float, min_inliers: int) -> tuple[np.ndarray, bool, int, int, float]:
+    """Steps 1-3 until the update is below the tolerances: the world-frame transform
+    applied to the scan placed at ``init`` (eq. 3's accumulated ``T_r``), whether it
+    converged, the iterations, the last step's inlier pairs and their mean augmented
+    squared residual."""
+    n = len(xy)
+    dim = ref_aug.shape[1]
+    c0, s0 = np.cos(init[2]), np.sin(init[2])
+    z1 = np.empty((n, 2))
+    for i in range(n):
+        z1[i, 0] = c0 * xy[i, 0] - s0 * xy[i, 1] + init[0]
+        z1[i, 1] = s0 * xy[i, 0] + c0 * xy[i, 1] + init[1]
+    q = np.empty((n, dim))
+    q[:, :2] = z1
+    for k in range(2, dim):
+        q[:, k] = extra[:, k - 2]
+    total = np.zeros(3)
     converged, iterations, inl, resid = False, 0, 0, np.inf
-    for it in range(1, config.max_iterations + 1):
+    for it in range(1, max_iterations + 1):
         iterations = it
-        d, idx = reference.nearest(cur, scan_intensity, config.max_correspondence_m)
-        ok = np.isfinite(d)
-        if ok.sum() < config.min_inliers:
+        d, idx = nearest_points(ref_aug, keys, order, ox, oy, cell, q, max_corr)
+        ok = np.flatnonzero(np.isfinite(d))
+        if len(ok) < min_inliers:
             break
-        keep = d[ok] <= max(config.trim_floor_m, config.trim_factor * float(np.median(d[ok])))
-        sel = np.flatnonzero(ok)[keep]
+        cut = max(trim_floor, trim_factor * np.median(d[ok]))
+        sel = ok[d[ok] <= cut]
         inl = len(sel)
-        if inl < config.min_inliers:
+        if inl < min_inliers:
             break
-        resid = float(np.mean(d[sel] ** 2))
-        dst = reference.xy[idx[sel]]
-        if config.metric == "point":
-            step = rigid_step_point(cur[sel], dst)
+        resid = np.mean(d[sel] ** 2)
+        src = q[sel, :2]
+        dst = ref_xy[idx[sel]]
+        step = np.zeros(3)
+        if line:
+            nrm = normals[idx[sel]]
+            h = np.zeros((3, 3))
+            g = np.zeros(3)
+            jr = np.empty(3)
+            for m in range(inl):
+                jr[0], jr[1] = nrm[m, 0], nrm[m, 1]
+                jr[2] = nrm[m, 1] * src[m, 0] - nrm[m, 0] * src[m, 1]
+                r = nrm[m, 0] * (src[m, 0] - dst[m, 0]) + nrm[m, 1] * (src[m, 1] - dst[m, 1])
+                for a in range(3):
+                    g[a] += jr[a] * r
+                    for b in range(3):
+                        h[a, b] += jr[a] * jr[b]
+            for a in range(3):
+                h[a, a] += 1e-9
+            step[:] = -np.linalg.solve(h, g)
         else:
-            step = rigid_step_line(cur[sel], dst, reference.normals[idx[sel]])
-        total = compose(step, total)  # the world-frame step after the accumulated one
-        cur = place(z1, total)
-        if np.hypot(step[0], step[1]) < config.tolerance_m and abs(step[2]) < config.tolerance_rad:
+            cs = np.array([src[:, 0].mean(), src[:, 1].mean()])
+            cd = np.array([dst[:, 0].mean(), dst[:, 1].mean()])
+            hm = np.ascontiguousarray((src - cs).T) @ np.ascontiguousarray(dst - cd)
+            u, _, vt = np.linalg.svd(hm)
+            rot = vt.T @ u.T
+            if np.linalg.det(rot) < 0:
+                vt[1] *= -1
+                rot = vt.T @ u.T
+            t = cd - rot @ cs
+            step = np.array([t[0], t[1], np.arctan2(rot[1, 0], rot[0, 0])])
+        # total = compose(step, total): the world-frame step after the accumulated one
+        c, s = np.cos(step[2]), np.sin(step[2])
+        tx = step[0] + c * total[0] - s * total[1]
+        ty = step[1] + s * total[0] + c * total[1]
+        total = np.array([tx, ty, wrap_scalar(step[2] + total[2])])
+        c, s = np.cos(total[2]), np.sin(total[2])
+        for i in range(n):
+            q[i, 0] = c * z1[i, 0] - s * z1[i, 1] + total[0]
+            q[i, 1] = s * z1[i, 0] + c * z1[i, 1] + total[1]
+        if np.hypot(step[0], step[1]) < tol_m and abs(step[2]) < tol_rad:
             converged = True
             break
-    pose = compose(total, init)  # the pose whose scan lands on ``cur``
-    return IcpResult(pose, relative(init, pose), converged, iterations, inl, resid)
+    return total, converged, iterations, inl, resid

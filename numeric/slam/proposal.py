@@ -60,6 +60,7 @@ import numpy as np
 from numba import njit
 from pydantic import BaseModel, Field
 
+from numeric.geometry import compose_into, wrap_scalar
 from numeric.slam.keyframes import LikelihoodField
 
 _LOG_2PI = math.log(2.0 * math.pi)
@@ -519,11 +520,6 @@ def _score(x: float, y: float, th: float, pts: np.ndarray, li: np.ndarray, alpha
 
 
 @njit(cache=True, nogil=True)
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
-
-
-@njit(cache=True, nogil=True)
 def _motion_logp(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, x: float, y: float,
                  th: float) -> float:
     """log N(relative(x0, x) - u; 0, diag(sig^2)): the odometry motion model (eq. 7 of
@@ -534,7 +530,7 @@ def _motion_logp(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, x: float, y: fl
     dy = y - x0[1]
     w0 = (c * dx + s * dy - u[0]) / sig[0]
     w1 = (-s * dx + c * dy - u[1]) / sig[1]
-    w2 = _wrap(th - x0[2] - u[2]) / sig[2]
+    w2 = wrap_scalar(th - x0[2] - u[2]) / sig[2]
     return (-0.5 * (w0 * w0 + w1 * w1 + w2 * w2) - math.log(sig[0] * sig[1] * sig[2])
             - 1.5 * _LOG_2PI)
 
@@ -622,7 +618,7 @@ def _energy(cost: float, x: float, y: float, t: float, inv_2s2: float, prior: np
             ) -> float:
     """``-log τ`` up to a constant: ``Σ_b ρ_b / (2σ²)`` plus the motion model's
     ``½ Σ_i ((x_i - x'_i) / σ_i)²``; ``prior (2, 3)`` = x' and 1/σ² (zeros: no prior)."""
-    dt = _wrap(t - prior[0, 2])
+    dt = wrap_scalar(t - prior[0, 2])
     return cost * inv_2s2 + 0.5 * (prior[1, 0] * (x - prior[0, 0]) ** 2
                                    + prior[1, 1] * (y - prior[0, 1]) ** 2
                                    + prior[1, 2] * dt * dt)
@@ -651,7 +647,7 @@ def _lm(pose: np.ndarray, pts: np.ndarray, li: np.ndarray, alpha: float, grid: n
     for _ in range(max_iter):
         if inl < 3:
             break
-        d = (x - prior[0, 0], y - prior[0, 1], _wrap(t - prior[0, 2]))
+        d = (x - prior[0, 0], y - prior[0, 1], wrap_scalar(t - prior[0, 2]))
         for r in range(3):
             for q in range(3):
                 a[r, q] = k2 * h[r, q]
@@ -710,19 +706,8 @@ def scan_match(start: np.ndarray, pts: np.ndarray, li: np.ndarray, alpha: float,
             cand, work, iwork, inv_2s2, prior)
         if abs(pose[0] - x0) < tol and abs(pose[1] - y0) < tol and abs(pose[2] - t0) < 0.01:
             break
-    pose[2] = _wrap(pose[2])
+    pose[2] = wrap_scalar(pose[2])
     return pose, cost, inl
-
-
-@njit(cache=True, nogil=True)
-def _compose(x0: np.ndarray, u: np.ndarray, out: np.ndarray) -> None:
-    """``out = x0 (+) u``: the increment ``u`` (in the frame of ``x0``) applied to ``x0``,
-    the heading left unwrapped."""
-    c = math.cos(x0[2])
-    s = math.sin(x0[2])
-    out[0] = x0[0] + c * u[0] - s * u[1]
-    out[1] = x0[1] + s * u[0] + c * u[1]
-    out[2] = x0[2] + u[2]
 
 
 @njit(cache=True, nogil=True)
@@ -730,7 +715,7 @@ def _prior(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, use: bool) -> np.ndar
     """``(2, 3)``: the odometry prediction x' = x0 (+) u and 1/σ² of the motion model
     (world axes: σ_x = σ_y), or zeros in the second row when ``use`` is False."""
     out = np.zeros((2, 3))
-    _compose(x0, u, out[0])
+    compose_into(x0, u, out[0])
     if use:
         for i in range(3):
             out[1, i] = 1.0 / (sig[i] * sig[i])
@@ -830,7 +815,7 @@ def robust_increment(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, pts: np.nda
             dy = hat[1] - x0[1]
             out[0] = c0 * dx + s0 * dy
             out[1] = -s0 * dx + c0 * dy
-            out[2] = _wrap(hat[2] - x0[2])
+            out[2] = wrap_scalar(hat[2] - x0[2])
     return out, won
 
 
@@ -969,7 +954,7 @@ def propose_all(x_prev: np.ndarray, u: np.ndarray, u_start: np.ndarray, sig: np.
     for p in range(n_u):
         _kposes(kf_pose, p, kpose)
         x0 = x_prev[p]
-        _compose(x0, u_start, start)  # x' = x_{t-1} (+) u
+        compose_into(x0, u_start, start)  # x' = x_{t-1} (+) u
         hat, _, inl = scan_match(start, pts, li, alpha, grid, gint, meta, origins, inv_res,
                                  kpose, cut2, max_iter, cand, h, work, iwork, inv_2s2,
                                  _prior(x0, u, sig, use_prior))
@@ -991,7 +976,7 @@ def propose_all(x_prev: np.ndarray, u: np.ndarray, u_start: np.ndarray, sig: np.
             continue
         mu_out[p, 0] = hat[0] + mu[0]
         mu_out[p, 1] = hat[1] + mu[1]
-        mu_out[p, 2] = _wrap(hat[2] + mu[2])
+        mu_out[p, 2] = wrap_scalar(hat[2] + mu[2])
         for a in range(3):
             floor[a] = (1e-3 * delta[a]) ** 2
         chol_out[p] = _cholesky3(cov, floor)
