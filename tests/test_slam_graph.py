@@ -227,6 +227,34 @@ def test_local_search_and_refinement_recover_a_small_offset(room_grid) -> None: 
     assert np.hypot(*(r.pose[:2] - true[:2])) < 0.05 and abs(r.pose[2] - true[2]) < 0.01
 
 
+def test_the_local_search_scores_every_offset_as_written() -> None:
+    """The compiled window search (sums accumulated point by point) picks the same
+    angle and offset, with the same score, as scoring each candidate on its own:
+    the mean probability of the points' cells (outside the grid: 0) times the cost
+    term. Random grids, scans partly off the grid, windows of 0-6 cells."""
+    from numeric.slam.correlative import _search_window
+
+    rng = np.random.default_rng(5)
+    for _ in range(25):
+        prob = rng.uniform(0.1, 0.9, (int(rng.integers(20, 80)), int(rng.integers(20, 80))))
+        n, na, w = int(rng.integers(1, 60)), int(rng.integers(1, 9)), int(rng.integers(0, 7))
+        cells = rng.uniform(-5, 85, (na, n, 2))
+        thetas = np.linspace(-0.1, 0.1, na)
+        got = _search_window(prob, cells, w, 0.05, thetas, 0.3, 0.2)
+        best, arg = -1.0, None
+        for a in range(na):
+            for dx in range(-w, w + 1):
+                for dy in range(-w, w + 1):
+                    i = np.floor(cells[a, :, 0]).astype(int) + dx
+                    j = np.floor(cells[a, :, 1]).astype(int) + dy
+                    on = (i >= 0) & (i < prob.shape[0]) & (j >= 0) & (j < prob.shape[1])
+                    score = prob[i[on], j[on]].sum() / n * np.exp(
+                        -np.hypot(0.3 * 0.05 * np.hypot(dx, dy), 0.2 * thetas[a]))
+                    if score > best + 1e-12:
+                        best, arg = score, (a, dx, dy)
+        assert got[:3] == arg and got[3] == pytest.approx(best, rel=1e-12)
+
+
 def test_a_plain_corridor_is_degenerate_along_its_length() -> None:
     pose = np.array([15.0, 1.0, 0.0])
     g = submap([np.array([x, 1.0, 0.0]) for x in np.arange(8.0, 22.0, 0.5)], CORRIDOR,
@@ -264,6 +292,35 @@ def test_pose_graph_closes_a_drifting_square() -> None:
     after = g.poses_now()
     err = np.hypot(*(after[:, :2] - truth[:, :2]).T)
     assert before > 1.0 and err[-1] < 0.1 * before and err.max() < 0.3 * before
+
+
+def test_pose_graph_batches_nodes_between_closures() -> None:
+    """Nodes reach iSAM2 in batches of ``update_batch`` (or at a closure); reading the
+    estimate in between hands nothing over, the nodes still waiting are chained on from
+    the last one handed, and the closed square ends where node-by-node updates put it."""
+    from numeric.slam.pose_graph import GraphConfig
+
+    out = {}
+    for batch in (1, 25):
+        g = PoseGraph(GraphConfig(update_batch=batch))
+        truth, est = [np.zeros(3)], np.zeros(3)
+        g.add_node(est)
+        for k in range(1, 41):
+            truth.append(compose(truth[-1], [1.0, 0.0, np.pi / 2 if k % 10 == 0 else 0.0]))
+            d = relative(truth[-2], truth[-1]) + [0.0, 0.0, 0.01]
+            est = compose(est, d)
+            g.add_node(est)
+            g.add_odometry(k - 1, k, d)
+            g.update()
+            now = g.poses_now()
+            assert np.allclose(g.pose_of(k), now[k], atol=1e-9)
+            assert np.allclose(now[-1], est, atol=1e-6)  # nothing moved it yet
+        assert g._held == (41 if batch == 1 else 25)  # reads handed nothing over
+        g.add_loop(0, 40, relative(truth[0], truth[40]))
+        g.update()
+        out[batch] = g.poses_now()
+        assert g._held == 41
+    assert np.abs(out[1] - out[25]).max() < 1e-3
 
 
 def test_a_wrong_closure_pulls_less_with_the_robust_kernel() -> None:

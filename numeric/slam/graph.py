@@ -60,6 +60,7 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Literal
 
 import numpy as np
@@ -276,9 +277,10 @@ class LoopMap:
     grid: ProbabilityGrid
     search: PrecomputedGrid
 
-    @property
+    @cached_property
     def nbytes(self) -> int:
-        """Memory held by the grids and the branch-and-bound stack."""
+        """Memory held by the grids and the branch-and-bound stack (they do not change
+        once made)."""
         return int(sum(v.nbytes for obj in (self.grid, self.search, self.search.grid)
                        for v in vars(obj).values()
                        if isinstance(v, np.ndarray) and v.flags.owndata))
