@@ -294,35 +294,6 @@ def test_pose_graph_closes_a_drifting_square() -> None:
     assert before > 1.0 and err[-1] < 0.1 * before and err.max() < 0.3 * before
 
 
-def test_pose_graph_batches_nodes_between_closures() -> None:
-    """Nodes reach iSAM2 in batches of ``update_batch`` (or at a closure); reading the
-    estimate in between hands nothing over, the nodes still waiting are chained on from
-    the last one handed, and the closed square ends where node-by-node updates put it."""
-    from numeric.slam.pose_graph import GraphConfig
-
-    out = {}
-    for batch in (1, 25):
-        g = PoseGraph(GraphConfig(update_batch=batch))
-        truth, est = [np.zeros(3)], np.zeros(3)
-        g.add_node(est)
-        for k in range(1, 41):
-            truth.append(compose(truth[-1], [1.0, 0.0, np.pi / 2 if k % 10 == 0 else 0.0]))
-            d = relative(truth[-2], truth[-1]) + [0.0, 0.0, 0.01]
-            est = compose(est, d)
-            g.add_node(est)
-            g.add_odometry(k - 1, k, d)
-            g.update()
-            now = g.poses_now()
-            assert np.allclose(g.pose_of(k), now[k], atol=1e-9)
-            assert np.allclose(now[-1], est, atol=1e-6)  # nothing moved it yet
-        assert g._held == (41 if batch == 1 else 25)  # reads handed nothing over
-        g.add_loop(0, 40, relative(truth[0], truth[40]))
-        g.update()
-        out[batch] = g.poses_now()
-        assert g._held == 41
-    assert np.abs(out[1] - out[25]).max() < 1e-3
-
-
 def test_a_wrong_closure_pulls_less_with_the_robust_kernel() -> None:
     wrong = np.array([3.0, -2.0, 0.5])
     out = {}

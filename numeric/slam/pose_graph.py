@@ -14,8 +14,6 @@ import gtsam
 import numpy as np
 from pydantic import BaseModel, Field
 
-from numeric.geometry import compose, relative
-
 
 class GraphConfig(BaseModel):
     """Noise of the edges (standard deviations, m and rad) and iSAM2's settings."""
@@ -33,11 +31,6 @@ class GraphConfig(BaseModel):
                            "small, so a wrong closure pulls no harder than a 0.1-sigma one")
     relinearize_threshold: float = Field(0.01, gt=0)
     extra_updates: int = Field(3, ge=0, description="iSAM2 sweeps after a loop closure")
-    update_batch: int = Field(25, ge=1, description="new nodes handed to iSAM2 together "
-                              "between loop closures (a closure hands them at once): "
-                              "nothing reads the estimate between closures, and one "
-                              "iSAM2 update per node cost graph SLAM a quarter of its "
-                              "online time on aces")
 
     def odometry_sigmas(self, delta: np.ndarray) -> np.ndarray:
         """Sigmas (x, y, theta) of odometry increments ``delta`` ``(..., 3)``."""
@@ -146,7 +139,6 @@ class PoseGraph:
         self._graph = gtsam.NonlinearFactorGraph()
         self._values = gtsam.Values()
         self._poses = np.zeros((0, 3))
-        self._held = 0  # nodes handed to iSAM2
         self._dirty = False
 
     def __len__(self) -> int:
@@ -203,37 +195,20 @@ class PoseGraph:
         self._dirty = True
 
     def update(self) -> None:
-        """Hand the new nodes and edges to iSAM2 after a loop closure or once
-        ``update_batch`` nodes wait (and sweep again after closures). When that happens
-        depends on the nodes and closures alone, never on reads of the estimate, so a
-        run replays to the same state whoever watched it."""
-        if self._dirty or self._values.size() >= self.config.update_batch:
-            self._flush()
-
-    def _flush(self) -> None:
+        """Hand the new nodes and edges to iSAM2 (and sweep again after closures)."""
         if self._graph.size() == 0 and self._values.size() == 0:
             return
         self.isam.update(self._graph, self._values)
-        self._held = len(self._poses)
         self._graph = gtsam.NonlinearFactorGraph()
         self._values = gtsam.Values()
         if self._dirty:
             for _ in range(self.config.extra_updates):
                 self.isam.update()
-            self._poses = self._current()
+            self._refresh()
             self._dirty = False
 
-    def _current(self) -> np.ndarray:
-        """Every node's pose: iSAM2's estimate of the nodes it holds, the nodes still
-        waiting chained on from the last of those by their initial guesses."""
-        n, held = len(self._poses), self._held
-        out = self._poses.copy()
-        if held:
-            out[:held] = gtsam.utilities.extractPose2(self.isam.calculateEstimate())
-            if held < n:
-                out[held:] = compose(out[held - 1],
-                                     relative(self._poses[held - 1], self._poses[held:]))
-        return out
+    def _refresh(self) -> None:
+        self._poses = gtsam.utilities.extractPose2(self.isam.calculateEstimate()).reshape(-1, 3)
 
     def estimate(self) -> np.ndarray:
         """Current optimised poses ``(N, 3)`` (the initial guesses for nodes added since
@@ -241,25 +216,18 @@ class PoseGraph:
         return self._poses.copy()
 
     def pose_of(self, k: int) -> np.ndarray:
-        """What :meth:`poses_now` would say of node ``k``, without solving for the
-        others."""
-        if self._dirty:
-            self._flush()
-        held = self._held
-        if held == 0:
-            return self._poses[k].copy()
-        m = min(k, held - 1)
-        p = self.isam.calculateEstimatePose2(m)
-        here = np.array([p.x(), p.y(), p.theta()])
-        return here if k == m else compose(here, relative(self._poses[m], self._poses[k]))
+        """iSAM2's current estimate of node ``k`` (what :meth:`poses_now` would say of
+        it), without solving for the others."""
+        self.update()
+        p = self.isam.calculateEstimatePose2(k)
+        return np.array([p.x(), p.y(), p.theta()])
 
     def poses_now(self) -> np.ndarray:
-        """Every node's pose as iSAM2 now estimates it (a loop closure not yet handed
-        to it is handed first); nodes not yet handed are chained on by their initial
-        guesses (:meth:`update`)."""
-        if self._dirty:
-            self._flush()
-        return self._current()
+        """Optimise fully and return every node's pose."""
+        self.update()
+        if len(self._poses):
+            self._refresh()
+        return self._poses.copy()
 
     def set_initial(self, k: int, pose: np.ndarray) -> None:
         """Keep the Python-side estimate of a node iSAM2 has not yet moved."""
