@@ -191,10 +191,13 @@ class GraphSlamConfig(BaseModel):
                                           "refinement's on the submap's own grid (lower: "
                                           "max-pooling inflates the first; fr-clinic's "
                                           "correct local matches score 0.42-0.46)")
-    loop_window_growth: float = Field(0.01, ge=0, description="the candidate radius and "
+    loop_window_growth: float = Field(0.03, ge=0, description="the candidate radius and "
                                       "linear window of a submap grow by this many m per "
                                       "m of path since the trajectory was last tied to "
-                                      "it (GraphSlam.drift_path) ...")
+                                      "it (GraphSlam.drift_path) ... (0.01 until session "
+                                      "33: fr-clinic with perturbed odometry drifts about "
+                                      "0.02 m per m and left its old halls outside the "
+                                      "radius; docs/notes/slam-graph-unseen.md)")
     loop_window_growth_rad: float = Field(0.0002, ge=0, description="... and the angular "
                                           "window by this many rad per m")
     loop_max_growth_m: float = Field(20.0, ge=0, description="cap of the linear growth")
