@@ -93,7 +93,7 @@ def test_the_bucket_index_finds_the_kd_trees_nearest_points() -> None:
             ref = Reference(ref_xy, inten, alpha, cell_m=float(rng.choice([0.1, 0.3, 1.0])))
             q = rng.uniform(-10, 10, (300, 2))
             qi = rng.uniform(0, 40_000, 300)
-            for upper in (0.05, 0.3, 0.7, 2.5):
+            for upper in (0.05, 0.3, 0.7, 2.5, 1e6):  # 1e6: the whole reference
                 d, i = ref.nearest(q, qi, upper)
                 dk, ik = _tree(ref).query(ref.augment(q, qi), distance_upper_bound=upper)
                 assert np.array_equal(np.isfinite(d), np.isfinite(dk)), (alpha, trial, upper)

@@ -15,8 +15,8 @@ aligned to the reference scan m by repeating three steps:
 3. re-place the scan with ``T_r`` (eq. 3) and repeat until the update is below the
    tolerances.
 
-The iterations run in one compiled kernel (:func:`icp_iterations`, numba, releasing the GIL) on a
-bucket index of the reference (:class:`Reference`: its points sorted by cells of the
+The iterations run in one compiled kernel (:func:`icp_iterations`, numba, releasing the
+GIL) on a bucket index of the reference (:class:`Reference`: its points sorted by cells of the
 correspondence radius); graph SLAM's global scan alignment runs tens of thousands of
 these matches per log on a thread pool, where per-iteration NumPy calls on a few
 hundred points cost more than the arithmetic.
@@ -94,6 +94,9 @@ class Reference:
         self.cell_m = float(cell_m)
         self.origin = self.xy.min(axis=0)
         self.keys, self.order = _bucket(self.xy, self.origin, self.cell_m)
+        # the last cell row and column that hold points (the first are 0)
+        self.top = np.array([_cell(v, o, self.cell_m)
+                             for v, o in zip(self.xy.max(axis=0), self.origin, strict=True)])
 
     def augment(self, xy: np.ndarray, intensity: np.ndarray | None) -> np.ndarray:
         if self.alpha == 0 or intensity is None:
@@ -108,8 +111,8 @@ class Reference:
         beyond ``upper_m``."""
         q = np.ascontiguousarray(self.augment(np.asarray(xy, dtype=float), intensity),
                                  dtype=float)
-        return nearest_points(self.aug, self.keys, self.order, self.origin[0], self.origin[1],
-                        self.cell_m, q, float(upper_m))
+        return nearest_points(self.aug, self.keys, self.order, self.origin[0],
+                              self.origin[1], self.cell_m, self.top, q, float(upper_m))
 
     @cached_property
     def normals(self) -> np.ndarray:
@@ -147,10 +150,13 @@ def _bucket(xy: np.ndarray, origin: np.ndarray, cell: float) -> tuple[np.ndarray
 
 
 @njit(cache=True, nogil=True)
-def nearest_points(ref: np.ndarray, keys: np.ndarray, order: np.ndarray, ox: float, oy: float,
-             cell: float, q: np.ndarray, upper: float) -> tuple[np.ndarray, np.ndarray]:
+def nearest_points(ref: np.ndarray, keys: np.ndarray, order: np.ndarray, ox: float,
+                   oy: float, cell: float, top: np.ndarray, q: np.ndarray, upper: float,
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """Eq. 1's nearest reference point (augmented distance) of each query row, closer
-    than ``upper``: distances (``inf`` for none) and indices (``len(ref)`` for none)."""
+    than ``upper``: distances (``inf`` for none) and indices (``len(ref)`` for none).
+    Only the cells within ``upper`` that hold points (up to row / column ``top``) are
+    visited, so a large radius costs no more than the reference's extent."""
     n, dim = q.shape
     span = int(np.ceil(upper / cell))
     dist = np.full(n, np.inf)
@@ -159,10 +165,13 @@ def nearest_points(ref: np.ndarray, keys: np.ndarray, order: np.ndarray, ox: flo
     for i in range(n):
         cx, cy = _cell(q[i, 0], ox, cell), _cell(q[i, 1], oy, cell)
         best, bi = up2, -1
-        for gx in range(cx - span, cx + span + 1):
-            lo_key = (gx + _OFF) * _STRIDE + cy - span + _OFF
+        y0, y1 = max(cy - span, 0), min(cy + span, top[1])
+        if y0 > y1:
+            continue
+        for gx in range(max(cx - span, 0), min(cx + span, top[0]) + 1):
+            lo_key = (gx + _OFF) * _STRIDE + y0 + _OFF
             lo = np.searchsorted(keys, lo_key)
-            hi = np.searchsorted(keys, lo_key + 2 * span, side="right")
+            hi = np.searchsorted(keys, lo_key + (y1 - y0), side="right")
             for j in range(lo, hi):
                 r = order[j]
                 d2 = 0.0
@@ -191,8 +200,8 @@ def intensity_icp(reference: Reference, scan_xy: np.ndarray, scan_intensity: np.
     normals = reference.normals if line else np.zeros((0, 2))
     total, converged, iterations, inl, resid = icp_iterations(
         reference.xy, reference.aug, normals, reference.keys, reference.order,
-        reference.origin[0], reference.origin[1], reference.cell_m, xy, extra, init, line,
-        config.max_iterations, config.max_correspondence_m, config.trim_factor,
+        reference.origin[0], reference.origin[1], reference.cell_m, reference.top, xy, extra,
+        init, line, config.max_iterations, config.max_correspondence_m, config.trim_factor,
         config.trim_floor_m, config.tolerance_m, config.tolerance_rad, config.min_inliers)
     pose = compose(total, init)  # the pose whose scan lands where the last step put it
     return IcpResult(pose, relative(init, pose), bool(converged), int(iterations), int(inl),
@@ -200,11 +209,12 @@ def intensity_icp(reference: Reference, scan_xy: np.ndarray, scan_intensity: np.
 
 
 @njit(cache=True, nogil=True)
-def icp_iterations(ref_xy: np.ndarray, ref_aug: np.ndarray, normals: np.ndarray, keys: np.ndarray,
-         order: np.ndarray, ox: float, oy: float, cell: float, xy: np.ndarray,
-         extra: np.ndarray, init: np.ndarray, line: bool, max_iterations: int,
-         max_corr: float, trim_factor: float, trim_floor: float, tol_m: float,
-         tol_rad: float, min_inliers: int) -> tuple[np.ndarray, bool, int, int, float]:
+def icp_iterations(ref_xy: np.ndarray, ref_aug: np.ndarray, normals: np.ndarray,
+                   keys: np.ndarray, order: np.ndarray, ox: float, oy: float, cell: float,
+                   top: np.ndarray, xy: np.ndarray, extra: np.ndarray, init: np.ndarray,
+                   line: bool, max_iterations: int, max_corr: float, trim_factor: float,
+                   trim_floor: float, tol_m: float, tol_rad: float, min_inliers: int,
+                   ) -> tuple[np.ndarray, bool, int, int, float]:
     """Steps 1-3 until the update is below the tolerances: the world-frame transform
     applied to the scan placed at ``init`` (eq. 3's accumulated ``T_r``), whether it
     converged, the iterations, the last step's inlier pairs and their mean augmented
@@ -224,7 +234,7 @@ def icp_iterations(ref_xy: np.ndarray, ref_aug: np.ndarray, normals: np.ndarray,
     converged, iterations, inl, resid = False, 0, 0, np.inf
     for it in range(1, max_iterations + 1):
         iterations = it
-        d, idx = nearest_points(ref_aug, keys, order, ox, oy, cell, q, max_corr)
+        d, idx = nearest_points(ref_aug, keys, order, ox, oy, cell, top, q, max_corr)
         ok = np.flatnonzero(np.isfinite(d))
         if len(ok) < min_inliers:
             break

@@ -161,7 +161,7 @@ def match_pair(ref: Reference, xy: np.ndarray, intensity: np.ndarray | None,
              np.ascontiguousarray(ref.augment(np.zeros((len(xy), 2)), intensity)[:, 2:]))
     ok, pose, cov = _match_pair(
         ref.xy, ref.aug, ref.normals, ref.keys, ref.order, ref.origin[0], ref.origin[1],
-        ref.cell_m, xy, extra, np.asarray(guess, dtype=float), icp.max_iterations,
+        ref.cell_m, ref.top, xy, extra, np.asarray(guess, dtype=float), icp.max_iterations,
         icp.max_correspondence_m, icp.trim_factor, icp.trim_floor_m, icp.tolerance_m,
         icp.tolerance_rad, icp.min_inliers, cfg.max_correction_m, cfg.max_correction_rad,
         cfg.inlier_m, cfg.min_overlap, cfg.point_sigma_m, cfg.residual_scale,
@@ -177,9 +177,10 @@ def _icp_config(cfg: AlignmentConfig) -> IcpConfig:
 @njit(cache=True, nogil=True)
 def _match_pair(ref_xy: np.ndarray, ref_aug: np.ndarray, normals: np.ndarray,
                 keys: np.ndarray, order: np.ndarray, ox: float, oy: float, cell: float,
-                xy: np.ndarray, extra: np.ndarray, guess: np.ndarray, max_iterations: int,
-                max_corr: float, trim_factor: float, trim_floor: float, tol_m: float,
-                tol_rad: float, min_inliers: int, max_correction_m: float,
+                top: np.ndarray, xy: np.ndarray, extra: np.ndarray, guess: np.ndarray,
+                max_iterations: int, max_corr: float, trim_factor: float,
+                trim_floor: float, tol_m: float, tol_rad: float, min_inliers: int,
+                max_correction_m: float,
                 max_correction_rad: float, inlier_m: float, min_overlap: float,
                 point_sigma: float, residual_scale: float, floor_m: float,
                 floor_rad: float) -> tuple[bool, np.ndarray, np.ndarray]:
@@ -192,7 +193,7 @@ def _match_pair(ref_xy: np.ndarray, ref_aug: np.ndarray, normals: np.ndarray,
     if n < min_inliers:
         return False, pose, cov
     total, converged, _, _, _ = icp_iterations(
-        ref_xy, ref_aug, normals, keys, order, ox, oy, cell, xy, extra, guess, True,
+        ref_xy, ref_aug, normals, keys, order, ox, oy, cell, top, xy, extra, guess, True,
         max_iterations, max_corr, trim_factor, trim_floor, tol_m, tol_rad, min_inliers)
     if not converged:
         return False, pose, cov
@@ -212,7 +213,7 @@ def _match_pair(ref_xy: np.ndarray, ref_aug: np.ndarray, normals: np.ndarray,
         q[i, 1] = s * xy[i, 0] + c * xy[i, 1] + pose[1]
         for k in range(2, dim):
             q[i, k] = extra[i, k - 2]
-    d, idx = nearest_points(ref_aug, keys, order, ox, oy, cell, q, inlier_m)
+    d, idx = nearest_points(ref_aug, keys, order, ox, oy, cell, top, q, inlier_m)
     hits = np.flatnonzero(np.isfinite(d))
     if len(hits) < max(min_overlap * n, 10):
         return False, pose, cov
