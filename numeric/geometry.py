@@ -40,6 +40,17 @@ def compose_into(x0: np.ndarray, u: np.ndarray, out: np.ndarray) -> None:
     out[2] = x0[2] + u[2]
 
 
+@njit(cache=True, nogil=True)
+def place_into(xy: np.ndarray, pose: np.ndarray, out: np.ndarray) -> None:
+    """``out[:, :2] = place(xy, pose)`` (:func:`place`, for compiled kernels); other
+    columns of ``out`` are left as they are."""
+    c = math.cos(pose[2])
+    s = math.sin(pose[2])
+    for i in range(len(xy)):
+        out[i, 0] = c * xy[i, 0] - s * xy[i, 1] + pose[0]
+        out[i, 1] = s * xy[i, 0] + c * xy[i, 1] + pose[1]
+
+
 def heading_bin(theta: ArrayLike, n: int) -> NDArray[np.intp]:
     """Index ``j`` of the nearest of ``n`` evenly spaced headings 2 pi j / n."""
     step = 2.0 * np.pi / n

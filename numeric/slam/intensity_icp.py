@@ -34,7 +34,7 @@ from pydantic import BaseModel, Field
 from scipy.spatial import cKDTree
 
 from numeric.errors import InvalidInput
-from numeric.geometry import compose, relative, wrap_scalar
+from numeric.geometry import compose, compose_into, place_into, relative, wrap_scalar
 
 
 class IcpConfig(BaseModel):
@@ -98,6 +98,20 @@ class Reference:
         self.top = np.array([_cell(v, o, self.cell_m)
                              for v, o in zip(self.xy.max(axis=0), self.origin, strict=True)])
 
+    @property
+    def index(self) -> tuple[np.ndarray, np.ndarray, float, float, float, np.ndarray]:
+        """The bucket index as the compiled kernels take it: sorted cell keys, the
+        points' order under them, the origin (x, y), the cell size and the last cell
+        row and column."""
+        return self.keys, self.order, self.origin[0], self.origin[1], self.cell_m, self.top
+
+    def intensity_column(self, intensity: np.ndarray | None, n: int) -> np.ndarray:
+        """The augmented coordinates beyond x, y of ``n`` scan points ``(n, 0 or 1)``
+        (eq. 1's weighted intensity), as the compiled kernels take them."""
+        if self.alpha == 0:
+            return np.zeros((n, 0))
+        return np.ascontiguousarray(self.augment(np.zeros((n, 2)), intensity)[:, 2:])
+
     def augment(self, xy: np.ndarray, intensity: np.ndarray | None) -> np.ndarray:
         if self.alpha == 0 or intensity is None:
             if self.alpha == 0:
@@ -111,8 +125,7 @@ class Reference:
         beyond ``upper_m``."""
         q = np.ascontiguousarray(self.augment(np.asarray(xy, dtype=float), intensity),
                                  dtype=float)
-        return nearest_points(self.aug, self.keys, self.order, self.origin[0],
-                              self.origin[1], self.cell_m, self.top, q, float(upper_m))
+        return nearest_points(self.aug, *self.index, q, float(upper_m))
 
     @cached_property
     def normals(self) -> np.ndarray:
@@ -194,14 +207,12 @@ def intensity_icp(reference: Reference, scan_xy: np.ndarray, scan_intensity: np.
     if len(scan_xy) < config.min_inliers:
         return IcpResult(init.copy(), np.zeros(3), False, 0, 0, np.inf)
     xy = np.ascontiguousarray(scan_xy, dtype=float)
-    extra = (np.zeros((len(xy), 0)) if reference.alpha == 0 else
-             np.ascontiguousarray(reference.augment(np.zeros((len(xy), 2)), scan_intensity)[:, 2:]))
     line = config.metric == "line"
     normals = reference.normals if line else np.zeros((0, 2))
     total, converged, iterations, inl, resid = icp_iterations(
-        reference.xy, reference.aug, normals, reference.keys, reference.order,
-        reference.origin[0], reference.origin[1], reference.cell_m, reference.top, xy, extra,
-        init, line, config.max_iterations, config.max_correspondence_m, config.trim_factor,
+        reference.xy, reference.aug, normals, *reference.index, xy,
+        reference.intensity_column(scan_intensity, len(xy)), init, line,
+        config.max_iterations, config.max_correspondence_m, config.trim_factor,
         config.trim_floor_m, config.tolerance_m, config.tolerance_rad, config.min_inliers)
     pose = compose(total, init)  # the pose whose scan lands where the last step put it
     return IcpResult(pose, relative(init, pose), bool(converged), int(iterations), int(inl),
@@ -221,11 +232,8 @@ def icp_iterations(ref_xy: np.ndarray, ref_aug: np.ndarray, normals: np.ndarray,
     squared residual."""
     n = len(xy)
     dim = ref_aug.shape[1]
-    c0, s0 = np.cos(init[2]), np.sin(init[2])
     z1 = np.empty((n, 2))
-    for i in range(n):
-        z1[i, 0] = c0 * xy[i, 0] - s0 * xy[i, 1] + init[0]
-        z1[i, 1] = s0 * xy[i, 0] + c0 * xy[i, 1] + init[1]
+    place_into(xy, init, z1)
     q = np.empty((n, dim))
     q[:, :2] = z1
     for k in range(2, dim):
@@ -244,26 +252,15 @@ def icp_iterations(ref_xy: np.ndarray, ref_aug: np.ndarray, normals: np.ndarray,
         if inl < min_inliers:
             break
         resid = np.mean(d[sel] ** 2)
-        src = q[sel, :2]
-        dst = ref_xy[idx[sel]]
         step = np.zeros(3)
         if line:
-            nrm = normals[idx[sel]]
-            h = np.zeros((3, 3))
-            g = np.zeros(3)
-            jr = np.empty(3)
-            for m in range(inl):
-                jr[0], jr[1] = nrm[m, 0], nrm[m, 1]
-                jr[2] = nrm[m, 1] * src[m, 0] - nrm[m, 0] * src[m, 1]
-                r = nrm[m, 0] * (src[m, 0] - dst[m, 0]) + nrm[m, 1] * (src[m, 1] - dst[m, 1])
-                for a in range(3):
-                    g[a] += jr[a] * r
-                    for b in range(3):
-                        h[a, b] += jr[a] * jr[b]
+            h, g, _ = line_normal_equations(q, ref_xy, normals, idx, sel)
             for a in range(3):
                 h[a, a] += 1e-9
             step[:] = -np.linalg.solve(h, g)
         else:
+            src = q[sel, :2]
+            dst = ref_xy[idx[sel]]
             cs = np.array([src[:, 0].mean(), src[:, 1].mean()])
             cd = np.array([dst[:, 0].mean(), dst[:, 1].mean()])
             hm = np.ascontiguousarray((src - cs).T) @ np.ascontiguousarray(dst - cd)
@@ -275,15 +272,37 @@ def icp_iterations(ref_xy: np.ndarray, ref_aug: np.ndarray, normals: np.ndarray,
             t = cd - rot @ cs
             step = np.array([t[0], t[1], np.arctan2(rot[1, 0], rot[0, 0])])
         # total = compose(step, total): the world-frame step after the accumulated one
-        c, s = np.cos(step[2]), np.sin(step[2])
-        tx = step[0] + c * total[0] - s * total[1]
-        ty = step[1] + s * total[0] + c * total[1]
-        total = np.array([tx, ty, wrap_scalar(step[2] + total[2])])
-        c, s = np.cos(total[2]), np.sin(total[2])
-        for i in range(n):
-            q[i, 0] = c * z1[i, 0] - s * z1[i, 1] + total[0]
-            q[i, 1] = s * z1[i, 0] + c * z1[i, 1] + total[1]
+        after = np.empty(3)
+        compose_into(step, total, after)
+        after[2] = wrap_scalar(after[2])
+        total = after
+        place_into(z1, total, q)
         if np.hypot(step[0], step[1]) < tol_m and abs(step[2]) < tol_rad:
             converged = True
             break
     return total, converged, iterations, inl, resid
+
+
+@njit(cache=True, nogil=True)
+def line_normal_equations(q: np.ndarray, ref_xy: np.ndarray, normals: np.ndarray,
+                          idx: np.ndarray, rows: np.ndarray,
+                          ) -> tuple[np.ndarray, np.ndarray, float]:
+    """The point-to-line objective ``sum (n . (p - m))^2`` over the scan points ``q[rows]``
+    (world frame) and their partners ``idx[rows]`` in the reference, linearised in the
+    pose (small angle): ``J^T J``, ``J^T r`` and ``sum r^2``, the Jacobian's rows
+    ``(n_x, n_y, n_y p_x - n_x p_y)``."""
+    h = np.zeros((3, 3))
+    g = np.zeros(3)
+    sq = 0.0
+    j = np.empty(3)
+    for m in rows:
+        r = idx[m]
+        nx, ny = normals[r, 0], normals[r, 1]
+        j[0], j[1], j[2] = nx, ny, ny * q[m, 0] - nx * q[m, 1]
+        e = nx * (q[m, 0] - ref_xy[r, 0]) + ny * (q[m, 1] - ref_xy[r, 1])
+        sq += e * e
+        for a in range(3):
+            g[a] += j[a] * e
+            for b in range(3):
+                h[a, b] += j[a] * j[b]
+    return h, g, sq

@@ -51,8 +51,14 @@ from numba import njit
 from pydantic import BaseModel, Field
 from scipy.spatial import cKDTree
 
-from numeric.geometry import compose_into, relative, wrap_angle, wrap_scalar
-from numeric.slam.intensity_icp import IcpConfig, Reference, icp_iterations, nearest_points
+from numeric.geometry import compose_into, place_into, relative, wrap_angle, wrap_scalar
+from numeric.slam.intensity_icp import (
+    IcpConfig,
+    Reference,
+    icp_iterations,
+    line_normal_equations,
+    nearest_points,
+)
 from numeric.slam.pose_graph import ANCHOR_SIGMAS, GraphConfig, as_pose2
 from numeric.threads import default_threads, thread_map
 
@@ -157,11 +163,9 @@ def match_pair(ref: Reference, xy: np.ndarray, intensity: np.ndarray | None,
     parameters, made from ``cfg`` when not given."""
     icp = _icp_config(cfg) if icp is None else icp
     xy = np.ascontiguousarray(xy, dtype=float)
-    extra = (np.zeros((len(xy), 0)) if ref.alpha == 0 else
-             np.ascontiguousarray(ref.augment(np.zeros((len(xy), 2)), intensity)[:, 2:]))
     ok, pose, cov = _match_pair(
-        ref.xy, ref.aug, ref.normals, ref.keys, ref.order, ref.origin[0], ref.origin[1],
-        ref.cell_m, ref.top, xy, extra, np.asarray(guess, dtype=float), icp.max_iterations,
+        ref.xy, ref.aug, ref.normals, *ref.index, xy, ref.intensity_column(intensity, len(xy)),
+        np.asarray(guess, dtype=float), icp.max_iterations,
         icp.max_correspondence_m, icp.trim_factor, icp.trim_floor_m, icp.tolerance_m,
         icp.tolerance_rad, icp.min_inliers, cfg.max_correction_m, cfg.max_correction_rad,
         cfg.inlier_m, cfg.min_overlap, cfg.point_sigma_m, cfg.residual_scale,
@@ -205,30 +209,14 @@ def _match_pair(ref_xy: np.ndarray, ref_aug: np.ndarray, normals: np.ndarray,
     if (math.hypot(c * dx + s * dy, -s * dx + c * dy) > max_correction_m
             or abs(wrap_scalar(pose[2] - guess[2])) > max_correction_rad):
         return False, pose, cov
-    c, s = math.cos(pose[2]), math.sin(pose[2])
-    dim = ref_aug.shape[1]
-    q = np.empty((n, dim))
-    for i in range(n):
-        q[i, 0] = c * xy[i, 0] - s * xy[i, 1] + pose[0]
-        q[i, 1] = s * xy[i, 0] + c * xy[i, 1] + pose[1]
-        for k in range(2, dim):
-            q[i, k] = extra[i, k - 2]
+    q = np.empty((n, ref_aug.shape[1]))
+    place_into(xy, pose, q)
+    q[:, 2:] = extra
     d, idx = nearest_points(ref_aug, keys, order, ox, oy, cell, top, q, inlier_m)
     hits = np.flatnonzero(np.isfinite(d))
     if len(hits) < max(min_overlap * n, 10):
         return False, pose, cov
-    info = np.zeros((3, 3))
-    j = np.empty(3)
-    sq = 0.0
-    for h in hits:
-        r = idx[h]
-        nx, ny = normals[r, 0], normals[r, 1]
-        j[0], j[1], j[2] = nx, ny, ny * q[h, 0] - nx * q[h, 1]
-        e = nx * (q[h, 0] - ref_xy[r, 0]) + ny * (q[h, 1] - ref_xy[r, 1])
-        sq += e * e
-        for a in range(3):
-            for b in range(3):
-                info[a, b] += j[a] * j[b]
+    info, _, sq = line_normal_equations(q, ref_xy, normals, idx, hits)
     sigma = max(point_sigma, residual_scale * math.sqrt(sq / len(hits)))
     info /= sigma * sigma
     info[0, 0] += 1e-6
@@ -241,6 +229,7 @@ def _match_pair(ref_xy: np.ndarray, ref_aug: np.ndarray, normals: np.ndarray,
     # the Jacobian perturbs the pose on the left, in the reference's frame; GTSAM's
     # between-factor error is on the right, in the matched scan's frame: the adjoint
     # of the pose's inverse, (x', y', -theta) with x' = -(c x + s y), y' = s x - c y
+    c, s = math.cos(pose[2]), math.sin(pose[2])
     xi, yi = -(c * pose[0] + s * pose[1]), s * pose[0] - c * pose[1]
     adj = np.array([[c, s, yi], [-s, c, -xi], [0.0, 0.0, 1.0]])
     return True, pose, adj @ cov @ adj.T
