@@ -307,22 +307,73 @@ def test_lookup_is_the_bilinear_minimum_over_intensity_bands() -> None:
     ox, oy = -0.3, 0.2
     for _ in range(200):
         qx, qy, li = rng.uniform(ox - 0.1, ox + 0.7), rng.uniform(oy - 0.1, oy + 0.6), rng.uniform()
+        bound = cut2 if rng.uniform() < 0.5 else rng.uniform(0.0, cut2)
         val, gx, gy = _lookup(d2.ravel(), inten.ravel(), 0, nb, nx, ny, ox, oy, 1 / res,
-                              qx, qy, li, alpha, cut2)
+                              qx, qy, li, alpha, cut2, bound, True)
         u, v = (qx - ox) / res - 0.5, (qy - oy) / res - 0.5
         if u < 0 or v < 0 or int(u) + 1 >= nx or int(v) + 1 >= ny:
             assert (val, gx, gy) == (cut2, 0.0, 0.0)
             continue
         i, j, fu, fv = int(u), int(v), u - int(u), v - int(v)
-        expect = cut2
+        expect, arg = cut2, -1
         for b in range(nb):
             g = d2[b].astype(float)
             bil = (g[i, j] * (1 - fu) * (1 - fv) + g[i + 1, j] * fu * (1 - fv)
                    + g[i, j + 1] * (1 - fu) * fv + g[i + 1, j + 1] * fu * fv)
             if bil < cut2:
                 near = inten[b, i + (fu >= 0.5), j + (fv >= 0.5)]
-                expect = min(expect, bil + alpha * (near - li) ** 2)
-        assert val == pytest.approx(expect, abs=1e-6)
+                if bil + alpha * (near - li) ** 2 < expect:
+                    expect, arg = bil + alpha * (near - li) ** 2, b
+        if expect < bound:  # the band's value and its bilinear gradient
+            assert val == pytest.approx(expect, abs=1e-6)
+            g = d2[arg].astype(float)
+            assert gx == pytest.approx(((g[i + 1, j] - g[i, j]) * (1 - fv)
+                                        + (g[i + 1, j + 1] - g[i, j + 1]) * fv) / res)
+            assert gy == pytest.approx(((g[i, j + 1] - g[i, j]) * (1 - fu)
+                                        + (g[i + 1, j + 1] - g[i + 1, j]) * fu) / res)
+        else:  # nothing below the beam's best so far: it stays, with no gradient
+            assert (val, gx, gy) == (bound, 0.0, 0.0)
+
+
+@pytest.mark.parametrize("bands,alpha", [(1, 0.0), (1, 0.05), (3, 0.05)])
+def test_the_sample_scores_are_the_matchers_scores_pose_by_pose(bands: int,
+                                                                alpha: float) -> None:
+    """:func:`score_offsets` (the 27 samples of the proposal, scored beam by beam) gives,
+    to the bit, what :func:`_score` gives for each pose on the candidates it recorded."""
+    from numeric.slam.proposal import _score, score_offsets
+
+    rng = np.random.default_rng(3)
+    res, cut2, n_k, n_b = 0.05, 0.09, 6, 40
+    metas, grids, ints, off = [], [], [], 0
+    for _ in range(n_k):
+        nx, ny = rng.integers(20, 40, size=2)
+        grids.append(rng.uniform(0.0, 0.1, bands * nx * ny).astype(np.float32))
+        ints.append(rng.uniform(0.0, 1.0, bands * nx * ny).astype(np.float32))
+        metas.append((off, bands, nx, ny))
+        off += bands * nx * ny
+    grid, gint = np.concatenate(grids), np.concatenate(ints)
+    meta = np.array(metas, dtype=np.int64)
+    origins = rng.uniform(-0.6, -0.3, size=(n_k, 2))
+    th = rng.uniform(-0.2, 0.2, n_k)
+    kpose = np.column_stack([np.cos(th), np.sin(th), rng.uniform(-0.2, 0.2, (n_k, 2))])
+    pts = rng.uniform(-0.5, 0.5, size=(n_b, 2))
+    li = rng.uniform(0.0, 1.0, n_b)
+    hat = np.array([0.02, -0.01, 0.03])
+    h, g = np.zeros((3, 3)), np.zeros(3)
+    cand = np.full((n_b, 2), -1, dtype=np.int64)
+    work, iwork = np.empty((6, n_b)), np.empty((2, n_b), dtype=np.int64)
+    _score(*hat, pts, li, alpha, grid, gint, meta, origins, 1 / res, kpose, cut2, True, h, g,
+           cand, 1, work, iwork)
+    assert (cand >= 0).any() and (cand < 0).any()
+    offs = np.array([(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)],
+                    dtype=float) * [0.01, 0.02, 0.015]
+    out = np.empty(len(offs))
+    score_offsets(hat, offs, pts, li, alpha, grid, gint, meta, origins, 1 / res, kpose, cut2,
+                  cand, out)
+    for j, o in enumerate(offs):
+        expect, _ = _score(*(hat + o), pts, li, alpha, grid, gint, meta, origins, 1 / res,
+                           kpose, cut2, False, h, g, cand, 2, work, iwork)
+        assert out[j] == expect
 
 
 def test_a_far_wall_is_a_surface_and_a_depth_jump_is_not() -> None:

@@ -328,60 +328,77 @@ class FieldPack:
 
 # -- numba kernels --------------------------------------------------------------------------
 @njit(cache=True, nogil=True)
-def _bilinear1(grid: np.ndarray, off: int, nx: int, ny: int, ox: float, oy: float,
-               inv_res: float, qx: float, qy: float,
-               cut2: float) -> tuple[float, float, float]:
-    """:func:`_lookup` for one band and no intensity (the innermost loop's common case)."""
+def _corners(off: int, nx: int, ny: int, ox: float, oy: float, inv_res: float, qx: float,
+             qy: float) -> tuple[int, float, float]:
+    """Where the bilinear interpolation at the keyframe-frame point (qx, qy) reads one
+    band's grid (flat, at ``off``, ``nx`` by ``ny``): the index of its lower corner cell
+    and the fractions (fu, fv) along x and y; index -1 outside the grid."""
     u = (qx - ox) * inv_res - 0.5
     v = (qy - oy) * inv_res - 0.5
     if not (u >= 0.0 and v >= 0.0):
-        return cut2, 0.0, 0.0
+        return -1, 0.0, 0.0
     i = int(u)
     j = int(v)
     if i + 1 >= nx or j + 1 >= ny:
-        return cut2, 0.0, 0.0
-    fu = u - i
-    fv = v - j
-    base = off + i * ny + j
+        return -1, 0.0, 0.0
+    return off + i * ny + j, u - i, v - j
+
+
+@njit(cache=True, nogil=True)
+def _interpolate(grid: np.ndarray, base: int, ny: int, fu: float, fv: float) -> float:
+    """The bilinear value at :func:`_corners`' cell and fractions."""
     p00 = grid[base]
     p01 = grid[base + 1]
     p10 = grid[base + ny]
     p11 = grid[base + ny + 1]
-    val = (p00 * (1.0 - fu) * (1.0 - fv) + p10 * fu * (1.0 - fv)
-           + p01 * (1.0 - fu) * fv + p11 * fu * fv)
+    return (p00 * (1.0 - fu) * (1.0 - fv) + p10 * fu * (1.0 - fv)
+            + p01 * (1.0 - fu) * fv + p11 * fu * fv)
+
+
+@njit(cache=True, nogil=True)
+def _slope(grid: np.ndarray, base: int, ny: int, fu: float, fv: float,
+           inv_res: float) -> tuple[float, float]:
+    """... and its gradient (per m). Apart from :func:`_interpolate`: the matcher needs
+    it only where a lookup improves a beam's best, which most lookups do not."""
+    p00 = grid[base]
+    p01 = grid[base + 1]
+    p10 = grid[base + ny]
+    p11 = grid[base + ny + 1]
     gx = ((p10 - p00) * (1.0 - fv) + (p11 - p01) * fv) * inv_res
     gy = ((p01 - p00) * (1.0 - fu) + (p11 - p10) * fu) * inv_res
-    return val, gx, gy
+    return gx, gy
 
 
 @njit(cache=True, nogil=True)
 def _lookup(grid: np.ndarray, gint: np.ndarray, off: int, nb: int, nx: int, ny: int,
             ox: float, oy: float, inv_res: float, qx: float, qy: float, li: float,
-            alpha: float, cut2: float) -> tuple[float, float, float]:
+            alpha: float, cut2: float, bound: float, grad: bool) -> tuple[float, float, float]:
     """Capped augmented squared residual at the keyframe-frame point (qx, qy) and its
-    gradient (per m): :func:`_bilinear1` per intensity band plus
+    gradient (per m): the bilinear squared distance per intensity band plus
     ``alpha (l_band - li)^2`` with the nearest cell's intensity, the minimum over
-    bands; ``cut2`` and no gradient outside the grid."""
-    best = cut2
+    bands; ``cut2`` and no gradient outside the grid. Only values below ``bound`` (a
+    beam's best so far, at most ``cut2``) count, and the gradient (with ``grad``) is
+    computed only for them: the result is ``bound`` with no gradient when no band
+    goes below it."""
+    best = bound
     gx = 0.0
     gy = 0.0
-    u = (qx - ox) * inv_res - 0.5
-    v = (qy - oy) * inv_res - 0.5
+    base, fu, fv = _corners(off, nx, ny, ox, oy, inv_res, qx, qy)
+    if base < 0:
+        return cut2, 0.0, 0.0
+    band = nx * ny
     for b in range(nb):
-        boff = off + b * nx * ny
-        val, bgx, bgy = _bilinear1(grid, boff, nx, ny, ox, oy, inv_res, qx, qy, cut2)
-        if val >= cut2:  # capped, or outside the grid: the intensity only adds
+        val = _interpolate(grid, base + b * band, ny, fu, fv)
+        if val >= cut2:  # capped: the intensity only adds
             continue
         if alpha > 0.0:
-            i = int(u)
-            j = int(v)
-            near = (i + (1 if u - i >= 0.5 else 0)) * ny + j + (1 if v - j >= 0.5 else 0)
-            dl = gint[boff + near] - li
+            near = base + b * band + (ny if fu >= 0.5 else 0) + (1 if fv >= 0.5 else 0)
+            dl = gint[near] - li
             val += alpha * dl * dl
         if val < best:
             best = val
-            gx = bgx
-            gy = bgy
+            if grad:
+                gx, gy = _slope(grid, base + b * band, ny, fu, fv, inv_res)
     return best, gx, gy
 
 
@@ -440,12 +457,18 @@ def _score(x: float, y: float, th: float, pts: np.ndarray, li: np.ndarray, alpha
                 dy = wy[b] - ty
                 qx = ck * dx + sk * dy
                 qy = -sk * dx + ck * dy
-                if geo:
-                    val, gqx, gqy = _bilinear1(grid, off, nx, ny, ox, oy, inv_res, qx, qy,
-                                               cut2)
+                if geo:  # the common case, written out: most lookups change nothing
+                    base, fu, fv = _corners(off, nx, ny, ox, oy, inv_res, qx, qy)
+                    if base < 0:
+                        continue
+                    val = _interpolate(grid, base, ny, fu, fv)
+                    if not val < second[b]:
+                        continue
+                    gqx, gqy = _slope(grid, base, ny, fu, fv, inv_res)
                 else:
                     val, gqx, gqy = _lookup(grid, gint, off, nb, nx, ny, ox, oy, inv_res, qx,
-                                            qy, li[b] if use_i else 0.0, alpha, cut2)
+                                            qy, li[b] if use_i else 0.0, alpha, cut2,
+                                            second[b], True)
                 if val < second[b]:
                     if val < best[b]:
                         second[b] = best[b]
@@ -474,14 +497,19 @@ def _score(x: float, y: float, th: float, pts: np.ndarray, li: np.ndarray, alpha
                 qx = ck * dx + sk * dy
                 qy = -sk * dx + ck * dy
                 if meta[k, 1] == 1 and not use_i:
-                    val, gqx, gqy = _bilinear1(grid, meta[k, 0], meta[k, 2], meta[k, 3],
-                                               origins[k, 0], origins[k, 1], inv_res, qx, qy,
-                                               cut2)
+                    base, fu, fv = _corners(meta[k, 0], meta[k, 2], meta[k, 3], origins[k, 0],
+                                            origins[k, 1], inv_res, qx, qy)
+                    if base < 0:
+                        continue
+                    val = _interpolate(grid, base, meta[k, 3], fu, fv)
+                    if not val < best[b]:
+                        continue
+                    gqx, gqy = _slope(grid, base, meta[k, 3], fu, fv, inv_res)
                 else:
                     val, gqx, gqy = _lookup(grid, gint, meta[k, 0], meta[k, 1], meta[k, 2],
                                             meta[k, 3], origins[k, 0], origins[k, 1],
                                             inv_res, qx, qy, li[b] if use_i else 0.0, alpha,
-                                            cut2)
+                                            cut2, best[b], grad)
                 if val < best[b]:
                     best[b] = val
                     bgx[b] = ck * gqx - sk * gqy
@@ -910,6 +938,70 @@ def loop_search(center: np.ndarray, pts: np.ndarray, li: np.ndarray, alpha: floa
 
 
 @njit(cache=True, nogil=True)
+def score_offsets(hat: np.ndarray, offs: np.ndarray, pts: np.ndarray, li: np.ndarray,
+                  alpha: float, grid: np.ndarray, gint: np.ndarray, meta: np.ndarray,
+                  origins: np.ndarray, inv_res: float, kpose: np.ndarray, cut2: float,
+                  cand: np.ndarray, out: np.ndarray) -> None:
+    """``out[j]`` = Σ_b ρ_b at the pose ``hat + offs[j]`` on each beam's candidate
+    keyframes ``cand``: what :func:`_score` gives in mode 2 for each pose, to the bit
+    (the same sums in the same order), but beam by beam -- one beam's lookups at the
+    nearby poses read the same few cells, and its keyframe's constants are loaded once."""
+    n = offs.shape[0]
+    xs = np.empty(n)
+    ys = np.empty(n)
+    cs = np.empty(n)
+    sn = np.empty(n)
+    best = np.empty(n)
+    for j in range(n):
+        xs[j] = hat[0] + offs[j, 0]
+        ys[j] = hat[1] + offs[j, 1]
+        t = hat[2] + offs[j, 2]
+        cs[j] = math.cos(t)
+        sn[j] = math.sin(t)
+        out[j] = 0.0
+    use_i = alpha > 0.0
+    for b in range(pts.shape[0]):
+        px = pts[b, 0]
+        py = pts[b, 1]
+        lb = li[b] if use_i else 0.0
+        for j in range(n):
+            best[j] = cut2
+        for m in range(cand.shape[1]):
+            k = cand[b, m]
+            if k < 0:
+                continue
+            ck = kpose[k, 0]
+            sk = kpose[k, 1]
+            tx = kpose[k, 2]
+            ty = kpose[k, 3]
+            off = meta[k, 0]
+            nb = meta[k, 1]
+            nx = meta[k, 2]
+            ny = meta[k, 3]
+            ox = origins[k, 0]
+            oy = origins[k, 1]
+            geo = nb == 1 and not use_i
+            for j in range(n):
+                # the world point as _score forms it (x + c px - s py), then its frame
+                dx = xs[j] + cs[j] * px - sn[j] * py - tx
+                dy = ys[j] + sn[j] * px + cs[j] * py - ty
+                qx = ck * dx + sk * dy
+                qy = -sk * dx + ck * dy
+                if geo:
+                    base, fu, fv = _corners(off, nx, ny, ox, oy, inv_res, qx, qy)
+                    if base < 0:
+                        continue
+                    val = _interpolate(grid, base, ny, fu, fv)
+                else:
+                    val, _, _ = _lookup(grid, gint, off, nb, nx, ny, ox, oy, inv_res, qx, qy,
+                                        lb, alpha, cut2, best[j], False)
+                if val < best[j]:
+                    best[j] = val
+        for j in range(n):
+            out[j] += best[j]
+
+
+@njit(cache=True, nogil=True)
 def propose_all(x_prev: np.ndarray, u: np.ndarray, u_start: np.ndarray, sig: np.ndarray,
                 pts: np.ndarray,
                 li: np.ndarray, alpha: float, grid: np.ndarray, gint: np.ndarray,
@@ -948,8 +1040,8 @@ def propose_all(x_prev: np.ndarray, u: np.ndarray, u_start: np.ndarray, sig: np.
     work = np.empty((6, pts.shape[0]))
     iwork = np.empty((2, pts.shape[0]), dtype=np.int64)
     h = np.zeros((3, 3))
-    g = np.zeros(3)
     log_tau = np.empty(27)
+    costs = np.empty(27)
     start = np.empty(3)
     for p in range(n_u):
         _kposes(kf_pose, p, kpose)
@@ -965,12 +1057,12 @@ def propose_all(x_prev: np.ndarray, u: np.ndarray, u_start: np.ndarray, sig: np.
         for j in range(27):
             for a in range(3):
                 offs[j, a] = grid27[j, a] * delta[a]
-            cx = hat[0] + offs[j, 0]
-            cy = hat[1] + offs[j, 1]
-            ct = hat[2] + offs[j, 2]
-            cost, _ = _score(cx, cy, ct, pts, li, alpha, grid, gint, meta, origins, inv_res,
-                             kpose, cut2, False, h, g, cand, 2, work, iwork)
-            log_tau[j] = -cost * inv_2s2 + _motion_logp(x0, u, sig, cx, cy, ct)
+        score_offsets(hat, offs, pts, li, alpha, grid, gint, meta, origins, inv_res, kpose,
+                      cut2, cand, costs)
+        for j in range(27):
+            log_tau[j] = -costs[j] * inv_2s2 + _motion_logp(x0, u, sig, hat[0] + offs[j, 0],
+                                                            hat[1] + offs[j, 1],
+                                                            hat[2] + offs[j, 2])
         mu, cov, le = gaussian_fit(offs, log_tau)
         if not le > -np.inf:
             continue
