@@ -483,6 +483,27 @@ def test_the_particles_split_over_threads_give_the_same_filter(room: World) -> N
     assert np.array_equal(runs[0][0], runs[1][0]) and np.array_equal(runs[0][1], runs[1][1])
 
 
+def test_copies_are_told_apart_by_pose_and_map() -> None:
+    """The particles matched once each are the distinct (pose, map) pairs: after a
+    resampling (copies), particles with one pose and different maps stay apart, and
+    particles whose poses all differ are each their own."""
+    from numeric.slam.rbpf import _copies
+
+    rng = np.random.default_rng(4)
+    x = rng.normal(size=(40, 3))
+    kf = rng.normal(size=(5, 40, 3))
+    first, inv = _copies(x, kf)
+    assert np.array_equal(inv, np.arange(40)) and np.array_equal(first, np.arange(40))
+    idx = rng.integers(0, 12, size=40)  # a resampling: copies of 12 parents
+    x, kf = x[idx], kf[:, idx].copy()
+    kf[4, idx == 3] += [0.0, 0.0, 1e-9]  # parent 3's copies hold two maps
+    kf[4, np.flatnonzero(idx == 3)[0]] -= [0.0, 0.0, 1e-9]
+    first, inv = _copies(x, kf)
+    key = np.concatenate([x, kf.transpose(1, 0, 2).reshape(40, -1)], axis=1)
+    assert len(first) == len(np.unique(key, axis=0)) == len(np.unique(idx)) + 1
+    assert np.array_equal(key[first[inv]], key)  # each particle is matched as its copy
+
+
 def test_step_reports_what_the_filter_did(loop_log: LaserLog) -> None:
     """RbpfSlam.step follows §7.3 and says so: the first scan starts the map, scans
     closer than the update distance are "between", an update reports N_eff (within
