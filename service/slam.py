@@ -31,7 +31,7 @@ import numpy as np
 from numeric.errors import Conflict, InvalidInput, NotFound
 from numeric.occupancy import OccupancyMap, build_occupancy
 from numeric.scan import Scan, beam_angles
-from numeric.slam.runner import Slam, SlamOptions, create
+from numeric.slam.runner import Slam, SlamOptions, create, warm_up
 from service.compute import BudgetExceeded
 from service.disconnect import thread_to_end
 from service.kb import KnowledgeBase
@@ -128,6 +128,8 @@ class SlamService:
     async def create(self, world: str, options: SlamOptions) -> dict[str, Any]:
         self.worlds.require(world)
         rid = "r" + uuid.uuid4().hex[:16]
+        # the method's kernels loaded before the first scan, not during it (once)
+        await asyncio.to_thread(warm_up, options)
         run = Run(rid, world, options, create(options))
         with self.store.transaction() as conn:
             self.store.put_slam_run(conn, rid, world, options.model_dump())

@@ -309,3 +309,18 @@ def test_cli_slam_and_eval(tmp_path: Path) -> None:
     assert r.exit_code == 2
     r = runner.invoke(cli, ["slam", str(log), "--method", "magic"])
     assert r.exit_code == 2
+
+
+def test_a_method_is_warmed_up_once_per_process(monkeypatch: pytest.MonkeyPatch) -> None:
+    """warm_up runs a throwaway estimator of the method (its kernels loaded before a
+    robot's first scan), once per method and proposal; the next asks cost nothing."""
+    import numeric.slam.runner as runner
+    from numeric.slam.runner import SlamOptions
+
+    monkeypatch.setattr(runner, "_WARM", set())
+    opts = SlamOptions(method="rbpf", particles=64)
+    assert runner.warm_up(opts) > 0.0
+    assert runner.warm_up(opts) == 0.0
+    assert runner.warm_up(opts.model_copy(update={"seed": 3})) == 0.0
+    assert runner.warm_up(opts.model_copy(update={"proposal": "odometry"})) > 0.0
+    assert runner._WARM == {("rbpf", "improved"), ("rbpf", "odometry")}
