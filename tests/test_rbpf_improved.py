@@ -542,6 +542,10 @@ def test_the_loop_search_finds_a_place_beyond_the_matchers_reach(room: World) ->
     r = int(np.argmax(inl))
     assert np.hypot(*(poses[r, :2] - p0[:2])) < 0.05 and abs(poses[r, 2] - p0[2]) < 0.01
     assert inl[r] >= 0.8 * len(beams) and eig[r] > 5.0
+    for threads in (2, 3, 12):  # the grid's headings split over threads: the same search
+        again = loop_search(start, *maps, kf, 0.09, 0.04, 0.05**2, 200.0, 12, 1.0, 0.1, 0.1,
+                            0.025, 6, 0.3, threads)
+        assert all(np.array_equal(a, b) for a, b in zip(again, (poses, inl, eig), strict=True))
 
 
 def test_free_space_tells_a_closure_from_the_room_next_door() -> None:

@@ -62,6 +62,7 @@ from pydantic import BaseModel, Field
 
 from numeric.geometry import compose_into, wrap_scalar
 from numeric.slam.keyframes import LikelihoodField
+from numeric.threads import thread_map
 
 _LOG_2PI = math.log(2.0 * math.pi)
 _MAX_STEP_M = 0.05  # largest Levenberg-Marquardt step (trust region)
@@ -865,25 +866,48 @@ def count_inliers(pose: np.ndarray, pts: np.ndarray, li: np.ndarray, alpha: floa
     return inl
 
 
-@njit(cache=True, nogil=True)
 def loop_search(center: np.ndarray, pts: np.ndarray, li: np.ndarray, alpha: float,
                 grid: np.ndarray, gint: np.ndarray, meta: np.ndarray, origins: np.ndarray,
                 inv_res: float, kf_pose: np.ndarray, cut2: float, coarse2: float,
                 inlier2: float, inv_2s2: float, max_iter: int, radius: float, step: float,
                 half_angle: float, angle_step: float, n_refine: int, min_sep: float,
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                threads: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A wide search of the scan against one map ``kf_pose (K, 1, 3)`` (the old
     keyframes of a loop): a correlative grid of poses ``center`` + (±``radius`` in
     ``step``, ±``half_angle`` in ``angle_step``) scored by Σ_b min(ρ_b, ``coarse2``);
     ``center`` itself and the ``n_refine`` best, at least ``min_sep`` apart from each
     other and from ``center``, refined by :func:`scan_match` on the scan alone (residual
     cap ``cut2``). Returns the refined poses ``(M, 3)`` (the first refined from
-    ``center``), their
-    beams within ``sqrt(inlier2)`` of the map ``(M,)`` and the smallest eigenvalue of
-    the position block of ``J^T J`` at each ``(M,)`` (about the number of beams that
-    pin the position down in its weakest direction; ~0 along a corridor)."""
+    ``center``), their beams within ``sqrt(inlier2)`` of the map ``(M,)`` and the
+    smallest eigenvalue of the position block of ``J^T J`` at each ``(M,)`` (about the
+    number of beams that pin the position down in its weakest direction; ~0 along a
+    corridor). The grid's headings are split over ``threads`` (the same scores in the
+    same order whatever their number)."""
+    na = int(round(half_angle / angle_step))
+    headings = np.arange(-na, na + 1)
     kpose = np.empty((kf_pose.shape[0], 4))
     _kposes(kf_pose, 0, kpose)
+    maps = (pts, li, alpha, grid, gint, meta, origins, inv_res, kpose)
+
+    def part(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return _loop_grid(center, *maps, coarse2, radius, step, angle_step, int(a[0]),
+                          int(a[-1]) + 1)
+
+    parts = np.array_split(headings, max(1, min(threads, len(headings))))
+    done = thread_map(part, parts, threads)
+    poses = np.concatenate([d[0] for d in done])
+    cost = np.concatenate([d[1] for d in done])
+    return _loop_refine(center, poses, cost, *maps, cut2, inlier2, inv_2s2, max_iter,
+                        n_refine, min_sep)
+
+
+@njit(cache=True, nogil=True)
+def _loop_grid(center: np.ndarray, pts: np.ndarray, li: np.ndarray, alpha: float,
+               grid: np.ndarray, gint: np.ndarray, meta: np.ndarray, origins: np.ndarray,
+               inv_res: float, kpose: np.ndarray, coarse2: float, radius: float, step: float,
+               angle_step: float, a_from: int, a_to: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`loop_search`'s grid for the heading indices ``a_from .. a_to - 1``: its
+    poses ``(N, 3)`` (heading, then x, then y) and their capped costs ``(N,)``."""
     n_b = pts.shape[0]
     cand = np.full((n_b, 2), -1, dtype=np.int64)
     work = np.empty((6, n_b))
@@ -891,12 +915,11 @@ def loop_search(center: np.ndarray, pts: np.ndarray, li: np.ndarray, alpha: floa
     h = np.zeros((3, 3))
     g = np.zeros(3)
     nxy = int(round(radius / step))
-    na = int(round(half_angle / angle_step))
-    n = (2 * nxy + 1) * (2 * nxy + 1) * (2 * na + 1)
+    n = (2 * nxy + 1) * (2 * nxy + 1) * (a_to - a_from)
     poses = np.empty((n, 3))
     cost = np.empty(n)
     q = 0
-    for a in range(-na, na + 1):
+    for a in range(a_from, a_to):
         for i in range(-nxy, nxy + 1):
             for j in range(-nxy, nxy + 1):
                 poses[q, 0] = center[0] + i * step
@@ -906,6 +929,22 @@ def loop_search(center: np.ndarray, pts: np.ndarray, li: np.ndarray, alpha: floa
                                     grid, gint, meta, origins, inv_res, kpose, coarse2,
                                     False, h, g, cand, 0, work, iwork)
                 q += 1
+    return poses, cost
+
+
+@njit(cache=True, nogil=True)
+def _loop_refine(center: np.ndarray, poses: np.ndarray, cost: np.ndarray, pts: np.ndarray,
+                 li: np.ndarray, alpha: float, grid: np.ndarray, gint: np.ndarray,
+                 meta: np.ndarray, origins: np.ndarray, inv_res: float, kpose: np.ndarray,
+                 cut2: float, inlier2: float, inv_2s2: float, max_iter: int, n_refine: int,
+                 min_sep: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`loop_search`'s refinement of ``center`` and of the best grid poses."""
+    n_b = pts.shape[0]
+    cand = np.full((n_b, 2), -1, dtype=np.int64)
+    work = np.empty((6, n_b))
+    iwork = np.empty((2, n_b), dtype=np.int64)
+    h = np.zeros((3, 3))
+    g = np.zeros(3)
     order = np.argsort(cost)
     kept = np.empty((n_refine + 1, 3))
     kept[0] = center  # the current estimate, refined too: the rival every mode must beat

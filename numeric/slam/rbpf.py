@@ -517,7 +517,7 @@ class RbpfSlam:
             cur, xy, li, alpha, *fields, kf_old, cut * cut, imp.loop_coarse_cutoff_m ** 2,
             in2, 1.0 / (2.0 * imp.sigma_m ** 2), imp.max_iterations, imp.loop_radius_m,
             imp.loop_step_m, imp.loop_angle_rad, imp.loop_angle_step_rad, imp.loop_refine,
-            imp.loop_min_sep_m)
+            imp.loop_min_sep_m, cfg.threads)
         # the current estimate refined against the old map is the first rival: the
         # alternatives are refined, and the unrefined estimate's count would understate
         # it (this alone did not stop fr079's false closure at 806 s, which the free
