@@ -404,6 +404,24 @@ def _lookup(grid: np.ndarray, gint: np.ndarray, off: int, nb: int, nx: int, ny: 
 
 
 @njit(cache=True, nogil=True)
+def _keyframe(kpose: np.ndarray, meta: np.ndarray, origins: np.ndarray, k: int,
+              ) -> tuple[float, float, float, float, int, int, int, int, float, float]:
+    """Keyframe ``k``'s constants as the lookups read them: its pose (cos, sin, x, y)
+    from ``kpose``, its grid's offset, bands, nx, ny from ``meta`` and origin."""
+    return (kpose[k, 0], kpose[k, 1], kpose[k, 2], kpose[k, 3], meta[k, 0], meta[k, 1],
+            meta[k, 2], meta[k, 3], origins[k, 0], origins[k, 1])
+
+
+@njit(cache=True, nogil=True)
+def _to_keyframe(ck: float, sk: float, tx: float, ty: float, wx: float, wy: float,
+                 ) -> tuple[float, float]:
+    """The world point (wx, wy) in the frame of a keyframe at (tx, ty) heading (ck, sk)."""
+    dx = wx - tx
+    dy = wy - ty
+    return ck * dx + sk * dy, -sk * dx + ck * dy
+
+
+@njit(cache=True, nogil=True)
 def _score(x: float, y: float, th: float, pts: np.ndarray, li: np.ndarray, alpha: float,
            grid: np.ndarray, gint: np.ndarray, meta: np.ndarray, origins: np.ndarray,
            inv_res: float, kpose: np.ndarray, cut2: float, grad: bool, h: np.ndarray,
@@ -442,22 +460,10 @@ def _score(x: float, y: float, th: float, pts: np.ndarray, li: np.ndarray, alpha
         k2[b] = -1
     if mode < 2:  # keyframe by keyframe: its constants loaded once, a tight beam loop
         for k in range(n_k):
-            ck = kpose[k, 0]
-            sk = kpose[k, 1]
-            tx = kpose[k, 2]
-            ty = kpose[k, 3]
-            off = meta[k, 0]
-            nb = meta[k, 1]
-            nx = meta[k, 2]
-            ny = meta[k, 3]
-            ox = origins[k, 0]
-            oy = origins[k, 1]
+            ck, sk, tx, ty, off, nb, nx, ny, ox, oy = _keyframe(kpose, meta, origins, k)
             geo = nb == 1 and not use_i
             for b in range(n_b):
-                dx = wx[b] - tx
-                dy = wy[b] - ty
-                qx = ck * dx + sk * dy
-                qy = -sk * dx + ck * dy
+                qx, qy = _to_keyframe(ck, sk, tx, ty, wx[b], wy[b])
                 if geo:  # the common case, written out: most lookups change nothing
                     base, fu, fv = _corners(off, nx, ny, ox, oy, inv_res, qx, qy)
                     if base < 0:
@@ -491,26 +497,20 @@ def _score(x: float, y: float, th: float, pts: np.ndarray, li: np.ndarray, alpha
                 k = cand[b, m]
                 if k < 0:
                     continue
-                ck = kpose[k, 0]
-                sk = kpose[k, 1]
-                dx = wx[b] - kpose[k, 2]
-                dy = wy[b] - kpose[k, 3]
-                qx = ck * dx + sk * dy
-                qy = -sk * dx + ck * dy
-                if meta[k, 1] == 1 and not use_i:
-                    base, fu, fv = _corners(meta[k, 0], meta[k, 2], meta[k, 3], origins[k, 0],
-                                            origins[k, 1], inv_res, qx, qy)
+                ck, sk, tx, ty, off, nb, nx, ny, ox, oy = _keyframe(kpose, meta, origins, k)
+                qx, qy = _to_keyframe(ck, sk, tx, ty, wx[b], wy[b])
+                if nb == 1 and not use_i:
+                    base, fu, fv = _corners(off, nx, ny, ox, oy, inv_res, qx, qy)
                     if base < 0:
                         continue
-                    val = _interpolate(grid, base, meta[k, 3], fu, fv)
+                    val = _interpolate(grid, base, ny, fu, fv)
                     if not val < best[b]:
                         continue
-                    gqx, gqy = _slope(grid, base, meta[k, 3], fu, fv, inv_res)
+                    gqx, gqy = _slope(grid, base, ny, fu, fv, inv_res)
                 else:
-                    val, gqx, gqy = _lookup(grid, gint, meta[k, 0], meta[k, 1], meta[k, 2],
-                                            meta[k, 3], origins[k, 0], origins[k, 1],
-                                            inv_res, qx, qy, li[b] if use_i else 0.0, alpha,
-                                            cut2, best[b], grad)
+                    val, gqx, gqy = _lookup(grid, gint, off, nb, nx, ny, ox, oy, inv_res, qx,
+                                            qy, li[b] if use_i else 0.0, alpha, cut2, best[b],
+                                            grad)
                 if val < best[b]:
                     best[b] = val
                     bgx[b] = ck * gqx - sk * gqy
@@ -1009,23 +1009,12 @@ def score_offsets(hat: np.ndarray, offs: np.ndarray, pts: np.ndarray, li: np.nda
             k = cand[b, m]
             if k < 0:
                 continue
-            ck = kpose[k, 0]
-            sk = kpose[k, 1]
-            tx = kpose[k, 2]
-            ty = kpose[k, 3]
-            off = meta[k, 0]
-            nb = meta[k, 1]
-            nx = meta[k, 2]
-            ny = meta[k, 3]
-            ox = origins[k, 0]
-            oy = origins[k, 1]
+            ck, sk, tx, ty, off, nb, nx, ny, ox, oy = _keyframe(kpose, meta, origins, k)
             geo = nb == 1 and not use_i
             for j in range(n):
                 # the world point as _score forms it (x + c px - s py), then its frame
-                dx = xs[j] + cs[j] * px - sn[j] * py - tx
-                dy = ys[j] + sn[j] * px + cs[j] * py - ty
-                qx = ck * dx + sk * dy
-                qy = -sk * dx + ck * dy
+                qx, qy = _to_keyframe(ck, sk, tx, ty, xs[j] + cs[j] * px - sn[j] * py,
+                                      ys[j] + sn[j] * px + cs[j] * py)
                 if geo:
                     base, fu, fv = _corners(off, nx, ny, ox, oy, inv_res, qx, qy)
                     if base < 0:

@@ -92,10 +92,11 @@ def create(options: SlamOptions) -> Slam:
 
 _WARM: set[tuple[str, str]] = set()
 _WARM_LOCK = threading.Lock()
-#: scans of the warm-up tour per method: graph SLAM's whole tour reaches its first
-#: finished submap's searches; the RBPF's first 60 scans hold tracking, updates and
-#: new keyframes (the whole tour would take 5 s with its per-update searches)
-_WARM_SCANS = {"graph": 376, "rbpf": 60}
+#: scans of the warm-up tour per method (None: all of it): graph SLAM's whole tour
+#: reaches its first finished submap's searches; the RBPF's first 60 scans hold
+#: tracking, updates and new keyframes (the whole tour would take 5 s with its
+#: per-update searches)
+_WARM_SCANS: dict[str, int | None] = {"graph": None, "rbpf": 60}
 
 
 def warm_up(options: SlamOptions) -> float:
