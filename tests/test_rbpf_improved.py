@@ -631,36 +631,13 @@ def test_the_lagged_heading_residual_sees_a_walk_the_one_update_match_hides(
     drives = room_a_drives(room, LASER, {"moderate": MODERATE_ODOMETRY,
                                          "exact": ODOMETRY_QUALITIES["exact"]})
     scales = {}
-    for lag in (0.0, 3.0):
-        for name in ("moderate", "exact") if lag else ("moderate",):
-            s = _run(drives[name], RbpfConfig(particles=4, seed=0, improved=ImprovedConfig(
-                odometry_window=100, odometry_lag_m=lag)))
-            assert len(s.odometry.residuals) == 100
-            scales[name, lag] = s.odometry.scale
-    assert scales["moderate", 0.0] < 0.4
-    assert scales["moderate", 3.0] > 0.7
-    assert scales["exact", 3.0] < 0.2
-
-
-@pytest.mark.parametrize("cap", [30.0, None])
-def test_a_shifted_start_is_charged_at_most_shift_penalty_max_by_the_motion_model(
-        cap: float | None) -> None:
-    """Odometry that reads 0.4 m forward while the robot backs up 0.4 m is an outlier of
-    the Gaussian motion model, not its tail. With a tight model (σ_xy 6 mm here) the
-    Gaussian charges the right, shifted match thousands of nats, more than the beams
-    gain, and the multi-start match keeps the odometry's place (the default: no cap);
-    capped at ``shift_penalty_max`` (30 nats below the peak) the shifted match wins."""
-    s0, s1, p1 = _backing_up()
-    improved = {} if cap is None else {"shift_penalty_max": cap}
-    slam = RbpfSlam(RbpfConfig(particles=4, seed=1, improved=improved,  # type: ignore[arg-type]
-                               motion={"xy_m": 0.002, "xy_per_m": 0.01}))  # type: ignore[arg-type]
-    slam.process(s0)
-    xy, _ = s1.points()
-    inc = slam.track(np.array([0.4, 0.0, 0.0]), xy[slam._beams(xy, True)], None)
-    if cap is None:
-        assert inc[0] > 0.2
-    else:
-        assert abs(inc[0] + 0.4) < 0.05
+    for name in ("moderate", "exact"):
+        s = _run(drives[name], RbpfConfig(particles=4, seed=0, improved=ImprovedConfig(
+            odometry_window=100, odometry_lag_m=3.0)))
+        assert len(s.odometry.residuals) == 100
+        scales[name] = s.odometry.scale
+    assert scales["moderate"] > 0.7
+    assert scales["exact"] < 0.2
 
 
 def _old_map_filter(world: World, kf_poses: np.ndarray, t_now: float,
@@ -737,7 +714,8 @@ def test_persistence_compares_corrections_as_rigid_transforms() -> None:
     """A return 0.32 rad off: the estimate drives on 1 m between searches and the
     alternative follows it through the same rigid correction, so their difference
     changes by 0.32 m per search (more than ``sep_m``) while the correction does not;
-    the three searches agree. An alternative that slides along a corridor (1 m more
+    the three searches agree (comparing the differences, they would not). An
+    alternative that slides along a corridor (1 m more
     each search) does not, and with ``travel_m`` a robot standing still never does."""
     h = np.array([-10.0, -27.0, 0.32])
     curs = [np.array([40.0 + k, 5.0, 0.0]) for k in range(3)]
@@ -745,11 +723,6 @@ def test_persistence_compares_corrections_as_rigid_transforms() -> None:
     assert np.hypot(*(alts[1][:2] - curs[1][:2] - (alts[0][:2] - curs[0][:2]))) > 0.3
     agree = Persistence(need=3, sep_m=0.3)
     assert [agree.confirm(c, a) for c, a in zip(curs, alts, strict=True)] == [False, False, True]
-    differences = Persistence(need=3, sep_m=0.3, rigid=False)  # session 24's rule
-    assert not any(differences.confirm(c, a) for c, a in zip(curs, alts, strict=True))
-    small = [np.array([40.0 + k, 5.0, 0.0]) + np.array([12.0, 0.5, 0.05]) for k in range(3)]
-    again = Persistence(need=3, sep_m=0.3, rigid=False)  # a shift without a turn agrees
-    assert [again.confirm(c, a) for c, a in zip(curs, small, strict=True)] == [False, False, True]
     slide = Persistence(need=3, sep_m=0.3)
     assert not any(slide.confirm(c, c + np.array([20.0 + k, -5.0, 0.07]))
                    for k, c in enumerate(curs))

@@ -61,7 +61,6 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, Field
@@ -82,7 +81,6 @@ from numeric.slam.keyframes import (
     Keyframes,
     MapConfig,
     connect_returns,
-    grazing_returns,
     moved,
     voxel_downsample,
 )
@@ -123,16 +121,6 @@ class GraphSlamConfig(BaseModel):
         "0.232 -> 0.237 m; fr-clinic with perturbed odometry (seeds 1-12) the return at "
         "4390 s closed late in the same share of runs either way "
         "(docs/notes/slam-graph-unseen.md, sessions 31-32)")
-    local_grazing: Literal["keep", "search", "drop"] = Field(
-        "keep", description="local matching's correlative search (search) or also its "
-        "refinement (drop) leaves out the returns of surfaces seen at grazing incidence "
-        "(keyframes.grazing_returns). Not the default: office 1's corridor start is "
-        "tracked to 1.5 cm instead of 0.8 m off, but fr-clinic's return at 4390 s then "
-        "fails the uniqueness test (0.113 -> 0.293 search, 0.356 drop). Session 31, "
-        "with the learned odometry heading sigma: fr-clinic 0.112 search, 0.110 drop, "
-        "offices with the 30 m laser fixed (1: 0.053 -> 0.004), but fr-clinic with "
-        "perturbed odometry loses its return by metres more often "
-        "(docs/notes/slam-graph-unseen.md, session 31)")
     local_linear_window_m: float = Field(0.15, ge=0)
     local_angular_window_rad: float = Field(0.2, ge=0)
     local_matching: bool = Field(True, description="off: nodes follow odometry (a front "
@@ -153,7 +141,6 @@ class GraphSlamConfig(BaseModel):
     translation_weight: float = Field(10.0, ge=0, description="refinement prior towards "
                                       "the correlative search's pose")
     rotation_weight: float = Field(40.0, ge=0)
-    refine_prior: Literal["search", "odometry"] = "odometry"
     local_residual_floor: float = Field(0.01, gt=0)
     odometry_window: int = Field(400, ge=0, description="nodes over which the odometry's "
                                  "heading sigma (odometry edges, the local matches' prior) "
@@ -387,15 +374,8 @@ class GraphSlam:
         cfg = self.config
         grid = self.active()[0].grid
         pts, _ = voxel_downsample(xy, None, cfg.match_voxel_m)
-        spts = pts
-        if cfg.local_grazing != "keep":
-            keep = ~grazing_returns(xy)
-            if np.count_nonzero(keep) >= 8:
-                spts, _ = voxel_downsample(xy[keep], None, cfg.match_voxel_m)
-                if cfg.local_grazing == "drop":
-                    pts = spts
         lin, ang = window or (cfg.local_linear_window_m, cfg.local_angular_window_rad)
-        start, score = correlative_search(grid, spts, predicted, lin, ang,
+        start, score = correlative_search(grid, pts, predicted, lin, ang,
                                           cfg.search_translation_cost,
                                           cfg.search_rotation_cost)
         w = window_cells(lin, grid.resolution_m) * grid.resolution_m
@@ -404,25 +384,24 @@ class GraphSlam:
             # the window allows (fr079's odometry reads forward while the robot backs
             # up); a wider search's best replaces it if it fits clearly better
             wide, wide_score = correlative_search(
-                grid, spts, predicted, cfg.local_escalation * lin, ang,
+                grid, pts, predicted, cfg.local_escalation * lin, ang,
                 cfg.search_translation_cost, cfg.search_rotation_cost)
             if wide_score > score + cfg.odometry_score_margin:
                 start = wide
         r = refine(grid, pts, start, prior=start, translation_weight=cfg.translation_weight,
                    rotation_weight=cfg.rotation_weight)
-        if cfg.refine_prior == "odometry":
-            # the motion model's own sigmas against a scan weighed by its residuals; kept
-            # unless the scan fits clearly better where the search alone puts it (an
-            # odometry jump; how clearly: search_overrides_odometry)
-            sig = self.odometry_sigmas(np.zeros(3) if u is None else u)
-            if record:
-                self._free_heading = (float(r.pose[2]) if r.score >= cfg.local_min_score
-                                      else None)
-            ro = refine(grid, pts, start, prior=predicted, occupied_weight=1.0,
-                        translation_weight=1.0 / sig[0], rotation_weight=1.0 / sig[2],
-                        residual_floor=cfg.local_residual_floor)
-            if not self.search_overrides_odometry(r.score - ro.score, record):
-                r = ro
+        # the motion model's own sigmas against a scan weighed by its residuals; kept
+        # unless the scan fits clearly better where the search alone puts it (an
+        # odometry jump; how clearly: search_overrides_odometry)
+        sig = self.odometry_sigmas(np.zeros(3) if u is None else u)
+        if record:
+            self._free_heading = (float(r.pose[2]) if r.score >= cfg.local_min_score
+                                  else None)
+        ro = refine(grid, pts, start, prior=predicted, occupied_weight=1.0,
+                    translation_weight=1.0 / sig[0], rotation_weight=1.0 / sig[2],
+                    residual_floor=cfg.local_residual_floor)
+        if not self.search_overrides_odometry(r.score - ro.score, record):
+            r = ro
         pose = r.pose
         if r.degeneracy() >= cfg.local_min_degeneracy:
             return pose, r.score, None
@@ -465,9 +444,7 @@ class GraphSlam:
         match's own noise dominates on a good odometry (fr-clinic: a spread of 0.2-0.5° a
         node, against the odometry's 0.04°/m); over K nodes the odometry's error grows
         as √K while the match's, each against its submap, does not (fr-clinic's learned
-        share of the fixed sigma: 0.3-0.8 over one node, 0.1-0.3 over 20). Only with
-        ``refine_prior`` "odometry" (the default), where the local matches have an
-        odometry-free refinement to compare."""
+        share of the fixed sigma: 0.3-0.8 over one node, 0.1-0.3 over 20)."""
         cfg = self.config
         var = float(self.graph.odometry_sigmas(u)[2] ** 2)
         log = self._heading_log

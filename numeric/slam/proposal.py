@@ -186,11 +186,6 @@ class ImprovedConfig(BaseModel):
         description="further starts of that match, moved along the predicted heading by "
                     "these distances and matched on the scan alone (odometry that reads "
                     "forward while the robot backs up, as fr079's at 300 s)")
-    shift_penalty_max: float = Field(
-        math.inf, gt=0, description="the most the motion model charges a shifted start "
-        "(nats below its peak): odometry that fails, as fr079's at 300 s, is an outlier of "
-        "the Gaussian model, and a mixture with a flat failure component caps the charge; "
-        "inf: the Gaussian alone (the default, see the class docstring)")
     start_headings_rad: tuple[float, ...] = Field(
         (0.0, -0.1, 0.1, -0.2, 0.2, -0.35, 0.35),
         description="heading offsets of the multi-start match that corrects the odometry "
@@ -198,9 +193,8 @@ class ImprovedConfig(BaseModel):
     odometry_window: int = Field(200, ge=0, description="the motion model's heading sigma "
                                  "is learned from the last this many updates "
                                  "(:class:`~numeric.slam.rbpf.OdometryCalibration`); 0: fixed")
-    odometry_lag_m: float = Field(3.0, ge=0, description="the residuals it learns from: "
-                                  "0, the heading of each update's match from the odometry "
-                                  "start minus the odometry's; else the heading change since "
+    odometry_lag_m: float = Field(3.0, gt=0, description="the residuals it learns from: "
+                                  "the heading change since "
                                   "the newest keyframe at least this much odometry path back, "
                                   "matched against that keyframe alone, minus the odometry's "
                                   "(:meth:`~numeric.slam.rbpf.RbpfSlam._calibrate`)")
@@ -290,11 +284,6 @@ class ImprovedConfig(BaseModel):
                                      "of odometry path since the robot was last at the "
                                      "old keyframes it matched (the drift it can have "
                                      "gathered since)")
-    rigid_persistence: bool = Field(True, description="loop starts and relocalisations "
-                                    "agree when one rigid correction (alt (+) cur^-1) "
-                                    "moves each estimate onto its alternative, not when "
-                                    "the position differences agree (RbpfSlam's "
-                                    "Persistence)")
 
 
 @dataclass(frozen=True)
@@ -789,7 +778,7 @@ def robust_increment(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, pts: np.nda
                      meta: np.ndarray, origins: np.ndarray, inv_res: float,
                      kf_pose: np.ndarray, cut2: float, inv_2s2: float, max_iter: int,
                      headings: np.ndarray, margin: float, use_prior: bool,
-                     shifts: np.ndarray, shift_floor: float) -> tuple[np.ndarray, int]:
+                     shifts: np.ndarray) -> tuple[np.ndarray, int]:
     """The increment from ``x0`` (one particle, ``kf_pose (K, 1, 3)`` its map) to the best
     of several scan matches started at ``x0 (+) u`` turned by each of ``headings`` (rad)
     or moved along its heading by each of ``shifts`` (m), best by ``log p(z|m,x) +
@@ -799,9 +788,8 @@ def robust_increment(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, pts: np.nda
     be off by more than the matcher's basin during fast turns, and odometry can read
     forward while the robot backs up (fr079 at 300 s: 0.5 m off, beyond the field's
     cutoff), so the shifted starts are matched on the scan alone, the motion model
-    (sure of the wrong odometry) only scoring the result, and charging it at most
-    ``shift_floor`` nats below its peak (a mixture with an odometry-failure
-    component). The particles being close, one robust start serves them all. Also
+    (sure of the wrong odometry) only scoring the result. The particles being close,
+    one robust start serves them all. Also
     returns which start won (0: the odometry's own)."""
     kpose = np.empty((kf_pose.shape[0], 4))
     _kposes(kf_pose, 0, kpose)
@@ -818,7 +806,6 @@ def robust_increment(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, pts: np.nda
     prior = _prior(x0, u, sig, use_prior)
     free = _prior(x0, u, sig, False)
     ns = headings.shape[0]
-    peak = -math.log(sig[0] * sig[1] * sig[2]) - 1.5 * _LOG_2PI  # log p(x0 (+) u|x0,u)
     for q in range(ns + shifts.shape[0]):
         start[:] = prior[0]  # x0 (+) u, turned by a heading or moved along it by a shift
         if q < ns:
@@ -831,10 +818,7 @@ def robust_increment(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, pts: np.nda
         hat, cost, _ = scan_match(start, pts, li, alpha, grid, gint, meta, origins, inv_res,
                                   kpose, cut2, max_iter, cand, h, work, iwork, inv_2s2,
                                   prior if q < ns else free)
-        mlp = _motion_logp(x0, u, sig, hat[0], hat[1], hat[2])
-        if q >= ns:  # a shifted start: the odometry-failure component of the mixture
-            mlp = max(mlp, peak - shift_floor)
-        score = -cost * inv_2s2 + mlp
+        score = -cost * inv_2s2 + _motion_logp(x0, u, sig, hat[0], hat[1], hat[2])
         if best == -np.inf:
             score += margin
         if score > best:

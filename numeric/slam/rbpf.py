@@ -109,9 +109,6 @@ class RbpfConfig(BaseModel):
                          description="intensity weight of eqs. 1 and 9 (m² per unit²)")
     sigma_z: float = Field(0.0005, gt=0, le=10, allow_inf_nan=False,
                            description="sigma of eq. 8, in the units of d_t (m²)")
-    likelihood: Literal["eq8", "linear"] = Field(
-        "eq8", description="eq8: exp(-d_t^2 / 2 sigma_z^2) as printed; linear: "
-                           "exp(-d_t / 2 sigma_z^2), a Gaussian on the residual with sigma_z in m")
     beams: int = Field(90, ge=8, le=2000, description="beams used in eq. 9 (evenly picked)")
     proposal: Proposal = Field(
         "improved", description="odometry: eq. 7 on the odometry increment (the paper); "
@@ -230,14 +227,11 @@ class Persistence:
 
     A correction is the rigid transform ``H = alt (+) cur^-1`` that moves the estimate
     onto the alternative, not the difference of the two: with a heading error the
-    difference changes as the robot drives on (by 2 sin(dθ/2) per metre: 0.32 m per
-    metre at fr-clinic seed 5's 0.32 rad), while the transform stays the same.
-    ``rigid`` False compares the differences (session 24's rule;
-    ``ImprovedConfig.rigid_persistence`` False)."""
+    difference changes as the robot drives on (by 2 sin(dθ/2) per metre), while the
+    transform stays the same."""
 
     need: int
     sep_m: float
-    rigid: bool = True
     streak: int = 0
     travel: float = 0.0
     correction: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -249,18 +243,14 @@ class Persistence:
     def confirm(self, cur: np.ndarray, alt: np.ndarray, travel_m: float = 0.0) -> bool:
         """Count the correction from ``cur`` to ``alt``; True (and start over) once
         ``need`` in a row agree over at least ``travel_m`` of path."""
-        if self.rigid:
-            moved = compose(self.correction, cur)
-        else:  # the position difference alone (session 24's rule)
-            moved = np.asarray(cur, dtype=float) + self.correction
+        moved = compose(self.correction, cur)
         agree = self.streak > 0 and np.hypot(moved[0] - alt[0], moved[1] - alt[1]) < self.sep_m
         if agree:
             self.streak += 1
             self.travel += float(np.hypot(cur[0] - self.last[0], cur[1] - self.last[1]))
         else:
             self.streak, self.travel = 1, 0.0
-        self.correction = (compose(alt, invert(cur)) if self.rigid
-                           else world_shift(cur, alt))
+        self.correction = compose(alt, invert(cur))
         self.last = np.asarray(cur, dtype=float).copy()
         if self.streak < self.need or self.travel < travel_m:
             return False
@@ -336,10 +326,8 @@ class RbpfSlam:
         self._anchor_odom: np.ndarray | None = None
         self._last_kf_odom: np.ndarray | None = None
         imp = cfg.improved
-        self._loop_agree = Persistence(imp.loop_persistence, imp.loop_min_sep_m,
-                                       imp.rigid_persistence)
-        self._reloc_agree = Persistence(imp.reloc_persistence, imp.loop_min_sep_m,
-                                        imp.rigid_persistence)
+        self._loop_agree = Persistence(imp.loop_persistence, imp.loop_min_sep_m)
+        self._reloc_agree = Persistence(imp.reloc_persistence, imp.loop_min_sep_m)
         self._reloc_tick = 0  # updates since the last relocalisation search
         # per scan, for finish()'s alignment: its returns (voxel-filtered) and intensities
         self._scan_xy: list[np.ndarray] = []
@@ -399,8 +387,6 @@ class RbpfSlam:
             r = self.fields.get(int(k)).residual(np.stack([px, py], axis=-1), inten, cfg.alpha)
             np.minimum(res, r, out=res)
         d_t = res.mean(axis=1)  # eq. 9
-        if cfg.likelihood == "linear":
-            return np.asarray(-d_t / (2 * cfg.sigma_z**2))
         return np.asarray(-(d_t**2) / (2 * cfg.sigma_z**2))  # eq. 8
 
     def improved_step(self, u: np.ndarray, xy: np.ndarray,
@@ -793,7 +779,7 @@ class RbpfSlam:
         inc, won = robust_increment(
             self.x[self.best], u, cfg.motion.sigmas(u), *maps, np.ascontiguousarray(kf_best),
             cut * cut, 1.0 / (2.0 * imp.sigma_m**2), imp.max_iterations, headings,
-            imp.start_margin, imp.match_prior and not alone, shifts, imp.shift_penalty_max)
+            imp.start_margin, imp.match_prior and not alone, shifts)
         return np.asarray(inc), int(won)
 
     def _calibrate(self, u: np.ndarray, maps: ScanMaps, kf_best: np.ndarray) -> None:
@@ -825,10 +811,6 @@ class RbpfSlam:
         0.005 / 0.005."""
         imp = self.config.improved
         sig = float(self.config.motion.sigmas(u)[2])
-        if imp.odometry_lag_m <= 0:
-            free = self._robust_start(u, maps, kf_best, alone=True)[0]
-            self.odometry.add(float(wrap_angle(free[2] - u[2])) / sig)
-            return
         self._heading_var += sig * sig
         assert self._anchor_odom is not None
         odom = compose(self._anchor_odom, u)
@@ -851,8 +833,7 @@ class RbpfSlam:
         inc, _ = robust_increment(
             x0, u, np.full(3, 1e6), *one, np.ascontiguousarray(kf), cut * cut,
             1.0 / (2.0 * imp.sigma_m**2), imp.max_iterations,
-            np.asarray(imp.odometry_lag_headings_rad, dtype=float), 0.0, False, np.zeros(0),
-            math.inf)
+            np.asarray(imp.odometry_lag_headings_rad, dtype=float), 0.0, False, np.zeros(0))
         pose = compose(x0, np.asarray(inc))
         inl = count_inliers(pose, *one, np.ascontiguousarray(kf), (2.0 * imp.sigma_m) ** 2)
         if inl < max(imp.min_inliers, imp.min_match_fraction * len(xy)):
