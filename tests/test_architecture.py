@@ -132,3 +132,38 @@ def test_the_schema_names_every_built_in_world() -> None:
     from numeric.worlds import TEMPLATES
 
     assert set(typing.get_args(TemplateName)) == set(TEMPLATES)
+
+
+def slam_back_edges(root: Path) -> list[str]:
+    """Imports inside numeric/slam that run against its own flow: the matching kernels
+    (``matching/``) know no estimator and no estimator's stage; the two estimators
+    (``rbpf/``, ``graph/``) do not import each other."""
+    bad = []
+    for f in sorted((root / "numeric" / "slam").rglob("*.py")):
+        rel = f.relative_to(root)
+        part = rel.parts[2] if len(rel.parts) > 3 else None
+        for m in imports(f):
+            parts = m.split(".")
+            if parts[:2] != ["numeric", "slam"] or len(parts) < 3:
+                continue
+            if part == "matching" and parts[2] in ("rbpf", "graph", "alignment", "runner"):
+                bad.append(f"{rel} -> {m}")
+            if part in ("rbpf", "graph") and parts[2] in ("rbpf", "graph") \
+                    and parts[2] != part:
+                bad.append(f"{rel} -> {m}")
+    return bad
+
+
+def test_the_slam_estimators_share_kernels_but_not_each_other() -> None:
+    assert {p.name for p in (NUMERIC / "slam").iterdir() if (p / "__init__.py").exists()} \
+        >= {"matching", "rbpf", "graph"}
+    assert slam_back_edges(ROOT) == []
+
+
+def test_the_slam_check_sees_a_back_edge(tmp_path: Path) -> None:
+    """The walker itself: a kernel importing an estimator is reported."""
+    kernels = tmp_path / "numeric" / "slam" / "matching"
+    kernels.mkdir(parents=True)
+    (kernels / "k.py").write_text("from numeric.slam.rbpf.filter import RbpfSlam\n")
+    assert slam_back_edges(tmp_path) == [
+        "numeric/slam/matching/k.py -> numeric.slam.rbpf.filter"]

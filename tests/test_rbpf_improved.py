@@ -1,5 +1,5 @@
 """The improved proposal of Grisetti, Stachniss & Burgard 2007 in the RBPF
-(numeric/slam/proposal.py): a simulated loop, the fitted Gaussian on a known
+(numeric/slam/rbpf/improved.py, proposal.py): a simulated loop, the fitted Gaussian on a known
 single-peak likelihood, and the weight update by η."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-import numeric.slam.rbpf as rbpf_module
+import numeric.slam.rbpf.improved as rbpf_module
 from numeric.geometry import compose, relative
 from numeric.laser import Laser, LaserConfig, record_log
 from numeric.scan import LaserLog, Scan
@@ -22,20 +22,18 @@ from numeric.slam.keyframes import (
     MapConfig,
     moved,
 )
-from numeric.slam.proposal import (
+from numeric.slam.matching.likelihood_field import (
+    Beams,
     FieldPack,
-    ImprovedConfig,
+    LoopGrid,
+    MatchModel,
     count_inliers,
-    gaussian_fit,
     loop_search,
 )
-from numeric.slam.rbpf import (
-    MotionNoise,
-    OdometryCalibration,
-    Persistence,
-    RbpfConfig,
-    RbpfSlam,
-)
+from numeric.slam.pose_graph import OdometryCalibration
+from numeric.slam.rbpf import ImprovedConfig, MotionNoise, RbpfConfig, RbpfSlam
+from numeric.slam.rbpf.loop_start import Persistence, free_space_share
+from numeric.slam.rbpf.proposal import gaussian_fit
 from numeric.world import World
 from numeric.worlds import from_template, office_world
 from tests.drives import MODERATE_ODOMETRY, ODOMETRY_QUALITIES, room_a_drives
@@ -298,7 +296,7 @@ def test_lookup_is_the_bilinear_minimum_over_intensity_bands() -> None:
     """The per-beam residual of the likelihood field with the intensity term: bilinear in
     each band's squared-distance grid (values at cell centres) plus alpha (l - li)^2 with
     the nearest cell's intensity, the minimum over bands, capped; checked by hand."""
-    from numeric.slam.proposal import _lookup
+    from numeric.slam.matching.likelihood_field import _lookup
 
     rng = np.random.default_rng(0)
     nb, nx, ny, res, cut2, alpha = 2, 6, 5, 0.1, 0.09, 0.02
@@ -308,8 +306,10 @@ def test_lookup_is_the_bilinear_minimum_over_intensity_bands() -> None:
     for _ in range(200):
         qx, qy, li = rng.uniform(ox - 0.1, ox + 0.7), rng.uniform(oy - 0.1, oy + 0.6), rng.uniform()
         bound = cut2 if rng.uniform() < 0.5 else rng.uniform(0.0, cut2)
-        val, gx, gy = _lookup(d2.ravel(), inten.ravel(), 0, nb, nx, ny, ox, oy, 1 / res,
-                              qx, qy, li, alpha, cut2, bound, True)
+        fields = FieldPack(d2.ravel(), inten.ravel(), np.zeros((1, 4), dtype=np.int64),
+                           np.zeros((1, 2)), 1 / res)
+        kf = (1.0, 0.0, 0.0, 0.0, 0, nb, nx, ny, ox, oy)
+        val, gx, gy = _lookup(fields, kf, qx, qy, li, alpha, cut2, bound, True)
         u, v = (qx - ox) / res - 0.5, (qy - oy) / res - 0.5
         if u < 0 or v < 0 or int(u) + 1 >= nx or int(v) + 1 >= ny:
             assert (val, gx, gy) == (cut2, 0.0, 0.0)
@@ -339,8 +339,8 @@ def test_lookup_is_the_bilinear_minimum_over_intensity_bands() -> None:
 def test_the_sample_scores_are_the_matchers_scores_pose_by_pose(bands: int,
                                                                 alpha: float) -> None:
     """:func:`score_offsets` (the 27 samples of the proposal, scored beam by beam) gives,
-    to the bit, what :func:`_score` gives for each pose on the candidates it recorded."""
-    from numeric.slam.proposal import _score, score_offsets
+    to the bit, what :func:`score` gives for each pose on the candidates it recorded."""
+    from numeric.slam.matching.likelihood_field import Workspace, score, score_offsets
 
     rng = np.random.default_rng(3)
     res, cut2, n_k, n_b = 0.05, 0.09, 6, 40
@@ -361,18 +361,16 @@ def test_the_sample_scores_are_the_matchers_scores_pose_by_pose(bands: int,
     hat = np.array([0.02, -0.01, 0.03])
     h, g = np.zeros((3, 3)), np.zeros(3)
     cand = np.full((n_b, 2), -1, dtype=np.int64)
-    work, iwork = np.empty((6, n_b)), np.empty((2, n_b), dtype=np.int64)
-    _score(*hat, pts, li, alpha, grid, gint, meta, origins, 1 / res, kpose, cut2, True, h, g,
-           cand, 1, work, iwork)
+    ws = Workspace(cand, np.empty((6, n_b)), np.empty((2, n_b), dtype=np.int64))
+    beams, fields = Beams(pts, li, alpha), FieldPack(grid, gint, meta, origins, 1 / res)
+    score(*hat, beams, fields, kpose, cut2, 1, ws, h, g, True)
     assert (cand >= 0).any() and (cand < 0).any()
     offs = np.array([(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)],
                     dtype=float) * [0.01, 0.02, 0.015]
     out = np.empty(len(offs))
-    score_offsets(hat, offs, pts, li, alpha, grid, gint, meta, origins, 1 / res, kpose, cut2,
-                  cand, out)
+    score_offsets(hat, offs, beams, fields, kpose, cut2, cand, out)
     for j, o in enumerate(offs):
-        expect, _ = _score(*(hat + o), pts, li, alpha, grid, gint, meta, origins, 1 / res,
-                           kpose, cut2, False, h, g, cand, 2, work, iwork)
+        expect, _ = score(*(hat + o), beams, fields, kpose, cut2, 2, ws, h, g, False)
         assert out[j] == expect
 
 
@@ -487,7 +485,7 @@ def test_copies_are_told_apart_by_pose_and_map() -> None:
     """The particles matched once each are the distinct (pose, map) pairs: after a
     resampling (copies), particles with one pose and different maps stay apart, and
     particles whose poses all differ are each their own."""
-    from numeric.slam.rbpf import _copies
+    from numeric.slam.rbpf.improved import copies as _copies
 
     rng = np.random.default_rng(4)
     x = rng.normal(size=(40, 3))
@@ -522,7 +520,7 @@ def test_step_reports_what_the_filter_did(loop_log: LaserLog) -> None:
 
 
 def test_the_loop_search_finds_a_place_beyond_the_matchers_reach(room: World) -> None:
-    """The loop-aware start (:meth:`RbpfSlam._loop_start`): a scan 0.7 m and 0.05 rad off
+    """The loop-aware start (:mod:`numeric.slam.rbpf.loop_start`): a scan 0.7 m and 0.05 rad off
     its keyframe's place -- beyond the likelihood field's 0.3 m cutoff, where the scan
     matcher alone stays -- is found by the correlative grid and its refinement, with
     most beams within 5 cm of the keyframe there and few at the offset start."""
@@ -533,24 +531,24 @@ def test_the_loop_search_finds_a_place_beyond_the_matchers_reach(room: World) ->
     fp = FieldPack.of([field], False)
     kf = p0.reshape(1, 1, 3)
     beams = xy[np.linspace(0, len(xy) - 1, 90).astype(int)]
-    li = np.zeros(len(beams))
-    maps = (beams, li, 0.0, fp.grid, fp.inten, fp.meta, fp.origins, fp.inv_res)
+    scan_beams = Beams(beams, np.zeros(len(beams)), 0.0)
+    model = MatchModel(0.09, 200.0, 12)
+    grid = LoopGrid(radius=1.0, step=0.1, half_angle=0.1, angle_step=0.025, coarse2=0.04,
+                    n_refine=6, min_sep=0.3, inlier2=0.05**2)
     start = p0 + np.array([0.6, -0.35, 0.05])
-    assert count_inliers(start, *maps, kf, 0.05**2) < 30
-    poses, inl, eig = loop_search(start, *maps, kf, 0.09, 0.04, 0.05**2, 200.0, 12, 1.0,
-                                  0.1, 0.1, 0.025, 6, 0.3)
+    assert count_inliers(start, scan_beams, fp, kf, 0.05**2) < 30
+    poses, inl, eig = loop_search(start, scan_beams, fp, kf, model, grid)
     r = int(np.argmax(inl))
     assert np.hypot(*(poses[r, :2] - p0[:2])) < 0.05 and abs(poses[r, 2] - p0[2]) < 0.01
     assert inl[r] >= 0.8 * len(beams) and eig[r] > 5.0
     for threads in (2, 3, 12):  # the grid's headings split over threads: the same search
-        again = loop_search(start, *maps, kf, 0.09, 0.04, 0.05**2, 200.0, 12, 1.0, 0.1, 0.1,
-                            0.025, 6, 0.3, threads)
+        again = loop_search(start, scan_beams, fp, kf, model, grid, threads)
         assert all(np.array_equal(a, b) for a, b in zip(again, (poses, inl, eig), strict=True))
 
 
 def test_free_space_tells_a_closure_from_the_room_next_door() -> None:
-    """The negative evidence :meth:`RbpfSlam._loop_start` asks of a closure
-    (``_free_space_share``): in an office whose rooms share a wall, with the keyframes
+    """The negative evidence the loop start asks of a closure
+    (:func:`free_space_share`): in an office whose rooms share a wall, with the keyframes
     of the west room only, a scan of the west room at its true pose puts (almost) no
     return in that room's free space, the same scan at a drifted estimate 1.7 m off
     puts many there -- so a closure from there lowers the share -- and a scan of the
@@ -559,15 +557,13 @@ def test_free_space_tells_a_closure_from_the_room_next_door() -> None:
     the same, cannot lower the share."""
     office = World(office_world(name="o", rooms_per_side=2))
     laser, rng = Laser(office, LASER), np.random.default_rng(0)
-    slam = RbpfSlam(RbpfConfig(particles=1))
     kf_poses = np.array([(1.5, 5.0, 0.0), (3.0, 4.0, 1.5), (4.5, 6.0, 3.0)])
-    for i, p in enumerate(kf_poses):
-        slam.keyframes.add(i, laser.scan(0.0, p, p, rng).points()[0], None)
-    frames = np.arange(len(kf_poses))
+    frames = [Keyframe(i, laser.scan(0.0, p, p, rng).points()[0], None)
+              for i, p in enumerate(kf_poses)]
 
     def share(scan_pose: np.ndarray, at: np.ndarray) -> float:
         xy = laser.scan(0.0, scan_pose, scan_pose, rng).points()[0]
-        return float(slam._free_space_share(at[None, :], xy, frames, kf_poses)[0, 0])
+        return float(free_space_share(frames, kf_poses, at[None, :], xy, 0.1, 0.1)[0, 0])
 
     west = np.array([3.0, 5.0, 0.2])
     assert share(west, west) < 0.05
@@ -604,13 +600,13 @@ def test_odometry_calibration_is_a_robust_clamped_spread() -> None:
 def test_the_heading_sigma_learned_follows_the_odometrys_quality(room: World) -> None:
     """The same drive around room_a with two odometries: near-exact, and one whose
     heading random-walks 0.2 rad per sqrt(m) with 10 % turn noise. The lagged
-    residuals (the default ``odometry_lag_m``, 3 m) put the first's heading sigma well
+    residuals (the default ``odometry.lag_m``, 3 m) put the first's heading sigma well
     below the fixed model's and leave the second's at the fixed one (measured 0.085
     and 1.0; with the one-update residual 0.03 and 1.0, and see the next test)."""
     scales = {}
     for name, log in room_a_drives(room, LASER).items():
         s = _run(log, RbpfConfig(particles=4, seed=0,
-                                 improved=ImprovedConfig(odometry_window=100)))
+                                 improved=ImprovedConfig(odometry={"window": 100})))
         assert len(s.odometry.residuals) == 100
         scales[name] = s.odometry.scale
         u = np.array([0.2, 0.0, 0.05])  # the motion model the proposal uses is scaled
@@ -633,7 +629,7 @@ def test_the_lagged_heading_residual_sees_a_walk_the_one_update_match_hides(
     scales = {}
     for name in ("moderate", "exact"):
         s = _run(drives[name], RbpfConfig(particles=4, seed=0, improved=ImprovedConfig(
-            odometry_window=100, odometry_lag_m=3.0)))
+            odometry={"window": 100, "lag_m": 3.0})))
         assert len(s.odometry.residuals) == 100
         scales[name] = s.odometry.scale
     assert scales["moderate"] > 0.7
@@ -648,7 +644,7 @@ def _old_map_filter(world: World, kf_poses: np.ndarray, t_now: float,
     the old map a long loop returns to."""
     laser = Laser(world, LASER)
     slam = RbpfSlam(RbpfConfig(particles=1, improved=ImprovedConfig(
-        reloc_every=1, **improved)))  # type: ignore[arg-type]
+        reloc={"every": 1, **improved})))  # type: ignore[arg-type]
     for k, p in enumerate(kf_poses):
         slam.x[:] = p
         slam.times.append(float(k))
@@ -660,26 +656,25 @@ def _old_map_filter(world: World, kf_poses: np.ndarray, t_now: float,
 
 def _relocalise(slam: RbpfSlam, laser: Laser, truth: np.ndarray, estimate: np.ndarray,
                 rng: np.random.Generator, searches: int | None = None) -> np.ndarray | None:
-    """:meth:`RbpfSlam._relocalise` for a scan at ``truth`` with the filter at
-    ``estimate``, ``searches`` times (``reloc_persistence`` unless given): the pose it
+    """The relocalisation's search for a scan at ``truth`` with the filter at
+    ``estimate``, ``searches`` times (``reloc.persistence`` unless given): the pose it
     moves the estimate to."""
     slam.x[:] = estimate
     out = None
-    for _ in range(slam.config.improved.reloc_persistence if searches is None else searches):
+    for _ in range(slam.config.improved.reloc.persistence if searches is None else searches):
         xy = laser.scan(0.0, truth, truth, rng).points()[0]
         beams = xy[np.linspace(0, len(xy) - 1, 90).astype(int)]
-        maps = (beams, np.zeros(len(beams)), 0.0)
-        out = slam._relocalise(np.zeros(3), maps)  # type: ignore[arg-type]
+        out = slam.reloc.search(slam, np.zeros(3), Beams(beams, np.zeros(len(beams)), 0.0))
     return None if out is None else compose(estimate, out)
 
 
 def test_relocalisation_brings_back_an_estimate_beyond_the_loop_search() -> None:
-    """The wide relocalisation (:meth:`RbpfSlam._relocalise`): in room_a, with keyframes
+    """The wide relocalisation (:mod:`numeric.slam.rbpf.relocalisation`): in room_a, with keyframes
     of 0-10 s, a scan 300 s later whose estimate has drifted 3.2 m and 0.2 rad -- beyond
     the loop start's ±2 m / ±0.1 rad -- is found by branch and bound in the old map and
     refined to within 5 cm and 0.01 rad of its true pose; a scan whose estimate is right
     is left alone, and so is a drifted one while the old map is younger than
-    ``reloc_min_age_s``."""
+    ``reloc.min_age_s``."""
     room = World(from_template("room_a", "room_a"))
     rng = np.random.default_rng(5)
     kfs = np.array([(2.0, 2.0, 0.0), (5.0, 2.5, 0.5), (8.0, 3.0, 1.5), (8.0, 7.0, 2.5),
@@ -738,14 +733,14 @@ def test_relocalisation_from_where_the_old_map_never_was() -> None:
     the old keyframes never saw (fr-clinic seed 5 comes back 29 m and 0.32 rad off):
     nothing there contradicts the estimate, so the free-space test cannot decide. Then
     the old map must explain the scan with no return in its free space, over
-    ``reloc_unseen_travel_m`` of the robot's path: three searches 1.6 m apart bring
-    the estimate back to within 5 cm and 0.01 rad (``reloc_max_seen`` 0.3, rigid
-    persistence, a ±30 m reach: the defaults since session 26); the same scans with the
+    ``reloc.unseen_travel_m`` of the robot's path: three searches 1.6 m apart bring
+    the estimate back to within 5 cm and 0.01 rad (``reloc.max_seen`` 0.3, rigid
+    persistence, a ±30 m reach: the defaults); the same scans with the
     robot standing still do not (a room that looks like an old one fits from where it
-    stands, as the room next door above), nor without the rule (``reloc_max_seen``
+    stands, as the room next door above), nor without the rule (``reloc.max_seen``
     None: the free-space drop is always needed), nor after only 60 m of path since the
-    old map was made: no estimate drifts 25 m in 60 m (``reloc_drift_m`` +
-    ``reloc_drift_per_m`` per m; a simulated office of identical rooms took the room
+    old map was made: no estimate drifts 25 m in 60 m (``reloc.drift_m`` +
+    ``reloc.drift_per_m`` per m; a simulated office of identical rooms took the room
     three doors down, 20.6 m off, 50 m of path after it saw the first)."""
     room = World(from_template("room_a", "room_a"))
     rng = np.random.default_rng(5)
@@ -762,7 +757,7 @@ def test_relocalisation_from_where_the_old_map_never_was() -> None:
     assert np.hypot(*(got[:2] - path[-1][:2])) < 0.05 and abs(got[2] - path[-1][2]) < 0.01
     still, laser = _old_map_filter(room, kfs, 300.0, rng)
     assert _relocalise(still, laser, path[0], compose(drift, path[0]), rng, searches=4) is None
-    drop, laser = _old_map_filter(room, kfs, 300.0, rng, reloc_max_seen=None)
+    drop, laser = _old_map_filter(room, kfs, 300.0, rng, max_seen=None)
     for truth in path:
         got = _relocalise(drop, laser, truth, compose(drift, truth), rng, searches=1)
     assert got is None

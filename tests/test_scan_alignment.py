@@ -9,10 +9,10 @@ import pytest
 
 from numeric.geometry import compose, relative, wrap_angle
 from numeric.slam.graph import GraphSlam, GraphSlamConfig
-from numeric.slam.intensity_icp import Reference
+from numeric.slam.matching.intensity_icp import Reference
 from numeric.slam.keyframes import voxel_downsample
 from numeric.slam.runner import SlamOptions, run_log
-from numeric.slam.scan_alignment import (
+from numeric.slam.alignment import (
     AlignmentConfig,
     align_scans,
     candidate_pairs,

@@ -19,7 +19,7 @@ from numeric.scan import Scan
 from numeric.slam.datasets import slam_data_dir
 from numeric.slam.evaluation import local_failures, relation_errors
 from numeric.slam.gated import GateConfig, SingleHypothesisSlam, inside_gate
-from numeric.slam.intensity_icp import IcpConfig, Reference, intensity_icp
+from numeric.slam.matching.intensity_icp import IcpConfig, Reference, intensity_icp
 from numeric.slam.logs import (
     read_carmen,
     read_log,

@@ -8,15 +8,15 @@ import pytest
 
 from numeric.geometry import compose, place, point_segment_distance, ray_cast, relative
 from numeric.probability_grid import GridConfig, ProbabilityGrid
-from numeric.slam.correlative import (
+from numeric.slam.graph import GraphSlam, GraphSlamConfig, Submap, tie
+from numeric.slam.keyframes import collinear_grazing_segments, connect_returns, grazing_returns
+from numeric.slam.matching.correlative import (
     PrecomputedGrid,
     branch_and_bound,
     brute_force,
     correlative_search,
     refine,
 )
-from numeric.slam.graph import GraphSlam, GraphSlamConfig, Submap, tie
-from numeric.slam.keyframes import collinear_grazing_segments, connect_returns, grazing_returns
 from numeric.slam.pose_graph import PoseGraph
 from numeric.slam.simulate import office_log, simulated_log
 
@@ -149,7 +149,7 @@ def test_branch_and_bound_equals_brute_force_on_random_cases() -> None:
         assert bb[3] == pytest.approx(bf[3], abs=1e-12), case
         # the pose it names scores what it says
         a, dx, dy, s = bb
-        from numeric.slam.correlative import _score
+        from numeric.slam.matching.correlative import _score
         assert _score(pre.stack, 0, cells, a, dx, dy) == pytest.approx(s)
         # a threshold above the best finds nothing
         assert branch_and_bound(pre.stack, cells, 2 * w + 1, 2 * w + 1, bf[3] + 1e-9)[0] == -1
@@ -232,7 +232,7 @@ def test_the_local_search_scores_every_offset_as_written() -> None:
     angle and offset, with the same score, as scoring each candidate on its own:
     the mean probability of the points' cells (outside the grid: 0) times the cost
     term. Random grids, scans partly off the grid, windows of 0-6 cells."""
-    from numeric.slam.correlative import _search_window
+    from numeric.slam.matching.correlative import _search_window
 
     rng = np.random.default_rng(5)
     for _ in range(25):
@@ -345,9 +345,8 @@ def test_graph_slam_closes_simulated_loops() -> None:
     0.02 rad/m): each is closed, to within 0.1 m where it closes, and over the four the
     drift before closing is more than four times what is left after it and the mean
     position error under a third of the odometry's. One seed's mean error moves by
-    +-0.1 m with any change to matching (session 32, seeds 1-16: 0.10-0.44 m, mean
-    0.237, with the grazing lines; 0.09-0.56 m, mean 0.232, without; seed 1 alone, this
-    test's until then, 0.34 against 0.21), so the bounds hold over seeds, not per seed."""
+    +-0.1 m with any change to matching (seeds 1-16: 0.10-0.44 m, mean 0.237), so the
+    bounds hold over seeds, not per seed."""
     runs = [_close_simulated_loop(seed) for seed in (1, 2, 3, 4)]
     before, after, err, odom = (np.array([r[k] for r in runs]) for k in range(4))
     assert after.max() < 0.1, after
@@ -382,8 +381,8 @@ def test_branch_and_bound_on_threads_gives_the_same_run() -> None:
     """A node's loop searches run side by side on threads; their matches are judged in
     the same order, so the run is the same bit for bit."""
     log = simulated_log("loop", seed=1, speed_m_s=0.8).head(400)
-    one = GraphSlam(GraphSlamConfig(loop_threads=1))
-    two = GraphSlam(GraphSlamConfig(loop_threads=2))
+    one = GraphSlam(GraphSlamConfig(loop={"threads": 1}))
+    two = GraphSlam(GraphSlamConfig(loop={"threads": 2}))
     for scan in log.scans:
         one.process(scan)
         two.process(scan)
@@ -405,17 +404,17 @@ def test_the_search_overrides_odometry_by_a_margin_that_follows_its_recent_wins(
         quiet.search_overrides_odometry(0.0)
     assert noisy.search_overrides_odometry(0.13) is True
     assert quiet.search_overrides_odometry(0.13) is False
-    assert quiet.search_overrides_odometry(cfg.odometry_quiet_margin + 0.01) is True
-    assert noisy.search_overrides_odometry(cfg.odometry_score_margin - 0.01) is False
+    assert quiet.search_overrides_odometry(cfg.odometry.quiet_margin + 0.01) is True
+    assert noisy.search_overrides_odometry(cfg.odometry.score_margin - 0.01) is False
     # in between, the margin is interpolated linearly in the share of recent wins
     for below in (True, False):
         mid = GraphSlam(cfg)
         for i in range(100):  # wins at i = 40, 80 are kept by the 100-node window ...
             mid.search_overrides_odometry(0.2 if i % 40 == 0 else 0.0)
         rate = 3 / 100  # ... with the one being decided
-        quiet = 1 - rate / cfg.odometry_noisy_rate
-        margin = cfg.odometry_score_margin + (cfg.odometry_quiet_margin
-                                              - cfg.odometry_score_margin) * quiet
+        quiet = 1 - rate / cfg.odometry.noisy_rate
+        margin = cfg.odometry.score_margin + (cfg.odometry.quiet_margin
+                                              - cfg.odometry.score_margin) * quiet
         assert mid.search_overrides_odometry(margin + (-0.01 if below else 0.01)) is not below
     assert GraphSlam(cfg).search_overrides_odometry(0.06) is True  # no history yet
 
@@ -450,22 +449,22 @@ def test_local_slam_moves_down_a_corridor_seen_by_a_sparse_far_reaching_laser() 
     """The first 10 s of a simulated office with a 30 m, 1° laser: the robot drives
     3.2 m down a 2.3 m corridor. One scan draws the side walls ahead as dotted lines that
     move with the robot (1.7 m between beams at 10 m), and the next scans matched
-    against them fit best where the first was taken: local SLAM stood still, 2 m short
-    (session 27). Submaps joining neighbouring returns into surfaces take 1.1 m of
+    against them fit best where the first was taken: local SLAM stood still, 2 m short.
+    Submaps joining neighbouring returns into surfaces take 1.1 m of
     that (0.81 m short), joining the collinear returns of a wall seen at grazing
-    incidence as well (``submap_grazing_gap_m``) 0.6 m more (0.23 m short)."""
+    incidence as well (``submaps.grazing_gap_m``) 0.6 m more (0.23 m short)."""
     log = office_log(1, "lms").head(50)
     truth = log.truth
     assert truth is not None
 
-    def end_error(**kw: object) -> float:
-        s = GraphSlam(GraphSlamConfig(alignment=None, **kw))  # type: ignore[arg-type]
+    def end_error(**submaps: object) -> float:
+        s = GraphSlam(GraphSlamConfig(alignment=None, submaps=submaps))  # type: ignore[arg-type]
         for sc in log.scans:
             s.process(sc)
         return float(np.hypot(*(s.pose[:2] - truth[-1, :2])))
 
-    bare = end_error(submap_connect_gap_m=None)
-    surfaces = end_error(submap_grazing_gap_m=None)
+    bare = end_error(connect_gap_m=None)
+    surfaces = end_error(grazing_gap_m=None)
     assert bare > 1.5 and surfaces < bare - 0.8
     assert end_error() < surfaces - 0.4
 
@@ -478,8 +477,8 @@ def test_the_loop_search_widens_with_the_path_since_the_last_closure() -> None:
     log = simulated_log("loop", seed=1, speed_m_s=0.8)
     searched = {}
     for growth in (0.0, 0.1):
-        s = GraphSlam(GraphSlamConfig(local_matching=False, loop_max_distance_m=2.0,
-                                      loop_window_growth=growth, loop_min_score=1.0))
+        s = GraphSlam(GraphSlamConfig(local={"matching": False}, loop={
+            "max_distance_m": 2.0, "window_growth": growth, "min_score": 1.0}))
         for scan in log.scans:
             s.process(scan)
         searched[growth] = s.searches
@@ -491,8 +490,7 @@ def test_a_small_loop_does_not_tie_the_trajectory_to_submaps_left_long_ago() -> 
     """Submaps every 10 m of path; at 300 m a closure to the submap of 280-290 m (a
     small loop) ties the trajectory to it and, through the old trajectory, to the one
     before it as if at 290 m, but to the first submap (0-10 m) through 270 m of old
-    path: as if at 30 m, not at 300 m (until session 28 any closure restarted every
-    submap's drift). A later closure to the first submap ties its neighbours in turn."""
+    path: as if at 30 m, not at 300 m. A later closure to the first submap ties its neighbours in turn."""
     lo = np.arange(0.0, 300.0, 10.0)
     hi = lo + 10.0
     tied = np.full(len(lo), -np.inf)
@@ -507,7 +505,7 @@ def test_no_closure_is_accepted_twice() -> None:
     """Without the tracking window every match to a submap goes through confirmation:
     a confirmed pair is accepted once, and neither of its matches can confirm again."""
     log = simulated_log("loop", seed=1, speed_m_s=0.8)
-    s = GraphSlam(GraphSlamConfig(loop_track_nodes=0))
+    s = GraphSlam(GraphSlamConfig(loop={"track_nodes": 0}))
     for scan in log.scans:
         s.process(scan)
     pairs = [(c.anchor, c.node) for c in s.closures]
@@ -516,7 +514,7 @@ def test_no_closure_is_accepted_twice() -> None:
 
 def test_the_loop_log_says_why_each_match_was_or_was_not_a_closure() -> None:
     log = simulated_log("loop", seed=1, speed_m_s=0.8)
-    s = GraphSlam(GraphSlamConfig(loop_track_nodes=0))
+    s = GraphSlam(GraphSlamConfig(loop={"track_nodes": 0}))
     s.loop_log = []
     for scan in log.scans:
         s.process(scan)
@@ -538,7 +536,7 @@ def test_a_match_beyond_the_local_window_is_found_by_a_wider_search(room_grid, f
     forward): the local search's best lies on its 0.15 m window's edge, and the search
     repeated 3x wider finds the scan's place; without it the node stays ~0.2 m off."""
     true = np.array([6.0, 4.5, -0.4])
-    s = GraphSlam(GraphSlamConfig(local_escalation=factor))
+    s = GraphSlam(GraphSlamConfig(local={"escalation": factor}))
     s.submaps = [Submap(0, room_grid)]
     pose, _, _ = s.match_local(scan_at(true, ROOM), true + [0.3, -0.15, 0.05],
                                record=False)
@@ -571,7 +569,7 @@ def test_loop_closure_matches_against_a_submap_stitched_with_its_neighbours() ->
     """With ``loop_neighbours`` n the loop matcher's grid for submap k covers the
     finished submaps k-n..k+n (a returning scan sees more than one submap holds)."""
     log = simulated_log("loop", seed=1, speed_m_s=0.8)
-    s = GraphSlam(GraphSlamConfig(loop_neighbours=1, scans_per_submap=20))
+    s = GraphSlam(GraphSlamConfig(loop={"neighbours": 1}, submaps={"scans": 20}))
     for scan in log.scans:
         s.process(scan)
     done = [k for k, m in enumerate(s.submaps) if m.finished]
@@ -611,7 +609,7 @@ def test_the_loop_map_cache_keeps_to_its_memory_budget_and_changes_nothing() -> 
     """Precomputed loop-closure grids are memoised: a budget that evicts them (1 MiB
     here) costs recomputation, never a different run."""
     log = simulated_log("loop", seed=1, speed_m_s=0.8).head(400)
-    roomy, tight = GraphSlam(GraphSlamConfig()), GraphSlam(GraphSlamConfig(loop_cache_mb=1.0))
+    roomy, tight = GraphSlam(GraphSlamConfig()), GraphSlam(GraphSlamConfig(loop={"cache_mb": 1.0}))
     peak = 0
     for scan in log.scans:
         roomy.process(scan)
@@ -635,13 +633,12 @@ def test_the_odometry_heading_sigma_learned_follows_the_odometrys_quality() -> N
 
     scales = {}
     for name, log in room_a_drives(World(from_template("room_a", "room_a")), None).items():
-        s = GraphSlam(GraphSlamConfig(odometry_window=100, odometry_lag=10,
-                                      alignment=None))
+        s = GraphSlam(GraphSlamConfig(odometry={"window": 100, "lag": 10}, alignment=None))
         for scan in log.scans:
             s.process(scan)
         assert len(s.odometry.residuals) >= 50
         scales[name] = s.odometry.scale
     assert scales["exact"] < 0.3  # measured 0.1, the floor (odometry_min_scale)
     assert scales["drifting"] > 0.8  # measured 1.0
-    off = GraphSlam(GraphSlamConfig(odometry_window=0))
+    off = GraphSlam(GraphSlamConfig(odometry={"window": 0}))
     assert off.odometry.scale == 1.0

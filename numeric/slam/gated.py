@@ -22,8 +22,8 @@ from pydantic import BaseModel, Field
 
 from numeric.geometry import compose, place, relative, wrap_angle
 from numeric.scan import Scan
-from numeric.slam.intensity_icp import IcpConfig, IcpResult, Reference, intensity_icp
 from numeric.slam.keyframes import Keyframes, MapConfig, moved
+from numeric.slam.matching.intensity_icp import IcpConfig, IcpResult, Reference, intensity_icp
 
 SingleMethod = Literal["odom", "icp", "gated"]
 

@@ -49,43 +49,19 @@ class GraphConfig(BaseModel):
 @dataclass
 class OdometryCalibration:
     """The motion model's heading sigma, learned from the log itself (the RBPF's eq. 7
-    model, :class:`~numeric.slam.rbpf.RbpfSlam`, and graph SLAM's odometry edges and
-    local-match prior, :meth:`~numeric.slam.graph.GraphSlam.calibrate_odometry`; each
-    feeds it its own residuals). What follows is the RBPF's account.
+    model, :mod:`numeric.slam.rbpf.odometry`, and graph SLAM's odometry edges and
+    local-match prior, :meth:`~numeric.slam.graph.local_slam.LocalSlam.calibrate_odometry`;
+    each feeds it its own residuals: heading changes found by scan matching minus the
+    odometry's, each divided by the fixed model's sigma of that change).
 
-    A robot's odometry can be far better than the fixed Σ_w of eq. 7 says: on
-    fr-clinic the heading drifts 0.04°/m on straight drives, on aces, fr079 and
-    mit-csail 1.1-1.3°/m. With the fixed sigma the scan match decides the heading
-    alone, also where the scan hardly constrains it (an atrium's curved wall), and
-    there small pulls of the matcher add up. Each update, the best particle's scan is
-    also matched on the likelihood alone against the keyframe 3 m of path back, and the
-    heading change it finds minus the odometry's, divided by the fixed sigma of that
-    change, is kept for the last ``window`` updates
-    (:meth:`~numeric.slam.rbpf.RbpfSlam._calibrate`; until session 30 the match was
-    against the whole reference from the odometry prediction, one update's heading
-    difference, which a heading walk within the matcher's flat basin hides).
-    The sigma is then the fixed one times their robust spread (1.4826 x the median of
-    their absolute values: a stretch where the matcher is off does not move it),
-    clamped to ``[min_scale, 1]``. This is odometry calibration from scan matching; it
-    only ever makes the model surer than the fixed one, as far as the log shows it
-    may be.
-
-    Above ``knee`` the spread is not taken as it is: it ramps linearly to the fixed
-    sigma at twice the knee. Within about ±1° the match leaves the heading where it
-    starts (the minimum over the keyframes is a flat basin), and the filter chooses
-    among its particles' headings over several updates; a prior as narrow as fr079's
-    odometry (spread 0.2-0.8) took that diversity and cost 0.060 -> 0.068 m. Seed 0,
-    full logs, 512 particles: fr-clinic 1.058 (fixed) / 0.318 (the spread) / 2.211
-    (twice the spread) / 0.412 (knee 0.2); fr079 0.060 / 0.068 / 0.0615 / 0.059. Over
-    fr-clinic's seeds 0-4, though, knee 0.2 averages 0.766 m against 0.762 for the
-    fixed sigma: it changes which seeds fail there, not how many.
-
-    Known gap: a sudden heading failure that the best particle's own match corrects
-    from the odometry's start is not flagged (only another start winning is, in
-    :meth:`RbpfSlam.improved_step`). With the sigma at its floor, a simulated turn
-    under-read by 0.2 rad leaves the particles 0.13 rad off. Flagging matches more than
-    2 fixed sigmas from the odometry caught it but cost aces 0.046 -> 0.053 and fr079
-    0.059 -> 0.063 (seed 0)."""
+    The sigma is the fixed one times the residuals' robust spread (1.4826 x the median
+    of their absolute values over the last ``window``: a stretch where the matcher is
+    off does not move it), clamped to ``[min_scale, 1]``. It only ever makes the model
+    surer than the fixed one, as far as the log shows it may be. Above ``knee`` the
+    spread is not taken as it is: it ramps linearly to the fixed sigma at twice the knee
+    -- within about ±1° a scan match leaves the heading where it starts, and a prior as
+    narrow as that would take the filter's diversity of headings. What the knee and the
+    window were chosen on: ``docs/notes/slam-rbpf.md``."""
 
     window: int
     min_scale: float

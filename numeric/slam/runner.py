@@ -19,8 +19,8 @@ from numeric.occupancy import OccupancyMap, build_occupancy
 from numeric.scan import LaserLog, Scan
 from numeric.slam.gated import SingleHypothesisSlam
 from numeric.slam.graph import GraphSlam, GraphSlamConfig
-from numeric.slam.intensity_icp import IcpConfig
 from numeric.slam.keyframes import Keyframes
+from numeric.slam.matching.intensity_icp import IcpConfig
 from numeric.slam.rbpf import Proposal, RbpfConfig, RbpfSlam, Resample
 from numeric.slam.simulate import simulated_log
 
@@ -39,7 +39,9 @@ class SlamOptions(BaseModel):
     estimator parameters carry the bounds of :class:`RbpfConfig`."""
 
     model_config = ConfigDict(extra="forbid")
-    method: Method = "rbpf"
+    method: Method = Field("graph", description="graph SLAM (the recommended method), "
+                           "the RBPF of the paper with Grisetti et al.'s proposal (rbpf), "
+                           "gated, icp or odom")
     particles: int = _field(RbpfConfig, "particles")
     alpha: float = _field(RbpfConfig, "alpha")
     proposal: Proposal = _field(RbpfConfig, "proposal")

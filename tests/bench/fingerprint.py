@@ -36,7 +36,8 @@ METHODS: dict[str, tuple[dict[str, str], bool]] = {
     "rbpf-improved": ({"method": "rbpf", "proposal": "improved"}, False),
     "rbpf-paper": ({"method": "rbpf", "proposal": "odometry"}, False),
 }
-TIMING_KEYS = ("seconds", "_s", "_at", "elapsed", "duration", "id", "time")
+TIMING_KEYS = ("seconds", "_s", "_ms", "_at", "elapsed", "duration", "id", "time", "session",
+               "slam_run")
 
 
 def slam_one(log_name: str, label: str, scans: int, out: Path) -> None:
@@ -154,8 +155,8 @@ def compare(ref: Path, out: Path) -> int:
                 print(f"DIFF {f.name}:{k} max |d| = {diff}")
                 bad += 1
     if (ref / "service.json").exists():
-        a = json.loads((ref / "service.json").read_text())
-        b = json.loads((out / "service.json").read_text()) \
+        a = _strip(json.loads((ref / "service.json").read_text()))
+        b = _strip(json.loads((out / "service.json").read_text())) \
             if (out / "service.json").exists() else {}
         for k in a:
             if a[k] != b.get(k):

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -118,11 +119,29 @@ def correlative_search(grid: ProbabilityGrid, points: np.ndarray, pose: np.ndarr
 
 
 # -- Gauss-Newton refinement ----------------------------------------------------------------
+class RefineWeights(NamedTuple):
+    """The refinement's objective (:func:`refine`): the weights of the scan term, the
+    translation prior and the rotation prior, the iterations, and the floor of the
+    scan's residual variance (0: the scan is not weighed by its residuals)."""
+
+    occupied: float
+    translation: float
+    rotation: float
+    iterations: int
+    residual_floor: float
+
+
 @njit(cache=True)
-def _refine(prob: np.ndarray, ox: float, oy: float, res: float, pts: np.ndarray,
-            x: float, y: float, t: float, px: float, py: float, pt: float,
-            w_occ: float, w_t: float, w_r: float, iters: int, var_floor: float,
-            ) -> tuple[float, float, float, float, np.ndarray]:
+def _refine(prob: np.ndarray, origin: tuple[float, float], res: float, pts: np.ndarray,
+            start: tuple[float, float, float], prior: tuple[float, float, float],
+            weights: RefineWeights) -> tuple[float, float, float, float, np.ndarray]:
+    """Levenberg-Marquardt on :func:`refine`'s objective from ``start``: the pose, the
+    mean probability there and the scan term's information."""
+    ox, oy = origin
+    x, y, t = start
+    px, py, pt = prior
+    w_occ, w_t, w_r = weights.occupied, weights.translation, weights.rotation
+    iters, var_floor = weights.iterations, weights.residual_floor
     n = pts.shape[0]
     wp = w_occ * w_occ / n
     lam = 1e-3
@@ -225,11 +244,13 @@ def refine(grid: ProbabilityGrid, points: np.ndarray, pose: np.ndarray,
     residual (at least the floor), so that a scan that fits the grid poorly weighs less
     against the prior, like a measurement of larger variance."""
     pr = pose if prior is None else prior
-    x, y, t, score, info = _refine(grid.prob, float(grid.origin[0]), float(grid.origin[1]),
-                             grid.resolution_m, np.ascontiguousarray(points, dtype=float),
-                             float(pose[0]), float(pose[1]), float(pose[2]), float(pr[0]),
-                             float(pr[1]), float(pr[2]), occupied_weight, translation_weight,
-                             rotation_weight, iterations, residual_floor)
+    x, y, t, score, info = _refine(
+        grid.prob, (float(grid.origin[0]), float(grid.origin[1])), grid.resolution_m,
+        np.ascontiguousarray(points, dtype=float),
+        (float(pose[0]), float(pose[1]), float(pose[2])),
+        (float(pr[0]), float(pr[1]), float(pr[2])),
+        RefineWeights(float(occupied_weight), float(translation_weight),
+                      float(rotation_weight), int(iterations), float(residual_floor)))
     return Refined(np.array([x, y, (t + np.pi) % (2 * np.pi) - np.pi]), float(score), info)
 
 

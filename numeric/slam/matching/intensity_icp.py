@@ -26,7 +26,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import numpy as np
 from numba import njit
@@ -75,6 +75,47 @@ class IcpResult:
         return self.inliers >= max(config.min_inliers, 0.3 * scan_points)
 
 
+class RefIndex(NamedTuple):
+    """A reference as the compiled kernels take it: its points ``xy (M, 2)``, their
+    augmented coordinates ``aug (M, 2 or 3)`` (eq. 1), line normals ``(M, 2)`` (``(0, 2)``
+    for the point metric) and the bucket index: sorted cell keys, the points' order
+    under them, the origin (``ox``, ``oy``), the ``cell`` size (m) and the last cell row
+    and column ``top``."""
+
+    xy: np.ndarray
+    aug: np.ndarray
+    normals: np.ndarray
+    keys: np.ndarray
+    order: np.ndarray
+    ox: float
+    oy: float
+    cell: float
+    top: np.ndarray
+
+
+class IcpSteps(NamedTuple):
+    """The iterations' settings as the compiled kernel takes them (from
+    :class:`IcpConfig`): point-to-line or point-to-point, at most ``max_iterations``,
+    pairs within ``max_corr`` (m) trimmed at ``max(trim_floor, trim_factor x median)``,
+    converged below ``tol_m`` / ``tol_rad``, failed below ``min_inliers`` pairs."""
+
+    line: bool
+    max_iterations: int
+    max_corr: float
+    trim_factor: float
+    trim_floor: float
+    tol_m: float
+    tol_rad: float
+    min_inliers: int
+
+    @staticmethod
+    def of(config: IcpConfig, line: bool) -> IcpSteps:
+        return IcpSteps(bool(line), int(config.max_iterations),
+                        float(config.max_correspondence_m), float(config.trim_factor),
+                        float(config.trim_floor_m), float(config.tolerance_m),
+                        float(config.tolerance_rad), int(config.min_inliers))
+
+
 class Reference:
     """Reference scan m (world-frame points ``(M, 2)`` with intensities) indexed in the
     augmented space of eq. 1: its points sorted into square cells of ``cell_m`` (the
@@ -104,6 +145,11 @@ class Reference:
         points' order under them, the origin (x, y), the cell size and the last cell
         row and column."""
         return self.keys, self.order, self.origin[0], self.origin[1], self.cell_m, self.top
+
+    def kernel(self, line: bool) -> RefIndex:
+        """This reference as the compiled kernels take it; with ``line`` its normals."""
+        return RefIndex(self.xy, self.aug, self.normals if line else np.zeros((0, 2)),
+                        *self.index)
 
     def intensity_column(self, intensity: np.ndarray | None, n: int) -> np.ndarray:
         """The augmented coordinates beyond x, y of ``n`` scan points ``(n, 0 or 1)``
@@ -208,28 +254,27 @@ def intensity_icp(reference: Reference, scan_xy: np.ndarray, scan_intensity: np.
         return IcpResult(init.copy(), np.zeros(3), False, 0, 0, np.inf)
     xy = np.ascontiguousarray(scan_xy, dtype=float)
     line = config.metric == "line"
-    normals = reference.normals if line else np.zeros((0, 2))
     total, converged, iterations, inl, resid = icp_iterations(
-        reference.xy, reference.aug, normals, *reference.index, xy,
-        reference.intensity_column(scan_intensity, len(xy)), init, line,
-        config.max_iterations, config.max_correspondence_m, config.trim_factor,
-        config.trim_floor_m, config.tolerance_m, config.tolerance_rad, config.min_inliers)
+        reference.kernel(line), xy, reference.intensity_column(scan_intensity, len(xy)), init,
+        IcpSteps.of(config, line))
     pose = compose(total, init)  # the pose whose scan lands where the last step put it
     return IcpResult(pose, relative(init, pose), bool(converged), int(iterations), int(inl),
                      float(resid))
 
 
 @njit(cache=True, nogil=True)
-def icp_iterations(ref_xy: np.ndarray, ref_aug: np.ndarray, normals: np.ndarray,
-                   keys: np.ndarray, order: np.ndarray, ox: float, oy: float, cell: float,
-                   top: np.ndarray, xy: np.ndarray, extra: np.ndarray, init: np.ndarray,
-                   line: bool, max_iterations: int, max_corr: float, trim_factor: float,
-                   trim_floor: float, tol_m: float, tol_rad: float, min_inliers: int,
-                   ) -> tuple[np.ndarray, bool, int, int, float]:
+def icp_iterations(ref: RefIndex, xy: np.ndarray, extra: np.ndarray, init: np.ndarray,
+                   steps: IcpSteps) -> tuple[np.ndarray, bool, int, int, float]:
     """Steps 1-3 until the update is below the tolerances: the world-frame transform
     applied to the scan placed at ``init`` (eq. 3's accumulated ``T_r``), whether it
     converged, the iterations, the last step's inlier pairs and their mean augmented
-    squared residual."""
+    squared residual. ``extra (N, 0 or 1)``: the scan's augmented coordinates beyond
+    x, y (:meth:`Reference.intensity_column`)."""
+    ref_xy, ref_aug, normals = ref.xy, ref.aug, ref.normals
+    keys, order, ox, oy, cell, top = ref.keys, ref.order, ref.ox, ref.oy, ref.cell, ref.top
+    line, max_iterations, max_corr = steps.line, steps.max_iterations, steps.max_corr
+    trim_factor, trim_floor, min_inliers = steps.trim_factor, steps.trim_floor, steps.min_inliers
+    tol_m, tol_rad = steps.tol_m, steps.tol_rad
     n = len(xy)
     dim = ref_aug.shape[1]
     z1 = np.empty((n, 2))

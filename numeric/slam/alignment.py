@@ -10,7 +10,7 @@ cells, scans between nodes tracked in a small window). This step starts from tha
 estimate and refines it:
 
 1. pairwise matches (:func:`pairwise_matches`): each scan is aligned by point-to-line
-   ICP (:func:`numeric.slam.intensity_icp.intensity_icp`, eq. 1's intensity term when
+   ICP (:func:`numeric.slam.matching.intensity_icp.intensity_icp`, eq. 1's intensity term when
    ``alpha > 0``) to the scans ``sequential`` steps before it and to up to
    ``revisits`` earlier scans within ``revisit_radius_m`` (from different passes),
    starting at their relative pose in the online estimate. A match counts only when
@@ -26,24 +26,19 @@ estimate and refines it:
    run's loop closures, those two with the online pose graph's noise
    (:class:`numeric.slam.pose_graph.GraphConfig`).
 
-Measured on the full Freiburg logs (README, ``tests/bench/slam.py``): the relation
-error of graph SLAM falls by 10-35 % (fr079 0.061 -> 0.040 m). Each pair is matched
-in one compiled kernel (:func:`_match_pair`, releasing the GIL), so the thread pool's
-workers run side by side: aces's 45 000 pairs take 25 s on two cores, 225 s with the
-NumPy iterations that came before it (same matches, same poses).
-
-The improved RBPF ends its runs with the same step (:meth:`RbpfSlam.finish
-<numeric.slam.rbpf.RbpfSlam.finish>`): from its best particle's trajectory, whose
-increments are then the chain between consecutive scans, and with
-:func:`estimate_closures` in place of the online closures (aces, fr079, mit-csail
-0.046 / 0.059 / 0.038 -> 0.037 / 0.041 / 0.027 m, seed 0; fr-clinic 1-3 % worse).
+Each pair is matched in one compiled kernel (:func:`_match_pair`, releasing the GIL), so
+the thread pool's workers run side by side. The improved RBPF ends its runs with the
+same step, from its best particle's trajectory, whose increments are then the chain
+between consecutive scans, and with :func:`estimate_closures` in place of the online
+closures. What it gains on the logs: ``docs/notes/slam-graph.md``.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import gtsam
 import numpy as np
@@ -52,9 +47,11 @@ from pydantic import BaseModel, Field
 from scipy.spatial import cKDTree
 
 from numeric.geometry import compose_into, place_into, relative, wrap_angle, wrap_scalar
-from numeric.slam.intensity_icp import (
+from numeric.slam.matching.intensity_icp import (
     IcpConfig,
+    IcpSteps,
     Reference,
+    RefIndex,
     icp_iterations,
     line_normal_equations,
     nearest_points,
@@ -137,9 +134,7 @@ def estimate_closures(poses: np.ndarray, cfg: AlignmentConfig,
 
     The particle filter places a scan against its map, keyframes from every pass and
     direction, so it relates such pairs where no scan pair can; without them a loop
-    driven the other way back is held only through the chain of sequential matches
-    (full mit-csail, 512 particles: 0.038 -> 0.035 m but 0.064 -> 0.124 m on the
-    loop-spanning relations; with them 0.027 / 0.045)."""
+    driven the other way back is held only through the chain of sequential matches."""
     n = len(poses)
     out: list[tuple[int, int, np.ndarray]] = []
     if n == 0 or cfg.revisit_radius_m <= 0:
@@ -163,13 +158,9 @@ def match_pair(ref: Reference, xy: np.ndarray, intensity: np.ndarray | None,
     parameters, made from ``cfg`` when not given."""
     icp = _icp_config(cfg) if icp is None else icp
     xy = np.ascontiguousarray(xy, dtype=float)
-    ok, pose, cov = _match_pair(
-        ref.xy, ref.aug, ref.normals, *ref.index, xy, ref.intensity_column(intensity, len(xy)),
-        np.asarray(guess, dtype=float), icp.max_iterations,
-        icp.max_correspondence_m, icp.trim_factor, icp.trim_floor_m, icp.tolerance_m,
-        icp.tolerance_rad, icp.min_inliers, cfg.max_correction_m, cfg.max_correction_rad,
-        cfg.inlier_m, cfg.min_overlap, cfg.point_sigma_m, cfg.residual_scale,
-        cfg.floor_sigma_m, cfg.floor_sigma_rad)
+    ok, pose, cov = _match_pair(ref.kernel(True), xy, ref.intensity_column(intensity, len(xy)),
+                                np.asarray(guess, dtype=float), IcpSteps.of(icp, True),
+                                PairGate.of(cfg))
     return (pose, cov) if ok else None
 
 
@@ -178,27 +169,39 @@ def _icp_config(cfg: AlignmentConfig) -> IcpConfig:
                      max_correspondence_m=cfg.max_correspondence_m)
 
 
+class PairGate(NamedTuple):
+    """When a pair's match counts and what its covariance is (from
+    :class:`AlignmentConfig`, as the compiled kernel takes it)."""
+
+    max_correction_m: float
+    max_correction_rad: float
+    inlier_m: float
+    min_overlap: float
+    point_sigma: float
+    residual_scale: float
+    floor_m: float
+    floor_rad: float
+
+    @staticmethod
+    def of(cfg: AlignmentConfig) -> PairGate:
+        return PairGate(float(cfg.max_correction_m), float(cfg.max_correction_rad),
+                        float(cfg.inlier_m), float(cfg.min_overlap), float(cfg.point_sigma_m),
+                        float(cfg.residual_scale), float(cfg.floor_sigma_m),
+                        float(cfg.floor_sigma_rad))
+
+
 @njit(cache=True, nogil=True)
-def _match_pair(ref_xy: np.ndarray, ref_aug: np.ndarray, normals: np.ndarray,
-                keys: np.ndarray, order: np.ndarray, ox: float, oy: float, cell: float,
-                top: np.ndarray, xy: np.ndarray, extra: np.ndarray, guess: np.ndarray,
-                max_iterations: int, max_corr: float, trim_factor: float,
-                trim_floor: float, tol_m: float, tol_rad: float, min_inliers: int,
-                max_correction_m: float,
-                max_correction_rad: float, inlier_m: float, min_overlap: float,
-                point_sigma: float, residual_scale: float, floor_m: float,
-                floor_rad: float) -> tuple[bool, np.ndarray, np.ndarray]:
+def _match_pair(ref: RefIndex, xy: np.ndarray, extra: np.ndarray, guess: np.ndarray,
+                steps: IcpSteps, gate: PairGate) -> tuple[bool, np.ndarray, np.ndarray]:
     """Steps 1-2 of one pair, compiled (it releases the GIL, so the thread pool's
     workers run side by side): point-to-line ICP, the correction gate, the overlap
     test and the covariance."""
     pose = np.zeros(3)
     cov = np.zeros((3, 3))
     n = len(xy)
-    if n < min_inliers:
+    if n < steps.min_inliers:
         return False, pose, cov
-    total, converged, _, _, _ = icp_iterations(
-        ref_xy, ref_aug, normals, keys, order, ox, oy, cell, top, xy, extra, guess, True,
-        max_iterations, max_corr, trim_factor, trim_floor, tol_m, tol_rad, min_inliers)
+    total, converged, _, _, _ = icp_iterations(ref, xy, extra, guess, steps)
     if not converged:
         return False, pose, cov
     compose_into(total, guess, pose)
@@ -206,26 +209,27 @@ def _match_pair(ref_xy: np.ndarray, ref_aug: np.ndarray, normals: np.ndarray,
     # the correction, in the guess's frame (relative(guess, pose))
     c, s = math.cos(guess[2]), math.sin(guess[2])
     dx, dy = pose[0] - guess[0], pose[1] - guess[1]
-    if (math.hypot(c * dx + s * dy, -s * dx + c * dy) > max_correction_m
-            or abs(wrap_scalar(pose[2] - guess[2])) > max_correction_rad):
+    if (math.hypot(c * dx + s * dy, -s * dx + c * dy) > gate.max_correction_m
+            or abs(wrap_scalar(pose[2] - guess[2])) > gate.max_correction_rad):
         return False, pose, cov
-    q = np.empty((n, ref_aug.shape[1]))
+    q = np.empty((n, ref.aug.shape[1]))
     place_into(xy, pose, q)
     q[:, 2:] = extra
-    d, idx = nearest_points(ref_aug, keys, order, ox, oy, cell, top, q, inlier_m)
+    d, idx = nearest_points(ref.aug, ref.keys, ref.order, ref.ox, ref.oy, ref.cell, ref.top, q,
+                            gate.inlier_m)
     hits = np.flatnonzero(np.isfinite(d))
-    if len(hits) < max(min_overlap * n, 10):
+    if len(hits) < max(gate.min_overlap * n, 10):
         return False, pose, cov
-    info, _, sq = line_normal_equations(q, ref_xy, normals, idx, hits)
-    sigma = max(point_sigma, residual_scale * math.sqrt(sq / len(hits)))
+    info, _, sq = line_normal_equations(q, ref.xy, ref.normals, idx, hits)
+    sigma = max(gate.point_sigma, gate.residual_scale * math.sqrt(sq / len(hits)))
     info /= sigma * sigma
     info[0, 0] += 1e-6
     info[1, 1] += 1e-6
     info[2, 2] += 1e-8
     cov[:, :] = np.linalg.inv(info)
-    cov[0, 0] += floor_m * floor_m
-    cov[1, 1] += floor_m * floor_m
-    cov[2, 2] += floor_rad * floor_rad
+    cov[0, 0] += gate.floor_m * gate.floor_m
+    cov[1, 1] += gate.floor_m * gate.floor_m
+    cov[2, 2] += gate.floor_rad * gate.floor_rad
     # the Jacobian perturbs the pose on the left, in the reference's frame; GTSAM's
     # between-factor error is on the right, in the matched scan's frame: the adjoint
     # of the pose's inverse, (x', y', -theta) with x' = -(c x + s y), y' = s x - c y
@@ -310,3 +314,92 @@ def align_scans(points: Sequence[np.ndarray], intensities: Sequence[np.ndarray |
     """Steps 1-3: the aligned poses of all scans and how many pairwise matches held."""
     matches = pairwise_matches(points, intensities, poses, cfg)
     return align_globally(poses, odometry, matches, closures, cfg, noise), len(matches)
+
+
+@dataclass
+class ScanStore:
+    """Every scan of a run as :func:`align_scans` takes it at the end: its points and
+    intensities (down-sampled) and, where the estimator has it, its odometry; and the
+    aligned poses once :meth:`AlignedOutputs.finish` has run (until the next scan)."""
+
+    xy: list[np.ndarray] = field(default_factory=list)
+    inten: list[np.ndarray | None] = field(default_factory=list)
+    odom: list[np.ndarray] = field(default_factory=list)
+    aligned: np.ndarray | None = None
+    matches: int = 0
+
+
+class AlignedOutputs:
+    """``finish()`` and the outputs both estimators share: until :meth:`finish` the
+    pose, the trajectory and the map's poses are the estimator's online ones
+    (``_online_*``); after it, until the next scan, the global alignment's
+    (:func:`align_scans` over every scan from the online trajectory)."""
+
+    times: list[float]
+    scans: ScanStore
+
+    def _alignment(self) -> tuple[AlignmentConfig | None, float]:
+        """The alignment's config (None: off) and the estimator's intensity weight."""
+        raise NotImplementedError
+
+    def _alignment_inputs(self, poses: np.ndarray,
+                          ) -> tuple[np.ndarray, list[tuple[int, int, np.ndarray]],
+                                     GraphConfig]:
+        """For the online ``poses`` of every scan: the odometry chain, the closures
+        (scan, scan, relative pose) and the pose graph's noise the alignment keeps."""
+        raise NotImplementedError
+
+    def _online_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
+        raise NotImplementedError
+
+    def _online_pose(self) -> np.ndarray:
+        raise NotImplementedError
+
+    def _online_map_poses(self) -> np.ndarray:
+        raise NotImplementedError
+
+    def _map_scans(self) -> np.ndarray:
+        """The scan index of each map keyframe ``(K,)``."""
+        raise NotImplementedError
+
+    def finish(self) -> int:
+        """The end of a run: global scan alignment of every scan so far from the online
+        estimate; until the next scan arrives, the trajectory, the pose and the map's
+        poses are the aligned ones. Returns how many pairwise matches held (0 when
+        alignment is off)."""
+        cfg, alpha = self._alignment()
+        if cfg is None or len(self.times) < 2:
+            return 0
+        if self.scans.aligned is not None:
+            return self.scans.matches
+        _, poses = self._online_trajectory()
+        odometry, closures, noise = self._alignment_inputs(poses)
+        if alpha > 0 and cfg.alpha == 0:
+            cfg = cfg.model_copy(update={"alpha": alpha})
+        self.scans.aligned, self.scans.matches = align_scans(
+            self.scans.xy, self.scans.inten, poses, odometry, closures, cfg, noise)
+        return self.scans.matches
+
+    @property
+    def aligned(self) -> bool:
+        """Whether the outputs are finish()'s aligned poses."""
+        return self.scans.aligned is not None
+
+    @property
+    def pose(self) -> np.ndarray:
+        """The latest scan's pose."""
+        if self.scans.aligned is not None:
+            return self.scans.aligned[-1].copy()
+        return self._online_pose()
+
+    def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
+        """Times and poses ``(N, 3)`` of every scan."""
+        if self.scans.aligned is not None:
+            return np.array(self.times), self.scans.aligned.copy()
+        return self._online_trajectory()
+
+    def map_poses(self) -> np.ndarray:
+        """The poses ``(K, 3)`` of the map's keyframes."""
+        if self.scans.aligned is not None:
+            return self.scans.aligned[self._map_scans()]
+        return self._online_map_poses()

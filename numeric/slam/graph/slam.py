@@ -1,0 +1,192 @@
+"""Graph SLAM with loop closure, beyond the paper: Hess, Kohler, Rapp, Andor, "Real-Time
+Loop Closure in 2D LIDAR SLAM" (ICRA 2016, Cartographer) -- the estimator that runs the
+steps of :mod:`~numeric.slam.graph.local_slam`, :mod:`~numeric.slam.graph.submaps` and
+:mod:`~numeric.slam.graph.loop_closure` scan by scan.
+
+The nodes and edges (local matches, odometry, closures) form a pose graph optimised
+incrementally by iSAM2 (:mod:`numeric.slam.pose_graph`); after a closure the whole
+trajectory moves. Submaps keep their grids in the local-SLAM frame; a submap's place in
+the world is its anchor node's optimised pose. The end of a run
+(:meth:`~numeric.slam.alignment.AlignedOutputs.finish`) refines every scan's pose by the
+global scan alignment both estimators share (:mod:`numeric.slam.alignment`).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from numeric.geometry import compose, place, relative
+from numeric.scan import Scan
+from numeric.slam.alignment import AlignedOutputs, AlignmentConfig, ScanStore
+from numeric.slam.graph.config import GraphSlamConfig
+from numeric.slam.graph.local_slam import LocalSlam, rotate_xy
+from numeric.slam.graph.loop_closure import LoopClosing, LoopClosure
+from numeric.slam.graph.submaps import LoopMap, Submap, Submaps
+from numeric.slam.keyframes import Keyframes, moved, voxel_downsample
+from numeric.slam.pose_graph import GraphConfig, OdometryCalibration, PoseGraph
+
+
+@dataclass
+class GraphSlam(Submaps, LocalSlam, LoopClosing, AlignedOutputs):
+    """Feed scans with :meth:`process`; read :meth:`trajectory` and :meth:`map_poses`."""
+
+    config: GraphSlamConfig = field(default_factory=GraphSlamConfig)
+    seed: int = 0
+    submaps: list[Submap] = field(default_factory=list)
+    closures: list[LoopClosure] = field(default_factory=list)
+    searches: int = 0
+    degeneracies: list[float] = field(default_factory=list)
+    # when a list: one (node, submap, outcome, score) per loop search -- why a loop did
+    # or did not close. Outcome: "none" (nothing above loop.min_score), "refined",
+    # "degenerate", "aliased" (failed that test), "pending" (awaits confirmation),
+    # "inconsistent" (contradicts the pending one), "accepted" (with the pending match
+    # it confirms, if any); score: the refined match's
+    loop_log: list[tuple[int, int, str, float]] | None = None
+
+    def __post_init__(self) -> None:
+        cfg = self.config
+        self.keyframes = Keyframes(cfg.map)
+        self.graph = PoseGraph(cfg.graph)
+        self.local: list[np.ndarray] = []  # node poses in the local-SLAM frame
+        self.node_odom: list[np.ndarray] = []
+        self.node_time: list[float] = []
+        self.node_xy: list[np.ndarray] = []  # matching points (robot frame)
+        self._node_scan: list[int] = []
+        self._scan_node: list[int] = []
+        self._scan_delta: list[np.ndarray] = []
+        self.times: list[float] = []
+        # every scan's points (down-sampled), intensities and odometry, for finish()
+        self.scans = ScanStore()
+        self._global = np.zeros((0, 3))
+        self._loop_maps: dict[tuple[int, tuple[int, ...]], LoopMap] = {}
+        self._last_closed: dict[int, int] = {}  # submap -> last node closed against it
+        self._pending: dict[int, LoopClosure] = {}  # submap -> match awaiting confirmation
+        self._prev: tuple[np.ndarray, np.ndarray | None] | None = None  # for alpha > 0
+        self.rng = np.random.default_rng(self.seed)
+        self._travel: list[float] = []  # path length (local frame) up to each node
+        # per submap: the path lengths of its first and last nodes, and where the
+        # trajectory was tied to it by a closure (GraphSlam.drift_path)
+        self._span_lo = np.zeros(0)
+        self._span_hi = np.zeros(0)
+        self._tied_at = np.zeros(0)
+        # per recent node: did the search beat the odometry by odometry_score_margin?
+        self._search_won: deque[bool] = deque(maxlen=self.config.odometry.rate_nodes)
+        self.odometry = OdometryCalibration(cfg.odometry.window, cfg.odometry.min_scale,
+                                            cfg.odometry.knee)
+        self._free_heading: float | None = None  # the last node's match without odometry
+        # per node: that heading (nan: none), the odometry's, the model's summed variance
+        self._heading_log: deque[tuple[float, float, float]] = deque(
+            maxlen=cfg.odometry.lag + 1)
+
+    def process(self, scan: Scan) -> None:
+        """One scan: a node (local SLAM, the pose graph's edges, every ``every``-th node
+        a loop search) once the robot has moved far enough, else tracked between nodes."""
+        xy, inten = scan.points()
+        self.times.append(scan.t)
+        cfg = self.config
+        self.scans.aligned = None  # a new scan: the online estimate is current again
+        pts, pin = voxel_downsample(xy, inten, cfg.local.voxel_m)  # a node's, and finish()'s
+        if cfg.alignment is not None:
+            self.scans.xy.append(pts)
+            self.scans.inten.append(pin)
+            self.scans.odom.append(scan.odom.copy())
+        if not self.local:
+            self._add_node(scan, scan.odom.copy(), scan.odom.copy(), xy, inten, pts)
+            return
+        last = len(self.local) - 1
+        u = relative(self.node_odom[last], scan.odom)
+        if (len(xy) < 8 or not (moved(self.node_odom[last], scan.odom, cfg.local.node_linear_m,
+                                      cfg.local.node_angular_rad)
+                                or scan.t - self.node_time[last] >= cfg.local.node_time_s)):
+            self._scan_node.append(last)
+            self._scan_delta.append(self.track(xy, u) if len(xy) >= 8 else u)
+            return
+        predicted = compose(self.local[last], u)
+        pose, score, weak = predicted, 0.0, None
+        if cfg.local.matching:
+            pose, score, weak = self.match_local(xy, predicted, u)
+        if score < cfg.local.min_score:
+            pose, weak = predicted, None
+        elif cfg.alpha > 0:
+            pose = self.intensity_step(pose, xy, inten)
+        delta = relative(self.local[last], pose)
+        node = self._add_node(scan, pose, compose(self._global[last], delta), xy, inten, pts)
+        if score >= cfg.local.min_score:  # else odometry alone links the nodes
+            self.graph.add_local(last, node, delta, None if weak is None
+                                 else rotate_xy(weak, -self.local[last][2]))
+        self.graph.add_odometry(last, node, u, self.odometry_sigmas(u))
+        self.calibrate_odometry(u, self._free_heading if cfg.local.matching else None)
+        if node % cfg.loop.every == 0 and self.search_loops(node):
+            self.graph.update()
+            est = self.graph.estimate()
+            self._global = est
+        else:
+            self.graph.update()
+
+    def _add_node(self, scan: Scan, local: np.ndarray, world: np.ndarray, xy: np.ndarray,
+                  inten: np.ndarray | None, pts: np.ndarray) -> int:
+        """A new node at ``local`` / ``world``; ``pts`` its scan down-sampled for matching."""
+        node = len(self.local)
+        self._travel.append(0.0 if not self.local else self._travel[-1] + float(
+            np.hypot(*(local[:2] - self.local[-1][:2]))))
+        self.local.append(local)
+        self.node_odom.append(scan.odom.copy())
+        self.node_time.append(scan.t)
+        self.node_xy.append(pts)
+        self._node_scan.append(len(self.times) - 1)
+        self._scan_node.append(node)
+        self._scan_delta.append(np.zeros(3))
+        self.graph.add_node(world)
+        self._global = np.vstack([self._global, world[None, :]])
+        misses = scan.misses()
+        self.keyframes.add(len(self.times) - 1, xy, inten, misses)
+        self.insert(node, xy, misses)
+        if self.config.alpha > 0:
+            self._prev = (place(xy, local), inten)
+        return node
+
+    # -- outputs ------------------------------------------------------------------------
+    def optimise(self) -> np.ndarray:
+        """iSAM2's current estimate of every node ``(N, 3)``. Reading it changes nothing:
+        the loop-closure search keeps its own estimate, so a run fed the same scans
+        ends the same whether or not (and how often) it was read in between."""
+        return self.graph.poses_now()
+
+    def loop_closures(self) -> list[tuple[int, int, float]]:
+        """The accepted closures as ``(scan of the submap's anchor, scan matched,
+        score)``, scan indices counted from 0 in the order the scans came."""
+        return [(self._node_scan[c.anchor], self._node_scan[c.node], c.score)
+                for c in self.closures]
+
+    def _online_pose(self) -> np.ndarray:
+        """The latest scan's pose on iSAM2's current estimate of its node."""
+        if not self._scan_node:
+            return np.zeros(3)
+        return compose(self.graph.pose_of(self._scan_node[-1]), self._scan_delta[-1])
+
+    def _online_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
+        g = self.optimise()
+        poses = compose(g[np.array(self._scan_node)], np.array(self._scan_delta))
+        return np.array(self.times), np.asarray(poses).reshape(-1, 3)
+
+    def _online_map_poses(self) -> np.ndarray:
+        """Optimised poses ``(K, 3)`` of the nodes (the keyframes of the map)."""
+        return self.optimise().copy()
+
+    def _map_scans(self) -> np.ndarray:
+        return np.array(self._node_scan)
+
+    def _alignment(self) -> tuple[AlignmentConfig | None, float]:
+        return self.config.alignment, self.config.alpha
+
+    def _alignment_inputs(self, poses: np.ndarray,
+                          ) -> tuple[np.ndarray, list[tuple[int, int, np.ndarray]],
+                                     GraphConfig]:
+        """The log's odometry, the online loop closures (between the scans of their
+        nodes) and the online pose graph's noise."""
+        closures = [(self._node_scan[c.anchor], self._node_scan[c.node], c.delta)
+                    for c in self.closures]
+        return np.array(self.scans.odom), closures, self.config.graph
