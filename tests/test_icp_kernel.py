@@ -12,8 +12,8 @@ from scipy.spatial import cKDTree
 
 from numeric.geometry import compose, place, relative, wrap_angle
 from numeric.laser import Laser
-from numeric.slam.matching.intensity_icp import IcpConfig, Reference, intensity_icp
 from numeric.slam.alignment import AlignmentConfig, match_pair
+from numeric.slam.matching.intensity_icp import IcpConfig, Reference, intensity_icp
 from numeric.world import World
 from numeric.worlds import from_template
 

@@ -8,10 +8,6 @@ import numpy as np
 import pytest
 
 from numeric.geometry import compose, relative, wrap_angle
-from numeric.slam.graph import GraphSlam, GraphSlamConfig
-from numeric.slam.matching.intensity_icp import Reference
-from numeric.slam.keyframes import voxel_downsample
-from numeric.slam.runner import SlamOptions, run_log
 from numeric.slam.alignment import (
     AlignmentConfig,
     align_scans,
@@ -19,6 +15,10 @@ from numeric.slam.alignment import (
     estimate_closures,
     match_pair,
 )
+from numeric.slam.graph import GraphSlam, GraphSlamConfig
+from numeric.slam.keyframes import voxel_downsample
+from numeric.slam.matching.intensity_icp import Reference
+from numeric.slam.runner import SlamOptions, run_log
 from numeric.slam.simulate import simulated_log
 from tests.test_slam_graph import CORRIDOR, scan_at
 

@@ -19,7 +19,6 @@ from numeric.scan import Scan
 from numeric.slam.datasets import slam_data_dir
 from numeric.slam.evaluation import local_failures, relation_errors
 from numeric.slam.gated import GateConfig, SingleHypothesisSlam, inside_gate
-from numeric.slam.matching.intensity_icp import IcpConfig, Reference, intensity_icp
 from numeric.slam.logs import (
     read_carmen,
     read_log,
@@ -28,6 +27,7 @@ from numeric.slam.logs import (
     write_carmen,
     write_tum,
 )
+from numeric.slam.matching.intensity_icp import IcpConfig, Reference, intensity_icp
 from numeric.slam.rbpf import RbpfConfig, RbpfSlam, systematic_resample
 from numeric.slam.simulate import simulated_log
 from numeric.world import World, WorldDescription

@@ -490,7 +490,8 @@ def test_a_small_loop_does_not_tie_the_trajectory_to_submaps_left_long_ago() -> 
     """Submaps every 10 m of path; at 300 m a closure to the submap of 280-290 m (a
     small loop) ties the trajectory to it and, through the old trajectory, to the one
     before it as if at 290 m, but to the first submap (0-10 m) through 270 m of old
-    path: as if at 30 m, not at 300 m. A later closure to the first submap ties its neighbours in turn."""
+    path: as if at 30 m, not at 300 m. A later closure to the first submap ties its
+    neighbours in turn."""
     lo = np.arange(0.0, 300.0, 10.0)
     hi = lo + 10.0
     tied = np.full(len(lo), -np.inf)

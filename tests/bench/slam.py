@@ -38,8 +38,8 @@ from numeric.slam.evaluation import (
     local_failures,
     relation_errors,
 )
-from numeric.slam.matching.intensity_icp import IcpConfig, Reference, intensity_icp
 from numeric.slam.logs import read_log, read_relations
+from numeric.slam.matching.intensity_icp import IcpConfig, Reference, intensity_icp
 from numeric.slam.runner import SlamOptions, run_log
 from numeric.slam.simulate import simulated_log
 
@@ -353,8 +353,8 @@ def reference_scan_fit(lines: list[str]) -> None:
     the reference times by ±0.2-2 s fits worse). fr-clinic's errors, chizu's and the
     published ones alike, carry that."""
     from numeric.probability_grid import GridConfig, ProbabilityGrid
-    from numeric.slam.matching.correlative import PrecomputedGrid
     from numeric.slam.keyframes import connect_returns
+    from numeric.slam.matching.correlative import PrecomputedGrid
 
     lines += ["", "## Reference relations against the scans (relations under 5 s)", "",
               "| log | relations | mean score: reference / odometry | reference improves "
