@@ -28,15 +28,9 @@ from numeric.viewpoint.plan import (
     solve_exhaustive,
 )
 from numeric.viewpoint.recognition import OBJECT_KINDS, fitted_models
-from numeric.viewpoint.verification import (
-    PATTERNS,
-    Candidate,
-    Verifier,
-    min_plus,
-    single_dp,
-    unknown_region_time,
-    viewpoint_circles,
-)
+from numeric.viewpoint.single import min_plus, single_dp
+from numeric.viewpoint.verification import Candidate, Verifier, unknown_region_time
+from numeric.viewpoint.viewpoints import PATTERNS, viewpoint_circles
 from numeric.world import Wall, World, WorldDescription
 
 
@@ -190,7 +184,8 @@ def test_a_turned_pattern_table_is_the_unturned_one_with_the_belief_rolled(
     """Every rotation's table, built from rotation 0 with the belief rolled, equals the
     DP of eq. 5 run directly on the turned viewpoints with the original belief; a
     uniform belief builds one table for all eight rotations."""
-    from numeric.viewpoint.verification import TableCache, pattern_indices
+    from numeric.viewpoint.single import TableCache
+    from numeric.viewpoint.viewpoints import pattern_indices
 
     rng = np.random.default_rng(3)
     m = models["B"]
