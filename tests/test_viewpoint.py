@@ -295,6 +295,7 @@ def test_large_groups_are_bounded_and_fast(models: dict[str, AppearanceModel],
     policy the robot can follow, never below the exact minimum; its t_par expectation
     in closed form equals the sum over the failure sets for that fixed order."""
     import numeric.viewpoint.verification as ver
+    from numeric.viewpoint.sequential import PortChain
 
     cands = cluster(models, 4)
     s, g = np.array([[0.0, 0.0]]), np.array([[7.0, 1.0]])
@@ -305,7 +306,7 @@ def test_large_groups_are_bounded_and_fast(models: dict[str, AppearanceModel],
     assert not is_exact and exact <= t[0, 0] < 1.5 * exact
     assert sorted(order_of(0, 0)) == sorted(c.id for c in cands)
     tab = v.handover_table(cands, g)
-    assert isinstance(tab, ver.PortChain)
+    assert isinstance(tab, PortChain)
     x = np.array([[3.5, 3.5]])
     p = np.array([[0.3, 0.6, 0.8, 0.5]])
     by_id = {c.id: i for i, c in enumerate(cands)}
