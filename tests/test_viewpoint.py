@@ -28,15 +28,9 @@ from numeric.viewpoint.plan import (
     solve_exhaustive,
 )
 from numeric.viewpoint.recognition import OBJECT_KINDS, fitted_models
-from numeric.viewpoint.verification import (
-    PATTERNS,
-    Candidate,
-    Verifier,
-    min_plus,
-    single_dp,
-    unknown_region_time,
-    viewpoint_circles,
-)
+from numeric.viewpoint.single import min_plus, single_dp
+from numeric.viewpoint.verification import Candidate, Verifier, unknown_region_time
+from numeric.viewpoint.viewpoints import PATTERNS, viewpoint_circles
 from numeric.world import Wall, World, WorldDescription
 
 
@@ -190,7 +184,8 @@ def test_a_turned_pattern_table_is_the_unturned_one_with_the_belief_rolled(
     """Every rotation's table, built from rotation 0 with the belief rolled, equals the
     DP of eq. 5 run directly on the turned viewpoints with the original belief; a
     uniform belief builds one table for all eight rotations."""
-    from numeric.viewpoint.verification import TableCache, pattern_indices
+    from numeric.viewpoint.single import TableCache
+    from numeric.viewpoint.viewpoints import pattern_indices
 
     rng = np.random.default_rng(3)
     m = models["B"]
@@ -300,6 +295,7 @@ def test_large_groups_are_bounded_and_fast(models: dict[str, AppearanceModel],
     policy the robot can follow, never below the exact minimum; its t_par expectation
     in closed form equals the sum over the failure sets for that fixed order."""
     import numeric.viewpoint.verification as ver
+    from numeric.viewpoint.sequential import PortChain
 
     cands = cluster(models, 4)
     s, g = np.array([[0.0, 0.0]]), np.array([[7.0, 1.0]])
@@ -310,7 +306,7 @@ def test_large_groups_are_bounded_and_fast(models: dict[str, AppearanceModel],
     assert not is_exact and exact <= t[0, 0] < 1.5 * exact
     assert sorted(order_of(0, 0)) == sorted(c.id for c in cands)
     tab = v.handover_table(cands, g)
-    assert isinstance(tab, ver.PortChain)
+    assert isinstance(tab, PortChain)
     x = np.array([[3.5, 3.5]])
     p = np.array([[0.3, 0.6, 0.8, 0.5]])
     by_id = {c.id: i for i, c in enumerate(cands)}

@@ -1,4 +1,5 @@
-"""The object appearance model (paper §3): expected SIFT matches per face of a cuboid.
+"""The object appearance model (Masuzawa & Miura, §3.2, eqs. 1-4): expected SIFT
+matches per face of a cuboid.
 
 A cuboid object is seen through its four side faces; face ``j`` has its outward normal
 at ``theta_obj + j * pi/2``. For a robot at ``X`` the observation parameters of a face

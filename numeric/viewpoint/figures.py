@@ -1,4 +1,5 @@
-"""Figures of viewpoint plans and summarisation runs (matplotlib, Agg)."""
+"""Figures of viewpoint plans (Masuzawa & Miura, Fig. 11) and summarisation runs
+(§7.3) (matplotlib, Agg)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The planner's view of a free / occupied / unknown grid (paper §4.1).
+"""The planner's view of a free / occupied / unknown grid (Masuzawa & Miura, §4.1).
 
 The grid itself is :class:`numeric.occupancy.OccupancyMap` -- the same type a SLAM
 run commits to a world -- built here from the simulator (the world's true geometry, or

@@ -1,4 +1,4 @@
-"""The online summarisation loop (paper §7.3, Fig. 2) in the simulator.
+"""The online summarisation loop (Masuzawa & Miura, §7.3, Fig. 2) in the simulator.
 
 The robot enters the room at its door with a time limit. It looks around (laser scans
 in four directions; the map trusts odometry, §4.1) and detects candidate objects by
@@ -33,11 +33,13 @@ from skimage.graph import MCP_Geometric
 
 from numeric.geometry import line_of_sight
 from numeric.occupancy import FREE, UNKNOWN
+from numeric.viewpoint.appearance import AppearanceModel
 from numeric.viewpoint.grid import PlanningGrid, look_around, scanned_grid, travel_cost
 from numeric.viewpoint.planner import (
     CandidateIn,
     Grouper,
     ObjectType,
+    PlannedGroup,
     PlanReport,
     PlanRequest,
     ViewpointPlanner,
@@ -103,6 +105,53 @@ class SummaryRun:
                 "objects_verified": len(truth & set(self.verified)),
                 "explored_fraction": known / cells,
                 "steps": len(self.plans)}
+
+
+@dataclass
+class _Run:
+    """What the robot knows and has done so far in one run: its pose and clock, the scans
+    and the map they make, the unknown cells given up, the candidates (id -> type and
+    estimated position), their beliefs and outcomes, and the record."""
+
+    pose: np.ndarray
+    scans: np.ndarray
+    grid: PlanningGrid
+    #: unknown cells a search could not see into: not a region to explore again
+    given_up: np.ndarray
+    on_step: Callable[[LogEntry], None] | None
+    t: float = 0.0
+    cands: dict[str, tuple[str, np.ndarray]] = field(default_factory=dict)
+    beliefs: dict[str, np.ndarray] = field(default_factory=dict)
+    verified: dict[str, np.ndarray] = field(default_factory=dict)
+    rejected: dict[str, np.ndarray] = field(default_factory=dict)
+    out_of_time: set[str] = field(default_factory=set)
+    path: list[np.ndarray] = field(default_factory=list)
+    log: list[LogEntry] = field(default_factory=list)
+    plans: list[list[str]] = field(default_factory=list)
+
+    def record(self, action: str, **detail: Any) -> None:
+        e = LogEntry(len(self.plans), self.t, action, detail)
+        self.log.append(e)
+        if self.on_step:
+            self.on_step(e)
+
+    def open_ids(self) -> list[str]:
+        """The candidates still to verify: not verified, rejected or left for lack of
+        time."""
+        return [c for c in self.cands if c not in self.verified and c not in self.rejected
+                and c not in self.out_of_time]
+
+    def mask_given_up(self) -> None:
+        """Take the given-up unknown cells out of the room mask: not a region to plan
+        for again."""
+        room = self.grid.room if self.grid.room is not None else np.ones_like(self.given_up)
+        self.grid = PlanningGrid(self.grid.grid, room & ~self.given_up)
+
+    def result(self) -> SummaryRun:
+        unverified = {c: v[1] for c, v in self.cands.items()
+                      if c not in self.verified and c not in self.rejected}
+        return SummaryRun(self.path, self.log, {k: self.cands[k][1] for k in self.verified},
+                          self.rejected, unverified, self.grid, self.t, self.plans)
 
 
 class Summariser:
@@ -194,164 +243,183 @@ class Summariser:
         pts = grid.centres(cells[:, 0], cells[:, 1])
         return np.vstack([a, pts[1:-1], b]) if len(pts) > 2 else np.array([a, b])
 
-    # -- the loop ---------------------------------------------------------------------
+    # -- the loop (Fig. 2) ------------------------------------------------------------
     def run(self, on_step: Callable[[LogEntry], None] | None = None) -> SummaryRun:
-        cfg = self.cfg
-        pose = np.array([*self.door, np.pi / 2])
-        scans = look_around(self.door)
-        grid = self._scanned(scans)
-        # unknown cells a search could not see into: not a region to explore again
-        given_up = np.zeros(grid.state.shape, dtype=bool)
-        cands: dict[str, tuple[str, np.ndarray]] = {}
-        self._detect(pose[:2], cands)
-        self._false_candidates(grid, cands)
-        beliefs: dict[str, np.ndarray] = {}
-        verified: dict[str, np.ndarray] = {}
-        rejected: dict[str, np.ndarray] = {}
-        path = [pose[:2].copy()]
-        log: list[LogEntry] = []
-        plans: list[list[str]] = []
-        t = 0.0
-
-        def record(action: str, **detail: Any) -> None:
-            e = LogEntry(len(plans), t, action, detail)
-            log.append(e)
-            if on_step:
-                on_step(e)
-
-        def move(to: np.ndarray) -> None:
-            nonlocal t, pose
-            route = self._route(grid, pose[:2], to)
-            t += float(np.sum(np.hypot(*np.diff(route, axis=0).T))) / cfg.speed_m_s
-            path.extend(route[1:])
-            pose = np.array([*to, pose[2]])
-
-        def length(a: np.ndarray, b: np.ndarray) -> float:
-            route = self._route(grid, a, b)
-            return float(np.sum(np.hypot(*np.diff(route, axis=0).T)))
-
-        def fits(to: np.ndarray, busy_s: float) -> bool:
-            """L1's limit is hard: an action is taken only if the robot can still go
-            there, spend ``busy_s`` and reach the door in time (the plan's times are
-            expectations; this monitors the execution)."""
-            if cfg.loss != "L1":
-                return True
-            need = (length(pose[:2], to) + length(to, self.door)) / cfg.speed_m_s + busy_s
-            return t + need <= cfg.time_limit_s
-
-        out_of_time: set[str] = set()
-        record("enter", candidates=sorted(cands), unknown_m2=grid.unknown_area())
-        for _ in range(cfg.max_steps):
-            open_ids = [c for c in cands
-                        if c not in verified and c not in rejected and c not in out_of_time]
-            req = PlanRequest(
-                robot=tuple(pose), exit=tuple(self.door),  # type: ignore[arg-type]
-                time_limit_s=max(cfg.time_limit_s - t, 0.0), loss=cfg.loss,  # type: ignore[arg-type]
-                k_lim=cfg.k_lim, speed_m_s=cfg.speed_m_s, t_verify_s=cfg.t_verify_s,
-                t_search_s=cfg.t_search_s, t_dist_s=cfg.t_dist_s, k_area=cfg.k_area,
-                min_area_m2=cfg.min_area_m2, object_types=self.types,
-                travel=cfg.travel,  # type: ignore[arg-type]
-                candidates=[CandidateIn(id=c, type=cands[c][0], x=float(cands[c][1][0]),
-                                        y=float(cands[c][1][1])) for c in open_ids],
-                runner_ups=2)
-            report: PlanReport = self.planner.plan(req, grid, self.grouper, beliefs)
+        """Enter, then plan and execute the plan's first group until the plan is to leave
+        (or ``max_steps`` plans); ``on_step`` sees every log entry as it is made."""
+        run = self._enter(on_step)
+        for _ in range(self.cfg.max_steps):
+            req = self._request(run)
+            report: PlanReport = self.planner.plan(req, run.grid, self.grouper, run.beliefs)
             best = report.plans[0]
             names = report.names(best)
-            plans.append(names)
-            record("plan", plan=names, utility=best.utility, expected_time_s=best.time,
-                   time_left_s=req.time_limit_s,
-                   groups={g.name: list(map(str, g.spec.members)) for g in report.groups})
+            run.plans.append(names)
+            run.record("plan", plan=names, utility=best.utility, expected_time_s=best.time,
+                       time_left_s=req.time_limit_s,
+                       groups={g.name: list(map(str, g.spec.members)) for g in report.groups})
             if not best.order:
                 break
             g = report.groups[best.order[0]]
-            verifier = Verifier(grid, cfg.speed_m_s, cfg.t_verify_s, req.clearance_m,
-                                False, self.planner.tables)
             if g.spec.kind == "unknown":
-                assert g.centroid is not None
-                e = g.entries[np.argmin(np.hypot(*(g.entries - pose[:2]).T))]
-                # stand on a free cell next to the entry point
-                free = np.argwhere((grid.state == FREE) & (grid.clearance >= 0.25))
-                if len(free):
-                    fc = grid.centres(free[:, 0], free[:, 1])
-                    e = fc[np.argmin(np.hypot(*(fc - e).T))]
-                region = grid.unknown_labels[0] == int(g.spec.members[0])
-                if not fits(e, cfg.t_search_s):
-                    given_up |= region
-                    room = grid.room if grid.room is not None else np.ones_like(given_up)
-                    grid = PlanningGrid(grid.grid, room & ~given_up)
-                    record("skip", group=g.name, reason="time limit")
-                    continue
-                move(e)
-                scans = np.vstack([scans, look_around(e)])
-                t += cfg.t_search_s
-                grid = self._scanned(scans)
-                found = self._detect(e, cands)
-                # a search that revealed less than a region worth exploring gives the
-                # rest up: from its reachable entry points nothing more can be seen, and
-                # searching it again would spend t_sea for nothing
-                still = region & (grid.state == UNKNOWN)
-                revealed = float(region.sum() - still.sum()) * grid.resolution**2
-                if revealed < cfg.min_area_m2:
-                    given_up |= still
-                if given_up.any():
-                    room = grid.room if grid.room is not None else np.ones_like(given_up)
-                    grid = PlanningGrid(grid.grid, room & ~given_up)
-                record("explore", group=g.name, at=e.tolist(), found=found,
-                       unknown_m2=grid.unknown_area(), revealed_m2=revealed,
-                       given_up=revealed < cfg.min_area_m2)
-                continue
-            models = self.planner.models(req)
-            members = [str(m) for m in (g.local.order if g.local else g.spec.members)]
-            if (g.local is not None and g.local.strategy == "par" and g.local.joint_point
-                    and fits(np.array(g.local.joint_point), cfg.t_verify_s * len(members))):
-                jp = np.array(g.local.joint_point)
-                move(jp)
-                for cid in members:
-                    self._observe(cid, cands, models, beliefs, verified, pose[:2])
-                t += cfg.t_verify_s * len(members)
-                record("observe_joint", group=g.name, at=jp.tolist(),
-                       verified=[c for c in members if c in verified])
-            for cid in members:
-                while cid not in verified and cid not in rejected:
-                    c = Candidate(cid, cands[cid][0], cands[cid][1], models[cands[cid][0]],
-                                  beliefs.get(cid))
-                    vp = verifier.next_viewpoint(c, pose[:2], self.door)
-                    if vp is None:
-                        rejected[cid] = cands[cid][1]
-                        record("reject", candidate=cid)
-                        break
-                    if not fits(vp, cfg.t_verify_s):
-                        out_of_time.add(cid)
-                        record("skip", candidate=cid, reason="time limit")
-                        break
-                    move(vp)
-                    t += cfg.t_verify_s
-                    ok = self._observe(cid, cands, models, beliefs, verified, pose[:2])
-                    record("observe", candidate=cid, at=vp.tolist(), recognised=ok)
-                    if not ok and cid in beliefs and beliefs[cid].sum() == 0:
-                        rejected[cid] = cands[cid][1]
-                        record("reject", candidate=cid)
-        move(self.door)
-        record("leave", elapsed_s=t, verified=sorted(verified))
-        unverified = {c: v[1] for c, v in cands.items()
-                      if c not in verified and c not in rejected}
-        return SummaryRun(path, log, {k: cands[k][1] for k in verified}, rejected, unverified,
-                          grid, t, plans)
+                self._explore(run, g)
+            else:
+                self._verify_group(run, g, req)
+        self._move(run, self.door)
+        run.record("leave", elapsed_s=run.t, verified=sorted(run.verified))
+        return run.result()
 
-    def _observe(self, cid: str, cands: dict[str, tuple[str, np.ndarray]],
-                 models: dict[str, Any], beliefs: dict[str, np.ndarray],
-                 verified: dict[str, np.ndarray], xy: np.ndarray) -> bool:
-        """Observe candidate ``cid`` from ``xy``: matches from the simulated recogniser
-        (none for a false candidate), belief update by eqs. 1-2 with the orientations this
-        viewpoint would have recognised removed on a failure (eq. 4)."""
-        kind, est = cands[cid]
+    def _enter(self, on_step: Callable[[LogEntry], None] | None) -> _Run:
+        """At the door: look around (four scans), map, detect the candidates by colour
+        (and the false ones)."""
+        pose = np.array([*self.door, np.pi / 2])
+        scans = look_around(self.door)
+        grid = self._scanned(scans)
+        run = _Run(pose, scans, grid, np.zeros(grid.state.shape, dtype=bool), on_step)
+        self._detect(pose[:2], run.cands)
+        self._false_candidates(run.grid, run.cands)
+        run.path.append(pose[:2].copy())
+        run.record("enter", candidates=sorted(run.cands), unknown_m2=run.grid.unknown_area())
+        return run
+
+    def _request(self, run: _Run) -> PlanRequest:
+        """The plan request for the time left, from the robot's pose, over the open
+        candidates."""
+        cfg, cands = self.cfg, run.cands
+        return PlanRequest(
+            robot=tuple(run.pose), exit=tuple(self.door),  # type: ignore[arg-type]
+            time_limit_s=max(cfg.time_limit_s - run.t, 0.0), loss=cfg.loss,  # type: ignore[arg-type]
+            k_lim=cfg.k_lim, speed_m_s=cfg.speed_m_s, t_verify_s=cfg.t_verify_s,
+            t_search_s=cfg.t_search_s, t_dist_s=cfg.t_dist_s, k_area=cfg.k_area,
+            min_area_m2=cfg.min_area_m2, object_types=self.types,
+            travel=cfg.travel,  # type: ignore[arg-type]
+            candidates=[CandidateIn(id=c, type=cands[c][0], x=float(cands[c][1][0]),
+                                    y=float(cands[c][1][1])) for c in run.open_ids()],
+            runner_ups=2)
+
+    # -- executing a group -------------------------------------------------------------
+    def _move(self, run: _Run, to: np.ndarray) -> None:
+        """Drive along the grid's shortest path to ``to``; the clock runs."""
+        route = self._route(run.grid, run.pose[:2], to)
+        run.t += float(np.sum(np.hypot(*np.diff(route, axis=0).T))) / self.cfg.speed_m_s
+        run.path.extend(route[1:])
+        run.pose = np.array([*to, run.pose[2]])
+
+    def _length(self, run: _Run, a: np.ndarray, b: np.ndarray) -> float:
+        route = self._route(run.grid, a, b)
+        return float(np.sum(np.hypot(*np.diff(route, axis=0).T)))
+
+    def _fits(self, run: _Run, to: np.ndarray, busy_s: float) -> bool:
+        """L1's limit is hard: an action is taken only if the robot can still go there,
+        spend ``busy_s`` and reach the door in time (the plan's times are expectations;
+        this monitors the execution)."""
+        cfg = self.cfg
+        if cfg.loss != "L1":
+            return True
+        need = (self._length(run, run.pose[:2], to) + self._length(run, to, self.door)) \
+            / cfg.speed_m_s + busy_s
+        return run.t + need <= cfg.time_limit_s
+
+    def _search_point(self, grid: PlanningGrid, g: PlannedGroup, xy: np.ndarray
+                      ) -> np.ndarray:
+        """Where to search an unknown region from: the free cell (0.25 m clear) nearest
+        its entry point nearest ``xy``."""
+        e = g.entries[np.argmin(np.hypot(*(g.entries - xy).T))]
+        free = np.argwhere((grid.state == FREE) & (grid.clearance >= 0.25))
+        if len(free):
+            fc = grid.centres(free[:, 0], free[:, 1])
+            e = fc[np.argmin(np.hypot(*(fc - e).T))]
+        return np.asarray(e)
+
+    def _explore(self, run: _Run, g: PlannedGroup) -> None:
+        """Search an unknown region (§5.3): go to its entry point, look around, map and
+        detect; a region the time limit leaves no room for is given up."""
+        cfg = self.cfg
+        assert g.centroid is not None
+        e = self._search_point(run.grid, g, run.pose[:2])
+        region = run.grid.unknown_labels[0] == int(g.spec.members[0])
+        if not self._fits(run, e, cfg.t_search_s):
+            run.given_up |= region
+            run.mask_given_up()
+            run.record("skip", group=g.name, reason="time limit")
+            return
+        self._move(run, e)
+        run.scans = np.vstack([run.scans, look_around(e)])
+        run.t += cfg.t_search_s
+        run.grid = self._scanned(run.scans)
+        found = self._detect(e, run.cands)
+        # a search that revealed less than a region worth exploring gives the rest up:
+        # from its reachable entry points nothing more can be seen, and searching it
+        # again would spend t_sea for nothing
+        still = region & (run.grid.state == UNKNOWN)
+        revealed = float(region.sum() - still.sum()) * run.grid.resolution**2
+        if revealed < cfg.min_area_m2:
+            run.given_up |= still
+        if run.given_up.any():
+            run.mask_given_up()
+        run.record("explore", group=g.name, at=e.tolist(), found=found,
+                   unknown_m2=run.grid.unknown_area(), revealed_m2=revealed,
+                   given_up=revealed < cfg.min_area_m2)
+
+    def _verify_group(self, run: _Run, g: PlannedGroup, req: PlanRequest) -> None:
+        """Verify an object group (§5): one joint observation first when its local plan
+        is t_par (eq. 8) and it fits, then each member still open in the plan's order."""
+        cfg = self.cfg
+        verifier = Verifier(run.grid, cfg.speed_m_s, cfg.t_verify_s, req.clearance_m,
+                            False, self.planner.tables)
+        models = self.planner.models(req)
+        members = [str(m) for m in (g.local.order if g.local else g.spec.members)]
+        if (g.local is not None and g.local.strategy == "par" and g.local.joint_point
+                and self._fits(run, np.array(g.local.joint_point),
+                               cfg.t_verify_s * len(members))):
+            jp = np.array(g.local.joint_point)
+            self._move(run, jp)
+            for cid in members:
+                self._observe(run, cid, models)
+            run.t += cfg.t_verify_s * len(members)
+            run.record("observe_joint", group=g.name, at=jp.tolist(),
+                       verified=[c for c in members if c in run.verified])
+        for cid in members:
+            self._verify_one(run, cid, verifier, models)
+
+    def _verify_one(self, run: _Run, cid: str, verifier: Verifier,
+                    models: dict[str, AppearanceModel]) -> None:
+        """Eq. 5's policy, re-planned after every look: go to the best viewpoint for the
+        current belief and observe, until the candidate is recognised, no viewpoint can
+        recognise it any more (rejected), or the next look does not fit the limit."""
+        while cid not in run.verified and cid not in run.rejected:
+            kind, xy = run.cands[cid]
+            c = Candidate(cid, kind, xy, models[kind], run.beliefs.get(cid))
+            vp = verifier.next_viewpoint(c, run.pose[:2], self.door)
+            if vp is None:
+                run.rejected[cid] = xy
+                run.record("reject", candidate=cid)
+                return
+            if not self._fits(run, vp, self.cfg.t_verify_s):
+                run.out_of_time.add(cid)
+                run.record("skip", candidate=cid, reason="time limit")
+                return
+            self._move(run, vp)
+            run.t += self.cfg.t_verify_s
+            ok = self._observe(run, cid, models)
+            run.record("observe", candidate=cid, at=vp.tolist(), recognised=ok)
+            if not ok and cid in run.beliefs and run.beliefs[cid].sum() == 0:
+                run.rejected[cid] = xy
+                run.record("reject", candidate=cid)
+
+    def _observe(self, run: _Run, cid: str, models: dict[str, AppearanceModel]) -> bool:
+        """Observe candidate ``cid`` from where the robot stands: matches from the
+        simulated recogniser (none for a false candidate), belief update by eqs. 1-2 with
+        the orientations this viewpoint would have recognised removed on a failure
+        (eq. 4)."""
+        xy = run.pose[:2]
+        kind, est = run.cands[cid]
         model = models[kind]
         z = (self.recogniser.observe(xy, cid, self.rng) if cid in self.truth
              else np.zeros(4))
         if self.recogniser.recognised(z):
-            verified[cid] = est
+            run.verified[cid] = est
             return True
-        b = model.posterior(z, xy, est, beliefs.get(cid))
+        b = model.posterior(z, xy, est, run.beliefs.get(cid))
         b = b * ~model.recognisable(xy[None, :], est)[0]
-        beliefs[cid] = b / b.sum() if b.sum() > 0 else b
+        run.beliefs[cid] = b / b.sum() if b.sum() > 0 else b
         return False

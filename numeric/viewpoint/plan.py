@@ -1,4 +1,5 @@
-"""Global viewpoint planning: which groups to observe, in which order (paper §6).
+"""Global viewpoint planning: which groups to observe, in which order (Masuzawa & Miura,
+§6, eqs. 11-14 and 18-20).
 
 A plan is an ordered subset G_1..G_N of the observation groups. Its utility (eq. 11) is
 
@@ -6,19 +7,20 @@ A plan is an ordered subset G_1..G_N of the observation groups. Its utility (eq.
 
 with V the sum of the group values (eqs. 15-17), t_mov the travel from the robot through
 the groups' entry/exit points to the room's exit (eqs. 18-20) and L one of the losses of
-eqs. 12-14. The paper enumerates every ordered subset (sum_i nPi plans); that is kept as
-:func:`solve_exhaustive`, the reference. The default :func:`solve` is exact too: V and
-sum t_obs depend only on the *set* of groups and every loss is non-decreasing in time, so
-the best order of a set is its fastest tour, found for all sets at once by Held-Karp
-dynamic programming over subsets (O(2^n n^2), vectorised with numpy). Both return the same
-optimum utility; ties (e.g. a plan and its reverse when the exit is the start) are broken
-by fewer groups, then the shorter time, then the group indices.
+eqs. 12-14. The paper's search (§6.4) enumerates every ordered subset (sum_i nPi
+plans); that is kept as :func:`solve_exhaustive`, the reference. The default
+:func:`solve` is exact too: V and sum t_obs depend only on the *set* of groups and every
+loss is non-decreasing in time, so the best order of a set is its fastest tour, found
+for all sets at once by Held-Karp dynamic programming over subsets (O(2^n n^2),
+vectorised with numpy). Both return the same optimum utility; ties (e.g. a plan and its
+reverse when the exit is the start) are broken by fewer groups, then the shorter time,
+then the group indices.
 
-Held-Karp grows as 2^n n^2 (2.2 s at 20 groups). Past that, :func:`solve_bnb` is a
-branch and bound over layers of partial tours, vectorised with numpy, with a knapsack
-bound on what the remaining groups can still add; it proves the optimum (a 20-group scene
-in ~0.1 s, 25 groups mostly within 1 s) or, when its time budget runs out, returns the
-best plan found with the gap to its upper bound. :func:`solve_auto` picks the solver.
+Held-Karp grows as 2^n n^2, so past MAX_GROUPS_EXACT groups it is not offered and past
+DP_AUTO_MAX :func:`solve_auto` turns to :func:`solve_bnb`: a branch and bound over layers
+of partial tours, vectorised with numpy, with a knapsack bound on what the remaining
+groups can still add; it proves the optimum or, when its time budget runs out, returns
+the best plan found with the gap to its upper bound.
 """
 
 from __future__ import annotations
@@ -465,7 +467,7 @@ def solve_bnb(p: Problem, runner_ups: int = 5, budget_s: float = 1.0,
 def _compile(p: Problem) -> None:
     """Call the numba kernels once on one state of ``p`` (same argument types), so that
     their compilation -- seconds on a fresh install or a loaded machine -- happens
-    before the budget's clock starts (CI had returned early on a 62-state problem)."""
+    before the budget's clock starts and is not mistaken for search time."""
     if p.n == 0:
         return
     one = np.zeros(1, dtype=np.int64)

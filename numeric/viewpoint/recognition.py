@@ -1,5 +1,6 @@
 """Simulated object recognition: the "true" match counts a camera would get from a cuboid
-object with 4 faces, standing in for SIFT matching on real images (paper §3.1).
+object with 4 faces, standing in for SIFT matching on real images (Masuzawa & Miura,
+§3.1).
 
 The simulator's ground truth is deliberately *not* of the model's functional form: the
 expected matches of face ``j`` seen from distance ``d`` at angle ``theta`` to its normal
