@@ -61,13 +61,9 @@ _cache: OrderedDict[str, Any] = OrderedDict()  # per worker process
 class BudgetExceeded(ChizuError):
     """The request's computation ran past its time budget and was stopped."""
 
-    status = 503
-
 
 class WorkerLost(ChizuError):
     """The worker process running the request's computation died."""
-
-    status = 503
 
 
 def blob_key(blob: bytes) -> str:

@@ -11,8 +11,10 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from numeric.errors import ChizuError
+from numeric.errors import ChizuError, Conflict, InvalidInput, NotFound
+from service.compute import BudgetExceeded, WorkerLost
 from service.disconnect import ClientGone
+from service.jobs import JobOverBudget
 from service.kb import KbError
 
 #: the problem title of each status (the problem's type is made from it)
@@ -21,6 +23,18 @@ TITLES = {404: "Not found", 405: "Method not allowed", 409: "Conflict", 413: "Pa
 
 log = logging.getLogger(__name__)
 PROBLEM = "application/problem+json"
+
+#: the HTTP status of each domain error class; an error takes the status of the nearest
+#: class in its MRO (a knowledge-base error has its own table, KB_STATUS)
+STATUS: dict[type[ChizuError], int] = {
+    ChizuError: 400,
+    InvalidInput: 422,
+    NotFound: 404,
+    Conflict: 409,
+    BudgetExceeded: 503,  # the request's time budget
+    WorkerLost: 503,  # a compute worker died under the request
+    JobOverBudget: 503,  # a job's time budget
+}
 
 # knowledge-base error type -> HTTP status
 KB_STATUS = {
@@ -31,6 +45,11 @@ KB_STATUS = {
     "internal": 500,
     "failed": 500,
 }
+
+
+def status_of(exc: ChizuError) -> int:
+    """The HTTP status a domain error is answered with (:data:`STATUS`)."""
+    return next(STATUS[c] for c in type(exc).__mro__ if c in STATUS)
 
 
 def problem(status: int, title: str, detail: str, instance: str | None = None,
@@ -96,8 +115,9 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(ChizuError)
     async def _chizu(request: Request, exc: ChizuError) -> JSONResponse:
-        """InvalidInput 422, NotFound 404, Conflict 409: the one error root."""
-        return problem(exc.status, TITLES.get(exc.status, "Bad request"), str(exc),
+        """The one error root, answered with its class's status (:data:`STATUS`)."""
+        status = status_of(exc)
+        return problem(status, TITLES.get(status, "Bad request"), str(exc),
                        instance=request.url.path, field=exc.field)
 
     @app.exception_handler(KbError)

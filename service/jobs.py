@@ -36,8 +36,6 @@ class JobCancelled(Exception):
 class JobOverBudget(ChizuError):
     """Raised in a job's worker thread by its progress report once its time is up."""
 
-    status = 503
-
 
 class JobProgress:
     """What a job's work reports through: ``progress(stage, fraction)``. Writes reach the
@@ -116,7 +114,9 @@ class Jobs:
             status = "interrupted" if self._closing else "cancelled"
             fields = {"stage": status}
         except ChizuError as e:
-            if getattr(e, "status", 400) >= 500 or isinstance(e, KbError):
+            from service.errors import status_of  # the table knows this module's errors
+
+            if status_of(e) >= 500 or isinstance(e, KbError):
                 log.warning("job %s failed: %s", jid, e)
             fields = {"error": {"detail": str(e), "field": e.field}}
         except Exception as e:  # noqa: BLE001 - reported on the job, logged here

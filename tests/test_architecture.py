@@ -2,11 +2,13 @@
 simulator, scan, observation, occupancy, ...) -> the method packages (numeric/slam,
 eigenspace, qualitative, viewpoint; none imports another) -> service (service/kb.py the
 only module importing pyswip) -> the routes (service/api). Every import statement
-counts, also those inside functions."""
+counts, also those inside functions. numeric knows no web and no HTTP: its errors name
+what went wrong, and service/errors.py alone gives them a status."""
 
 from __future__ import annotations
 
 import ast
+import re
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -16,6 +18,11 @@ ROOT = Path(__file__).resolve().parent.parent
 NUMERIC = ROOT / "numeric"
 SERVICE = ROOT / "service"
 METHODS = sorted(p.name for p in NUMERIC.iterdir() if (p / "__init__.py").exists())
+#: what numeric never imports: the service, web frameworks and clients, HTTP, Prolog
+WEB = ("service", "fastapi", "starlette", "uvicorn", "pyswip", "http", "httpx")
+#: names that would carry an HTTP status, and the word that would explain one
+STATUS_NAMES = {"status", "status_code", "http_status"}
+HTTP_WORD = re.compile(r"\bHTTP\b|\bHTTPStatus\b")
 
 
 def imports(path: Path) -> Iterator[str]:
@@ -35,7 +42,7 @@ def back_edges(root: Path) -> list[str]:
         for m in imports(f):
             top, *rest = m.split(".")
             if rel.parts[0] == "numeric":
-                if top in ("service", "fastapi", "starlette", "uvicorn", "pyswip"):
+                if top in WEB:
                     bad.append(f"{rel} -> {m}")  # numeric knows no web and no Prolog
                 elif top == "numeric" and rest and rest[0] in METHODS and rest[0] != own:
                     bad.append(f"{rel} -> {m}")  # shared -> method, or method -> method
@@ -46,6 +53,66 @@ def back_edges(root: Path) -> list[str]:
                         rel != Path("service/app.py"):
                     bad.append(f"{rel} -> {m}")  # the services do not know their routes
     return bad
+
+
+def http_knowledge(root: Path) -> list[str]:
+    """Places under ``root`` that know HTTP (as "file:line"): the word HTTP in code, a
+    docstring or a comment, or a status number (100-599) given to a ``status``-like
+    name, as an assignment, a class attribute or a keyword argument."""
+    bad = []
+    for f in sorted(root.rglob("*.py")):
+        rel = f.relative_to(ROOT)
+        text = f.read_text(encoding="utf-8")
+        bad += [f"{rel}:{i}" for i, line in enumerate(text.splitlines(), 1)
+                if HTTP_WORD.search(line)]
+        for node in ast.walk(ast.parse(text)):
+            named: list[tuple[str | None, ast.expr | None]] = []
+            if isinstance(node, ast.Assign):
+                named = [(getattr(t, "id", getattr(t, "attr", None)), node.value)
+                         for t in node.targets]
+            elif isinstance(node, ast.AnnAssign):
+                named = [(getattr(node.target, "id", getattr(node.target, "attr", None)),
+                          node.value)]
+            elif isinstance(node, ast.keyword):
+                named = [(node.arg, node.value)]
+            for name, value in named:
+                if name in STATUS_NAMES and isinstance(value, ast.Constant) \
+                        and type(value.value) is int and 100 <= value.value <= 599:
+                    bad.append(f"{rel}:{node.lineno}")
+    return bad
+
+
+def test_numeric_knows_no_http() -> None:
+    """No HTTP status in numeric: its errors are InvalidInput, NotFound, Conflict, and
+    service/errors.py's table answers each with its status."""
+    assert http_knowledge(NUMERIC) == []
+
+
+def test_the_http_check_sees_a_status(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The check itself: a class attribute, a keyword and the word are each reported."""
+    fake = tmp_path / "numeric"
+    fake.mkdir()
+    (fake / "a.py").write_text("class E(Exception):\n    status = 404\n")
+    (fake / "b.py").write_text("def f(g):\n    return g(status_code=422)\n")
+    (fake / "c.py").write_text('"""Answered with HTTP 409."""\n')
+    (fake / "d.py").write_text("status = 'done'\nn = 404\n")
+    monkeypatch.setattr(__import__(__name__, fromlist=["ROOT"]), "ROOT", tmp_path)
+    assert http_knowledge(fake) == ["numeric/a.py:2", "numeric/b.py:2", "numeric/c.py:1"]
+
+
+def test_every_domain_error_has_one_status() -> None:
+    """service/errors.py's table answers every error class of numeric and the service
+    (the nearest class in its MRO), and the classes themselves carry none."""
+    import numeric.errors
+    from service.errors import STATUS, status_of
+
+    classes = [c for c in vars(numeric.errors).values()
+               if isinstance(c, type) and issubclass(c, numeric.errors.ChizuError)]
+    classes += list(STATUS)
+    for c in classes:
+        assert "status" not in vars(c), c
+        assert 400 <= status_of(c.__new__(c)) <= 599, c
+    assert status_of(numeric.errors.NotFound("x")) == 404
 
 
 def test_the_method_packages_are_found() -> None:
