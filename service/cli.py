@@ -349,8 +349,9 @@ def plan(scene: str = typer.Argument(..., help="SCENE.json: a viewpoint-plan req
     from numeric.errors import InvalidInput
     from numeric.viewpoint.figures import plan_figure
     from numeric.viewpoint.grid import look_around, scanned_grid
-    from numeric.viewpoint.planner import PlanRequest, ViewpointPlanner
+    from numeric.viewpoint.planner import ViewpointPlanner
     from numeric.world import World
+    from service.schemas.viewpoint import PlanRequest
     from service.viewpoint import local_grouper, report_json
 
     try:

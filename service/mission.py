@@ -60,14 +60,9 @@ from numeric.qualitative.navigation import (
 from numeric.qualitative.survey import survey
 from numeric.simulator import LandmarkObserver, ObserverConfig, OdometryConfig, Robot
 from numeric.slam.runner import SlamOptions
+from numeric.viewpoint import planner
 from numeric.viewpoint.online import Summariser, SummaryConfig, SummaryRun
-from numeric.viewpoint.planner import (
-    BUILTIN_OBJECT_TYPES,
-    CandidateIn,
-    GroupSpec,
-    ObjectType,
-    PlanRequest,
-)
+from numeric.viewpoint.planner import BUILTIN_OBJECT_TYPES, GroupSpec
 from numeric.world import Id, World
 from numeric.worlds import MISSION_DOOR, MISSION_GOAL, MISSION_ROOM
 from service.disconnect import thread_to_end
@@ -75,6 +70,7 @@ from service.eigenspace import EigenspaceService
 from service.jobs import JobProgress, Jobs
 from service.kb import KnowledgeBase
 from service.schemas.slam import ScanIn
+from service.schemas.viewpoint import CandidateIn, ObjectType, PlanRequest
 from service.slam import SlamService
 from service.viewpoint import SCENE_ARTIFACT, ViewpointService
 from service.worlds import ArtifactKind, WorldService
@@ -589,7 +585,8 @@ class MissionService:
             raise MissionFailed("could not enter the room")
         report("planning viewpoints", 0.75)
         types = [ObjectType.model_validate(t) for t in BUILTIN_OBJECT_TYPES]
-        summariser = Summariser(w, types, self._grouper(run.world, asyncio.get_running_loop()),
+        grouper = self._grouper(run.world, asyncio.get_running_loop())
+        summariser = Summariser(w, list[planner.ObjectType](types), grouper,
                                 SummaryConfig(time_limit_s=cfg.time_limit_s, loss=cfg.loss,
                                               seed=cfg.seed),
                                 door, area=cfg.room)

@@ -18,9 +18,10 @@ from pathlib import Path
 from typing import Any
 
 from numeric.occupancy import OccupancyMap
-from numeric.viewpoint.planner import GroupSpec, PlanRequest
+from numeric.viewpoint.planner import GroupSpec
 from service.compute import Cached, ComputePool, blob_key
 from service.kb import KnowledgeBase
+from service.schemas.viewpoint import PlanRequest
 from service.slam import MAP_ARTIFACT
 from service.store import Store
 from service.viewpoint_tasks import finish_task, prepare_task, report_json

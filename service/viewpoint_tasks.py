@@ -1,6 +1,6 @@
 """Viewpoint planning in a compute worker (:mod:`service.compute`): the planner's
 steps before and after the Prolog grouping, and the answer as JSON. Imports
-``numeric`` only (no web, no Prolog): it runs in the workers.
+``numeric`` and the request's schema only (no web, no Prolog): it runs in the workers.
 
 Each worker keeps one :class:`ViewpointPlanner`, so its pattern tables, local plans
 and travel maps are reused by the requests that worker serves (re-planning).
@@ -20,12 +20,12 @@ from numeric.viewpoint.planner import (
     GroupSpec,
     PlannedGroup,
     PlanReport,
-    PlanRequest,
     PlanStep,
     Prepared,
     ViewpointPlanner,
 )
 from numeric.world import World
+from service.schemas.viewpoint import PlanRequest
 
 _planner: ViewpointPlanner | None = None  # this worker's
 

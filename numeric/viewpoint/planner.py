@@ -3,8 +3,9 @@ and unknown components in, observation groups (decided by the Prolog grouping ru
 passed in as ``grouper``), their values and observation times, and the best ordered plan
 out.
 
-:class:`PlanRequest` is both the body of ``POST /worlds/{world}/viewpoint-plan`` and the
-``SCENE.json`` of ``chizu plan``.
+:class:`PlanRequest` holds the planner's parameters for one planning step; the grid is
+given beside it. The service's request body (service/schemas/viewpoint.py) is this
+request with the API's size caps and an optional posted grid.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, model_validator
 from numeric.errors import InvalidInput
 from numeric.occupancy import UnknownComponent
 from numeric.viewpoint.appearance import AppearanceModel, AppearanceParams, MeasurementTables
-from numeric.viewpoint.grid import MAX_CELLS, PlanningGrid, TravelMap, from_occupancy_values
+from numeric.viewpoint.grid import PlanningGrid, TravelMap
 from numeric.viewpoint.plan import (
     MAX_GROUPS_EXACT,
     GroupCost,
@@ -43,8 +44,6 @@ from numeric.viewpoint.verification import (
 )
 from numeric.world import ID_PATTERN
 
-MAX_CANDIDATES = 200
-MAX_TYPES = 32
 MAX_ENTRIES = 64
 EXHAUSTIVE_MAX_GROUPS = 9
 
@@ -66,7 +65,7 @@ class ObjectType(BaseModel):
     built-in types A, B, C) nothing: fitted to the simulator's measurements."""
 
     model_config = ConfigDict(extra="forbid")
-    name: str = Field(min_length=1, max_length=64)
+    name: str = Field(min_length=1)
     value: NonNeg = 50.0
     mean_count: NonNeg = 0.0
     appearance: AppearanceParams | None = None
@@ -81,36 +80,23 @@ class ObjectType(BaseModel):
 
 
 class CandidateIn(BaseModel):
-    """A candidate object found by colour (§4.1)."""
+    """A candidate object found by colour (§4.1), with its orientation belief if one is
+    known (else uniform)."""
 
     model_config = ConfigDict(extra="forbid")
     id: str = Field(pattern=ID_PATTERN)
-    type: str = Field(min_length=1, max_length=64)
+    type: str = Field(min_length=1)
     x: FiniteFloat
     y: FiniteFloat
     belief: list[Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]] | None = Field(
-        None, max_length=360, description="orientation belief P(theta_i) over N_theta orientations")
-
-
-class GridIn(BaseModel):
-    """An occupancy grid as ROS ``nav_msgs/OccupancyGrid`` has it: ``data`` row-major with
-    x fastest, -1 unknown, 0..100 occupancy; ``origin`` the lower-left corner (m)."""
-
-    model_config = ConfigDict(extra="forbid")
-    width: int = Field(ge=1, le=4000)
-    height: int = Field(ge=1, le=4000)
-    resolution_m: float = Field(gt=0.005, le=5.0, allow_inf_nan=False)
-    origin: tuple[FiniteFloat, FiniteFloat] = (0.0, 0.0)
-    data: list[Annotated[int, Field(ge=-1, le=100, strict=True)]] = Field(
-        max_length=MAX_CELLS, description="-1 unknown, 0..100 occupancy; JSON integers")
-
-    def to_grid(self) -> PlanningGrid:
-        return from_occupancy_values(self.width, self.height, self.resolution_m, self.origin,
-                                     self.data)
+        None, description="orientation belief P(theta_i) over N_theta orientations")
 
 
 class PlanRequest(BaseModel):
-    """Everything one planning step needs (paper §§3-6)."""
+    """Everything one planning step needs but the grid (paper §§3-6): the robot and the
+    exit, the loss and its time limit, the motion and verification times of eqs. 5-10,
+    the value per unknown area of eq. 17, the object types and the candidates, and how
+    the global plan is searched."""
 
     model_config = ConfigDict(extra="forbid")
     robot: tuple[FiniteFloat, FiniteFloat, FiniteFloat] = Field(
@@ -128,9 +114,8 @@ class PlanRequest(BaseModel):
                                        "are groups; null: the world's parameter "
                                        "unknown_region_min_area_m2 (0.5 m² by default)")
     clearance_m: NonNeg = 0.25
-    object_types: Annotated[list[ObjectType], Field(max_length=MAX_TYPES)] = []
-    candidates: Annotated[list[CandidateIn], Field(max_length=MAX_CANDIDATES)] = []
-    grid: GridIn | None = None
+    object_types: Sequence[ObjectType] = []
+    candidates: Sequence[CandidateIn] = []
     use_table: bool = Field(True, description="eq. 6's pattern tables (else exact eq. 5)")
     travel: Literal["geodesic", "straight"] = Field(
         "geodesic", description="travel between the robot, the groups' entry points and "

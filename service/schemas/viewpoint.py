@@ -1,13 +1,65 @@
-"""Viewpoint planning (Masuzawa & Miura): the plan answer and the stored scene's groups.
-The request is the planner's own :class:`numeric.viewpoint.planner.PlanRequest`."""
+"""Viewpoint planning (Masuzawa & Miura): the request, the plan answer and the stored
+scene's groups. The request is the planner's :class:`numeric.viewpoint.planner.PlanRequest`
+with the API's caps (candidates, object types, name lengths) and an optional grid posted
+in ROS's ``nav_msgs/OccupancyGrid`` layout; the same model reads ``chizu plan``'s
+SCENE.json."""
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, ConfigDict, Field, FiniteFloat
 
-from numeric.viewpoint.planner import PlanRequest
+from numeric.viewpoint import planner
+from numeric.viewpoint.grid import MAX_CELLS, PlanningGrid, from_occupancy_values
+
+MAX_CANDIDATES = 200
+MAX_TYPES = 32
+MAX_NAME = 64  #: characters of an object type's name
+MAX_BELIEF = 360  #: orientations of a candidate's belief
+
+
+class ObjectType(planner.ObjectType):
+    """A known object type: value V_obj (eq. 16), mean count per room n_bar (eqs. 10, 17)
+    and its appearance -- fitted parameters, measurement tables to fit, or (for the
+    built-in types A, B, C) nothing: fitted to the simulator's measurements."""
+
+    name: str = Field(min_length=1, max_length=MAX_NAME)
+
+
+class CandidateIn(planner.CandidateIn):
+    """A candidate object found by colour (§4.1)."""
+
+    type: str = Field(min_length=1, max_length=MAX_NAME)
+    belief: list[Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]] | None = Field(
+        None, max_length=MAX_BELIEF,
+        description="orientation belief P(theta_i) over N_theta orientations")
+
+
+class GridIn(BaseModel):
+    """An occupancy grid as ROS ``nav_msgs/OccupancyGrid`` has it: ``data`` row-major with
+    x fastest, -1 unknown, 0..100 occupancy; ``origin`` the lower-left corner (m)."""
+
+    model_config = ConfigDict(extra="forbid")
+    width: int = Field(ge=1, le=4000)
+    height: int = Field(ge=1, le=4000)
+    resolution_m: float = Field(gt=0.005, le=5.0, allow_inf_nan=False)
+    origin: tuple[FiniteFloat, FiniteFloat] = (0.0, 0.0)
+    data: list[Annotated[int, Field(ge=-1, le=100, strict=True)]] = Field(
+        max_length=MAX_CELLS, description="-1 unknown, 0..100 occupancy; JSON integers")
+
+    def to_grid(self) -> PlanningGrid:
+        return from_occupancy_values(self.width, self.height, self.resolution_m, self.origin,
+                                     self.data)
+
+
+class PlanRequest(planner.PlanRequest):
+    """Everything one planning step needs (paper §§3-6)."""
+
+    object_types: Annotated[list[ObjectType], Field(max_length=MAX_TYPES)] = []
+    candidates: Annotated[list[CandidateIn], Field(max_length=MAX_CANDIDATES)] = []
+    grid: GridIn | None = None
+
 
 ViewpointPlanIn = PlanRequest
 
