@@ -347,7 +347,7 @@ def plan(scene: str = typer.Argument(..., help="SCENE.json: a viewpoint-plan req
     from pydantic import ValidationError
 
     from numeric.errors import InvalidInput
-    from numeric.viewpoint.figures import plan_figure
+    from numeric.figures import plan_figure
     from numeric.viewpoint.grid import look_around, scanned_grid
     from numeric.viewpoint.planner import ViewpointPlanner
     from numeric.world import World
@@ -417,7 +417,7 @@ def summarise(world: str = typer.Argument(..., help="stored world or template, e
 
     import numpy as np
 
-    from numeric.viewpoint.figures import run_figure
+    from numeric.figures import run_figure
     from numeric.viewpoint.online import Summariser, SummaryConfig
     from numeric.viewpoint.planner import ObjectType
     from numeric.world import World
@@ -488,34 +488,11 @@ def mission(world: str = typer.Argument("mission", help="stored world, or a temp
     viewpoints and verify the objects in the goal room. Each run's steps become
     mission_step/3 facts of WORLD (the last run's stay: `chizu repl WORLD`); writes
     mission.png (the first run), mission.json (every record) and results.csv."""
-    import csv
-    import json
-
-    from pydantic import ValidationError
-
     from numeric.errors import ChizuError
     from numeric.world import WorldDescription
     from numeric.worlds import TEMPLATES
-    from service.mission import MissionConfig, mission_figure
 
-    over: dict[str, Any] = {"slam_method": slam_method, "time_limit_s": time_limit}
-    try:
-        if goal:
-            over["goal"] = goal
-        if door:
-            over["door"] = [float(v) for v in door.split(",")]
-        if room:
-            v = [float(x) for x in room.split(",")]
-            over["room"] = [v[:2], v[2:]] if len(v) == 4 else v
-    except ValueError:
-        console.print("[red]--door is x,y and --room x0,y0,x1,y1 (numbers)[/red]")
-        raise typer.Exit(2) from None
-    try:
-        base = MissionConfig.model_validate(over)
-    except ValidationError as e:
-        err = e.errors()[0]
-        console.print(f"[red]{'.'.join(map(str, err['loc']))}: {err['msg']}[/red]")
-        raise typer.Exit(2) from None
+    base = _mission_config(slam_method, time_limit, goal, door, room)
     services = _open_services()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -543,12 +520,48 @@ def mission(world: str = typer.Argument("mission", help="stored world, or a temp
             console.print(f"seed {cfg.seed}: {'[green]succeeded' if run.success else '[red]failed'}"
                           f"[/] {rows[-1]}")
             if k == 0:
-                mission_figure(run, services.worlds.model(world), str(out / "mission.png"))
+                run.figure(services.worlds.model(world), str(out / "mission.png"))
     except ChizuError as e:
         console.print(f"[red]{e.field}: {e}[/red]")
         raise typer.Exit(2) from None
     finally:
         services.close()
+    _write_missions(out, records, rows)
+
+
+def _mission_config(slam_method: str, time_limit: float, goal: str | None,
+                    door: str | None, room: str | None):  # type: ignore[no-untyped-def]
+    """The mission command's options as a MissionConfig (exit 2 naming a bad one)."""
+    from pydantic import ValidationError
+
+    from service.schemas.mission import MissionConfig
+
+    over: dict[str, Any] = {"slam_method": slam_method, "time_limit_s": time_limit}
+    try:
+        if goal:
+            over["goal"] = goal
+        if door:
+            over["door"] = [float(v) for v in door.split(",")]
+        if room:
+            v = [float(x) for x in room.split(",")]
+            over["room"] = [v[:2], v[2:]] if len(v) == 4 else v
+    except ValueError:
+        console.print("[red]--door is x,y and --room x0,y0,x1,y1 (numbers)[/red]")
+        raise typer.Exit(2) from None
+    try:
+        return MissionConfig.model_validate(over)
+    except ValidationError as e:
+        err = e.errors()[0]
+        console.print(f"[red]{'.'.join(map(str, err['loc']))}: {err['msg']}[/red]")
+        raise typer.Exit(2) from None
+
+
+def _write_missions(out: Path, records: list[dict[str, Any]],
+                    rows: list[dict[str, Any]]) -> None:
+    """mission.json (every record) and results.csv (one row per run), and the tally."""
+    import csv
+    import json
+
     (out / "mission.json").write_text(json.dumps(records, indent=1))
     with open(out / "results.csv", "w", newline="") as f:
         wr = csv.DictWriter(f, fieldnames=list(rows[0]))

@@ -24,7 +24,8 @@ service calls a client makes, so every result lands in the world's knowledge bas
 After every step the whole record so far is asserted as ``mission_step(S, What,
 Result)`` facts (prolog/mission.pl) and stored with the world, so ``chizu repl WORLD``
 and ``/query`` see it. A last ``evaluation`` step compares with the simulator's ground
-truth (never read by the robot). :func:`mission_figure` draws the run.
+truth (never read by the robot). This module orchestrates: the robot in the simulator and
+the evaluation are :mod:`numeric.mission`'s, the figure :func:`numeric.figures.mission_figure`.
 """
 
 from __future__ import annotations
@@ -33,85 +34,58 @@ import asyncio
 import contextlib
 import json
 import logging
-import math
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, FiniteFloat
 
 from numeric.camera import Camera
-from numeric.eigenspace.analysis import EigenspaceConfig, learning_pixels
-from numeric.eigenspace.learning import LearningConfig
+from numeric.eigenspace.analysis import learning_pixels
 from numeric.errors import InvalidInput, NotFound
-from numeric.geometry import compose, free_distance, line_of_sight, relative, wrap_angle
-from numeric.laser import Laser
-from numeric.occupancy import FREE, OCCUPIED, OccupancyMap
+from numeric.geometry import line_of_sight, relative
+from numeric.mission import (
+    MissionTrace,
+    TracedRobot,
+    drive,
+    evaluate,
+    landmark_pose,
+    start_points,
+    trace_scans,
+    wake_up,
+)
 from numeric.qualitative.navigation import (
     NavConfig,
     execute_step,
     home_on,
-    map_heading,
     reach_any_landmark,
 )
 from numeric.qualitative.survey import survey
-from numeric.simulator import LandmarkObserver, ObserverConfig, OdometryConfig, Robot
+from numeric.scan import Scan
+from numeric.simulator import LandmarkObserver, ObserverConfig
 from numeric.slam.runner import SlamOptions
 from numeric.viewpoint import planner
-from numeric.viewpoint.online import Summariser, SummaryConfig, SummaryRun
+from numeric.viewpoint.online import Summariser, SummaryConfig
 from numeric.viewpoint.planner import BUILTIN_OBJECT_TYPES, GroupSpec
-from numeric.world import Id, World
-from numeric.worlds import MISSION_DOOR, MISSION_GOAL, MISSION_ROOM
+from numeric.world import World
 from service.disconnect import thread_to_end
 from service.eigenspace import EigenspaceService
 from service.jobs import JobProgress, Jobs
 from service.kb import KnowledgeBase
+from service.schemas.mission import MissionConfig
 from service.schemas.slam import ScanIn
 from service.schemas.viewpoint import CandidateIn, ObjectType, PlanRequest
 from service.slam import SlamService
 from service.viewpoint import SCENE_ARTIFACT, ViewpointService
 from service.worlds import ArtifactKind, WorldService
 
+__all__ = ["MissionConfig", "MissionFailed", "MissionRun", "MissionService", "scan_in"]
+
 log = logging.getLogger(__name__)
 MISSION_ARTIFACT = "mission"
 MISSION_JOB = "mission"
-Point = tuple[FiniteFloat, FiniteFloat]
-
-
-def mission_eigenspace() -> EigenspaceConfig:
-    """The eigenspace the mission learns when the world has none: the paper's camera and
-    directions on a 1 m grid (an office's walls hide most of a 2 m grid's triplets from
-    each other), no learning strategy."""
-    return EigenspaceConfig(learning=LearningConfig(spacing_m=1.0), learning_strategy=None)
-
-
-class MissionConfig(BaseModel):
-    """What one mission run is asked to do; the defaults fit the built-in ``mission``
-    world (its goal landmark, door and goal room)."""
-
-    model_config = ConfigDict(extra="forbid")
-    goal: Id = Field(MISSION_GOAL, description="the landmark to reach")
-    door: Point = Field(MISSION_DOOR, description="a point just inside the goal room's door")
-    room: tuple[Point, Point] = Field(MISSION_ROOM,
-                                      description="the goal room's lower and upper corner")
-    start: tuple[Point, Point] | None = Field(
-        None, description="where the robot may wake up (lower, upper corner); null: "
-                          "anywhere in the free space")
-    seed: int = Field(0, ge=0, le=2**31 - 1)
-    max_stops: int = Field(10, ge=1, le=50, description="localization stops at most")
-    camera_noise: float = Field(0.02, ge=0.0, le=1.0, description="pixel noise sigma")
-    slam_method: Literal["graph", "gated", "rbpf"] = "graph"
-    time_limit_s: float = Field(90.0, gt=0.0, le=3600.0, allow_inf_nan=False,
-                                description="the goal room's summary (L1: hard)")
-    loss: Literal["L1", "L2", "L3"] = "L1"
-    eigenspace: EigenspaceConfig = Field(
-        default_factory=mission_eigenspace,
-        description="learned if the world has no eigenspace yet")
-    odometry: OdometryConfig = OdometryConfig()
-    observer: ObserverConfig = ObserverConfig(bearing_noise_rad=0.02, distance_noise_m=0.05)
 
 
 class MissionFailed(Exception):
@@ -119,60 +93,19 @@ class MissionFailed(Exception):
 
 
 @dataclass
-class TracedRobot(Robot):
-    """The simulator's robot, moving in small increments (at most ``max_step_m`` and
-    ``max_turn_rad``, as a base controller at 10 Hz would) and keeping every (true pose,
-    odometry pose) after one -- what the laser scans are taken at."""
-
-    max_step_m: float = 0.1
-    max_turn_rad: float = 0.2
-    trace: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
-    tracing: bool = False
-
-    def _keep(self) -> None:
-        if self.tracing:
-            self.trace.append((self.pose.copy(), self.odom_pose.copy()))
-
-    def turn(self, angle_rad: float) -> None:
-        n = max(1, math.ceil(abs(angle_rad) / self.max_turn_rad))
-        for _ in range(n):
-            super().turn(angle_rad / n)
-            self._keep()
-
-    def forward(self, distance_m: float) -> bool:
-        n = max(1, math.ceil(abs(distance_m) / self.max_step_m))
-        for _ in range(n):
-            if not super().forward(distance_m / n):
-                return False
-            self._keep()
-        return True
-
-
-@dataclass
 class MissionRun:
-    """What happened: the record (the facts' rows), the truth for the figure."""
+    """What happened: the record (the facts' rows) and, for the evaluation and the
+    figure, the simulator's trace of the run."""
 
     world: str
     config: MissionConfig
     steps: list[dict[str, Any]] = field(default_factory=list)
-    truth_path: list[np.ndarray] = field(default_factory=list)
-    stops: list[dict[str, Any]] = field(default_factory=list)
-    slam_path: np.ndarray | None = None
-    landmarks: list[str] = field(default_factory=list)
-    summary: SummaryRun | None = None
-    map: OccupancyMap | None = None
-    #: the pose the mission went on from and the true pose then
-    fix: tuple[np.ndarray, np.ndarray] | None = None
-    #: the eigenspace's pose and the true pose then (None if it gave none)
-    eigenspace_fix: tuple[np.ndarray, np.ndarray] | None = None
-    #: the odometry pose at :attr:`fix`
-    anchor_odom: np.ndarray | None = None
-    #: the viewpoint plan's poses (x, y, theta), in its order
-    plan_poses: list[tuple[float, float, float]] = field(default_factory=list)
+    trace: MissionTrace = field(default_factory=MissionTrace)
     success: bool = False
     elapsed_s: float = 0.0
 
     def result(self) -> dict[str, Any]:
+        """The mission job's result: the outcome and the record."""
         return {"world": self.world, "seed": self.config.seed, "success": self.success,
                 "elapsed_s": self.elapsed_s, "steps": self.steps}
 
@@ -198,6 +131,19 @@ class MissionRun:
                 "learning_s": self.learning_s or None,
                 "wall_time_s": round(self.elapsed_s, 2)}
 
+    def figure(self, world: World, path_png: str) -> None:
+        """The run as a PNG (:func:`numeric.figures.mission_figure`), titled with its
+        outcome and times."""
+        from numeric.figures import mission_figure
+
+        outcome = "succeeded" if self.success else "failed"
+        learn = self.learning_s
+        title = (f"mission on {self.world}, seed {self.config.seed}: {outcome} "
+                 f"({len(self.steps)} steps, {self.elapsed_s - learn:.1f} s"
+                 + (f" + {learn:.0f} s learning)" if learn else ")"))
+        mission_figure(self.trace, world, path_png, title,
+                       f"SLAM ({self.config.slam_method})")
+
 
 def _plain(v: Any) -> Any:
     """A JSON value of a step's result (numpy scalars and arrays made plain)."""
@@ -214,8 +160,10 @@ def _plain(v: Any) -> Any:
     return str(v)
 
 
-def scan_in(scan: Any) -> ScanIn:
-    """A simulated :class:`numeric.scan.Scan` as a client would post it."""
+def scan_in(scan: Scan) -> ScanIn:
+    """A simulated :class:`numeric.scan.Scan` as a client would post it (the simulator's
+    laser measures intensities)."""
+    assert scan.intensities is not None
     return ScanIn(t=scan.t, ranges=np.round(scan.ranges, 4).tolist(),
                   intensities=np.round(scan.intensities, 1).tolist(),
                   angle_min=float(scan.angles[0]),
@@ -268,7 +216,7 @@ class MissionService:
             raise InvalidInput("door: the point must lie inside the room", field="door")
         if not w.is_free(np.array(config.door), 0.2)[0]:
             raise InvalidInput("door: the point is not in the free space", field="door")
-        self._start_points(w, config, np.random.default_rng(0))
+        start_points(w, config.start, np.random.default_rng(0))
         try:
             self.eigenspace.analysis(world)
         except NotFound:  # the mission will learn one: the learning job's cap applies
@@ -294,24 +242,24 @@ class MissionService:
         start: str | None = None
         try:
             await self._prepare(run, w, report)
-            robot = await asyncio.to_thread(self._wake_up, w, config, rng)
-            run.truth_path.append(robot.pose.copy())
+            robot = await asyncio.to_thread(wake_up, w, config.start, config.odometry, rng)
+            run.trace.truth_path.append(robot.pose.copy())
             observer = LandmarkObserver(w, config.observer, rng)
             nav = NavConfig()
             est = await self._localize(run, w, robot, rng, report)
             if est is not None:
-                run.eigenspace_fix = (est.copy(), robot.pose.copy())
-                self._anchor(run, robot, est)
+                run.trace.eigenspace_fix = (est.copy(), robot.pose.copy())
+                run.trace.anchor(robot, est)
                 start = await self._reach_nearest(run, w, robot, observer, nav, est, report)
-                fix = None if start is None else self.landmark_pose(w, robot, observer, start)
+                fix = None if start is None else landmark_pose(w, robot, observer, start)
                 if fix is not None:  # at the landmark the pose is known better: re-anchor
-                    self._anchor(run, robot, fix)
+                    run.trace.anchor(robot, fix)
                     await self._record(run, "landmark_fix", landmark=start, x=fix[0],
                                        y=fix[1], theta=fix[2], ok=True)
             if start is None:  # still lost, or the pose named a landmark that is not
                 # there (a wrong pose): the DRM paper's way, reach some landmark first
                 start, est = await self._recover(run, w, robot, observer, nav, rng, report)
-                self._anchor(run, robot, est)
+                run.trace.anchor(robot, est)
             # a full turn where the map starts: its first scans see all round (and a goal
             # that is the landmark already reached still gets a map)
             await thread_to_end(robot.turn, 2 * np.pi)
@@ -327,20 +275,11 @@ class MissionService:
                 await asyncio.shield(self._record(run, "aborted", reason=why[:500], ok=False))
             raise
         if robot is not None:
-            run.truth_path.extend(p for p, _ in robot.trace)
+            run.trace.follow(robot)
         run.elapsed_s = time.perf_counter() - t0
         await self._evaluate(run, w)
         report("done", 1.0)
         return run
-
-    @staticmethod
-    def _anchor(run: MissionRun, robot: TracedRobot, est: np.ndarray) -> None:
-        """The map's frame: the pose just fixed; the laser's trace starts here."""
-        run.truth_path.extend(p for p, _ in robot.trace)
-        robot.trace.clear()
-        robot.tracing = True
-        run.fix = (est.copy(), robot.pose.copy())
-        run.anchor_odom = robot.odom_pose.copy()
 
     # -- the record -------------------------------------------------------------------
     async def _record(self, run: MissionRun, what: str, **result: Any) -> None:
@@ -387,26 +326,6 @@ class MissionService:
         return {"observations": len(obs), "edges": len(drm["edges"]), "ok": True}
 
     # -- 1: wake up lost and localize -------------------------------------------------
-    @staticmethod
-    def _start_points(w: World, config: MissionConfig, rng: np.random.Generator) -> np.ndarray:
-        """Free positions (0.5 m from any surface) where the robot may wake up."""
-        xy = w.sample_free(2000, rng, clearance_m=0.5)
-        if config.start is not None:
-            (x0, y0), (x1, y1) = config.start
-            xy = xy[(xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1)]
-            if len(xy) == 0:
-                raise InvalidInput("start: the region holds no free space 0.5 m from the "
-                                   "walls", field="start")
-        return xy
-
-    @classmethod
-    def _wake_up(cls, w: World, config: MissionConfig,
-                 rng: np.random.Generator) -> TracedRobot:
-        xy = cls._start_points(w, config, rng)
-        p = xy[int(rng.integers(len(xy)))]
-        pose = np.array([p[0], p[1], rng.uniform(-np.pi, np.pi)])
-        return TracedRobot(world=w, pose=pose, odometry=config.odometry, rng=rng)
-
     async def _localize(self, run: MissionRun, w: World, robot: TracedRobot,
                         rng: np.random.Generator,
                         report: Callable[[str, float], None]) -> np.ndarray | None:
@@ -423,7 +342,7 @@ class MissionService:
             imgs = await asyncio.to_thread(cam.render_turn, robot.pose[:2], robot.pose[2], n)
             motion = None if prev is None else relative(prev, robot.odom_pose)
             ans = await self.eigenspace.add_stop(run.world, sid, imgs, motion)
-            run.stops.append({"truth": robot.pose.copy(), "answer": ans})
+            run.trace.stops.append(robot.pose.copy())
             state = ans["state"]["state"]
             if state == "z" and ans["pose"] is not None:
                 p = ans["pose"]
@@ -435,8 +354,8 @@ class MissionService:
             act = move["action"]
             prev = robot.odom_pose.copy()
             if act is not None:
-                await thread_to_end(self._drive, robot, act)
-            run.truth_path.append(robot.pose.copy())
+                await thread_to_end(drive, robot, act)
+            run.trace.truth_path.append(robot.pose.copy())
         await self._record(run, "localize", session=sid, stops=run.config.max_stops,
                            state=state, localized=False,
                            reason=f"no unique pose after {run.config.max_stops} stops")
@@ -455,7 +374,7 @@ class MissionService:
             await self._fail(run, "reach_landmark", "wandered without recognising a "
                              "landmark", how="wander")
         assert lm is not None
-        est = self.landmark_pose(w, robot, observer, lm)
+        est = landmark_pose(w, robot, observer, lm)
         if est is None:
             await self._fail(run, "reach_landmark", "no other landmark in view to take the "
                              "heading from", how="wander", landmark=lm)
@@ -464,28 +383,6 @@ class MissionService:
                            travelled_m=robot.travelled_m, x=est[0], y=est[1],
                            theta=est[2], ok=True)
         return lm, est
-
-    @staticmethod
-    def landmark_pose(w: World, robot: Robot, observer: LandmarkObserver,
-                      at: str) -> np.ndarray | None:
-        """The pose of a robot standing at landmark ``at``: its position on the world's
-        landmark map, the heading from the observed bearings of the other landmarks in
-        view (:func:`map_heading`); None if no other landmark is in view."""
-        pos = dict(zip(w.landmark_ids, w.landmark_xy, strict=True))
-        heading = map_heading(at, observer.observe(robot.pose, at=at), pos)
-        return None if heading is None else np.array([*pos[at], heading])
-
-    @staticmethod
-    def _drive(robot: TracedRobot, act: dict[str, float], clearance_m: float = 0.3) -> None:
-        """The movement strategy's action (alpha, l, beta): turn, drive, turn; the drive
-        stops ``clearance_m`` before a wall, as the strategy's model of a move has it
-        (Maeda & Shirai §3.4; the robot's laser sees the wall)."""
-        robot.turn(act["alpha_rad"])
-        room = free_distance(robot.pose[:2], robot.pose[2], robot.world.surfaces.a,
-                             robot.world.surfaces.b)[0] - clearance_m
-        robot.forward(float(np.clip(min(act["l_m"], room), 0.0, None)))
-        robot.collided = False
-        robot.turn(act["beta_rad"])
 
     # -- 2-3: the nearest landmark, the DRM path, navigation ---------------------------
     async def _reach_nearest(self, run: MissionRun, w: World, robot: TracedRobot,
@@ -525,7 +422,7 @@ class MissionService:
             await self._fail(run, "drm_path", "the DRM has no path", **{"from": start},
                              to=run.config.goal)
         assert path is not None
-        run.landmarks = path.nodes
+        run.trace.landmarks = path.nodes
         await self._record(run, "drm_path", **{"from": start}, to=run.config.goal,
                            landmarks=path.nodes, methods=[s.method for s in path.steps],
                            probability=path.probability, ok=True)
@@ -546,14 +443,11 @@ class MissionService:
         """The laser scans of the way (odometry in the localized pose's frame) into a
         SLAM run, then committed: the world's map and its unknown regions."""
         report("mapping", 0.6)
-        laser = Laser(w)
-        assert run.fix is not None and run.anchor_odom is not None
-        est, odom0 = run.fix[0], run.anchor_odom
+        assert run.trace.fix is not None and run.trace.anchor_odom is not None
+        est, odom0 = run.trace.fix[0], run.trace.anchor_odom
 
         def take() -> list[ScanIn]:
-            return [scan_in(laser.scan(0.1 * (k + 1), truth,
-                                       compose(est, relative(odom0, odom)), rng))
-                    for k, (truth, odom) in enumerate(robot.trace)]
+            return [scan_in(s) for s in trace_scans(w, robot.trace, est, odom0, rng)]
 
         scans = await asyncio.to_thread(take)
         if len(scans) < 2:
@@ -564,8 +458,8 @@ class MissionService:
             await self.slam.add_scans(run.world, rid, scans[i:i + 200])
         c = await self.slam.commit(run.world, rid)
         times, poses = await self.slam.trajectory(run.world, rid)
-        run.slam_path = np.asarray(poses)
-        run.map = await self.slam.grid(run.world, rid)
+        run.trace.slam_path = np.asarray(poses)
+        run.trace.map = await self.slam.grid(run.world, rid)
         await self.slam.delete(run.world, rid)  # the committed map and facts stay
         await self._record(run, "slam_map", slam_run=rid, method=run.config.slam_method,
                            scans=len(scans), loop_closures=c["loop_closures"],
@@ -577,9 +471,7 @@ class MissionService:
                          report: Callable[[str, float], None]) -> None:
         cfg = run.config
         door = np.array(cfg.door, dtype=float)
-        heading = float(np.arctan2(*(door - robot.pose[:2])[::-1]))
-        robot.turn(float(wrap_angle(heading - robot.pose[2])))
-        ok = await thread_to_end(robot.forward, float(np.hypot(*(door - robot.pose[:2]))))
+        ok = await thread_to_end(robot.go_to, door)
         await self._record(run, "enter_room", door=door, ok=ok)
         if not ok:
             raise MissionFailed("could not enter the room")
@@ -600,7 +492,7 @@ class MissionService:
                                       for c, (t, xy) in seen.items()])
         plan = await self.viewpoint.plan(run.world, req)
         best = plan["plan"]
-        run.plan_poses = [tuple(st["pose"]) for st in best["steps"]]
+        run.trace.plan_poses = [tuple(st["pose"]) for st in best["steps"]]
         await self._record(run, "viewpoint_plan", candidates=sorted(seen),
                            grid=plan["grid"]["source"], groups=best["groups"],
                            expected_time_s=best["expected_time_s"] or -1.0,
@@ -614,7 +506,7 @@ class MissionService:
                 raise MissionFailed("cancelled")
 
         summary = await thread_to_end(summariser.run, step, on_cancel=stop.set)
-        run.summary = summary
+        run.trace.summary = summary
         s = summary.summary(w)
         await self._record(run, "verify", verified=s["verified"], rejected=s["rejected"],
                            unverified=s["unverified"], elapsed_s=s["elapsed_s"],
@@ -643,113 +535,13 @@ class MissionService:
 
     # -- the judgement ------------------------------------------------------------------
     async def _evaluate(self, run: MissionRun, w: World) -> None:
-        """Against the simulator's truth: the localization error at the stop that gave
-        the pose, whether the goal was reached, how many real objects were verified and
-        whether a false one was. ``localized_by``: eigenspace (its pose named a landmark
-        the robot reached) or wander (the fallback). Success: all steps done, the pose
-        the map is anchored at within 0.5 m and 30 degrees, and at least one real object
-        verified (if the world has any) with no false one."""
+        """Against the simulator's truth (:func:`numeric.mission.evaluate`): the
+        localization error at the stop that gave the pose, how it was found, the objects
+        verified; a success needs every step done up to the verification too."""
         done = {s["what"] for s in run.steps if s["result"].get("ok") is not False}
-        res: dict[str, Any] = {"steps_done": len(run.steps)}
-        loc_ok = False
-        if run.fix is not None:
-            est, truth = run.fix
-            err = float(np.hypot(*(est[:2] - truth[:2])))
-            herr = abs(float(wrap_angle(est[2] - truth[2])))
-            loc_ok = err <= 0.5 and herr <= np.deg2rad(30)
-            wander = any(s["what"] == "reach_landmark" and s["result"].get("how") == "wander"
-                         for s in run.steps)
-            res.update(localization_error_m=err, heading_error_rad=herr,
-                       localized_by="wander" if wander else "eigenspace")
-        if run.eigenspace_fix is not None:  # the eigenspace's own answer, kept or not
-            e, t = run.eigenspace_fix
-            res["eigenspace_error_m"] = float(np.hypot(*(e[:2] - t[:2])))
-        objects = {o.id for o in w.description.objects}
-        found = 0
-        false_found = 0
-        if run.summary is not None:
-            found = len(objects & set(run.summary.verified))
-            false_found = len(set(run.summary.verified) - objects)
-        res.update(objects=len(objects), objects_verified=found,
-                   false_verified=false_found, wall_time_s=run.elapsed_s)
-        run.success = bool(loc_ok and "verify" in done and found >= min(1, len(objects))
-                           and false_found == 0)
-        res["success"] = run.success
-        await self._record(run, "evaluation", **res)
-
-
-
-def mission_figure(run: MissionRun, world: World, path_png: str) -> None:
-    """One figure of a run: the committed SLAM map, the walls, the true path and SLAM's,
-    the localization stops (truth and the estimate), the DRM path's landmarks, the goal
-    room's summary path and the objects verified."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(9, 9))
-    if run.map is not None:
-        g = run.map
-        img = np.full(g.state.shape, 0.75)
-        img[g.state == FREE] = 1.0
-        img[g.state == OCCUPIED] = 0.0
-        x0, y0 = g.origin
-        x1 = x0 + g.state.shape[0] * g.resolution_m
-        y1 = y0 + g.state.shape[1] * g.resolution_m
-        ax.imshow(img.T, origin="lower", extent=(x0, x1, y0, y1), cmap="gray", vmin=0, vmax=1)
-    for a, b in zip(world.wall_a, world.wall_b, strict=True):
-        ax.plot([a[0], b[0]], [a[1], b[1]], "-", color="0.55", lw=0.8)
-    if run.truth_path:
-        p = np.array(run.truth_path)
-        ax.plot(p[:, 0], p[:, 1], "-", color="tab:blue", lw=1.2, label="true path")
-        ax.plot(p[0, 0], p[0, 1], "o", color="tab:blue", ms=9, mfc="white", label="woke up")
-    if run.slam_path is not None and len(run.slam_path):
-        ax.plot(run.slam_path[:, 0], run.slam_path[:, 1], "--", color="tab:orange", lw=1.2,
-                label=f"SLAM ({run.config.slam_method})")
-    for k, st in enumerate(run.stops):
-        t = st["truth"]
-        ax.plot(t[0], t[1], "x", color="black", ms=8,
-                label="localization stops (truth)" if k == 0 else None)
-    fixes = [(run.eigenspace_fix, "tab:red", "eigenspace pose")]
-    if run.fix is not None and (run.eigenspace_fix is None
-                                or not np.array_equal(run.fix[0], run.eigenspace_fix[0])):
-        fixes.append((run.fix, "tab:pink", "pose fixed at a landmark"))
-    for fix, colour, label in fixes:
-        if fix is not None:
-            e = fix[0]
-            ax.quiver(e[0], e[1], np.cos(e[2]), np.sin(e[2]), color=colour, scale=20,
-                      width=0.008, label=label, zorder=5)
-    if run.landmarks:
-        xy = np.array([world.landmark_position(lm) for lm in run.landmarks])
-        ax.plot(xy[:, 0], xy[:, 1], "o-", color="tab:green", lw=2, alpha=0.6,
-                label="DRM path")
-        for lm, (x, y) in zip(run.landmarks, xy, strict=True):
-            ax.annotate(lm, (x, y), textcoords="offset points", xytext=(5, 5), fontsize=8)
-    for k, (x, y, _th) in enumerate(run.plan_poses):
-        ax.plot(x, y, "^", color="tab:cyan", ms=9, mec="black",
-                label="planned viewpoints" if k == 0 else None)
-        ax.annotate(str(k + 1), (x, y), textcoords="offset points", xytext=(-3, -12),
-                    fontsize=8, color="tab:cyan")
-    if run.summary is not None:
-        s = np.array(run.summary.path)
-        ax.plot(s[:, 0], s[:, 1], "-", color="tab:purple", lw=1.2, label="room summary")
-        for k, (cid, xy) in enumerate(run.summary.verified.items()):
-            ax.plot(xy[0], xy[1], "o", ms=12, mfc="none", mec="tab:green", mew=2,
-                    label="verified" if k == 0 else None)
-            ax.annotate(cid, (float(xy[0]), float(xy[1])), textcoords="offset points",
-                        xytext=(6, -10), fontsize=8)
-    for o in world.description.objects:
-        ax.plot(o.x, o.y, "s", color="black", ms=4)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    outcome = "succeeded" if run.success else "failed"
-    learn = run.learning_s
-    ax.set_title(f"mission on {run.world}, seed {run.config.seed}: {outcome} "
-                 f"({len(run.steps)} steps, {run.elapsed_s - learn:.1f} s"
-                 + (f" + {learn:.0f} s learning)" if learn else ")"))
-    ax.legend(loc="upper left", fontsize=8, framealpha=0.9)
-    fig.tight_layout()
-    fig.savefig(path_png, dpi=110)
-    plt.close(fig)
+        wandered = any(s["what"] == "reach_landmark" and s["result"].get("how") == "wander"
+                       for s in run.steps)
+        ev = evaluate(run.trace, w, wandered)
+        run.success = ev.success("verify" in done)
+        await self._record(run, "evaluation", steps_done=len(run.steps), **ev.record(),
+                           wall_time_s=run.elapsed_s, success=run.success)

@@ -22,7 +22,7 @@ def mission_rows(world: dict[str, Any], config: dict[str, Any], seeds: list[int]
     ``config`` (a :class:`service.mission.MissionConfig` as JSON): one row per run, and
     the first run's figure when ``figure``."""
     from service.container import open_services
-    from service.mission import MissionConfig, mission_figure
+    from service.mission import MissionConfig
     from service.settings import Settings
 
     desc = WorldDescription.model_validate(world)
@@ -39,7 +39,7 @@ def mission_rows(world: dict[str, Any], config: dict[str, Any], seeds: list[int]
                 rows.append({"kind": kind, **run.row()})
                 if figure and k == 0:
                     out = Path(d) / "mission.png"
-                    mission_figure(run, svc.worlds.model(desc.name), str(out))
+                    run.figure(svc.worlds.model(desc.name), str(out))
                     png = out.read_bytes()
         finally:
             svc.close()

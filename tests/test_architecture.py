@@ -1,9 +1,10 @@
 """The one-way flow of imports: numeric's shared modules (numeric/*.py: geometry, world,
 simulator, scan, observation, occupancy, ...) -> the method packages (numeric/slam,
-eigenspace, qualitative, viewpoint; none imports another) -> service (service/kb.py the
-only module importing pyswip) -> the routes (service/api). Every import statement
-counts, also those inside functions. numeric knows no web and no HTTP: its errors name
-what went wrong, and service/errors.py alone gives them a status."""
+eigenspace, qualitative, viewpoint; none imports another) -> the modules composing them
+(numeric/mission.py: the mission's robot and its evaluation; numeric/figures.py) ->
+service (service/kb.py the only module importing pyswip) -> the routes (service/api).
+Every import statement counts, also those inside functions. numeric knows no web and no
+HTTP: its errors name what went wrong, and service/errors.py alone gives them a status."""
 
 from __future__ import annotations
 
@@ -18,6 +19,9 @@ ROOT = Path(__file__).resolve().parent.parent
 NUMERIC = ROOT / "numeric"
 SERVICE = ROOT / "service"
 METHODS = sorted(p.name for p in NUMERIC.iterdir() if (p / "__init__.py").exists())
+#: numeric's modules composing the method packages: they may import any of them, and
+#: no other numeric module imports them
+COMPOSITES = ("mission", "figures")
 #: what numeric never imports: the service, web frameworks and clients, HTTP, Prolog
 WEB = ("service", "fastapi", "starlette", "uvicorn", "pyswip", "http", "httpx")
 #: names that would carry an HTTP status, and the word that would explain one
@@ -39,12 +43,16 @@ def back_edges(root: Path) -> list[str]:
     for f in sorted(root.rglob("*.py")):
         rel = f.relative_to(ROOT)
         own = rel.parts[1] if len(rel.parts) > 2 else None  # method package, or shared
+        composite = len(rel.parts) == 2 and rel.stem in COMPOSITES
         for m in imports(f):
             top, *rest = m.split(".")
             if rel.parts[0] == "numeric":
                 if top in WEB:
                     bad.append(f"{rel} -> {m}")  # numeric knows no web and no Prolog
-                elif top == "numeric" and rest and rest[0] in METHODS and rest[0] != own:
+                elif top == "numeric" and rest and rest[0] in COMPOSITES and not composite:
+                    bad.append(f"{rel} -> {m}")  # shared or method -> their composition
+                elif top == "numeric" and rest and rest[0] in METHODS \
+                        and rest[0] != own and not composite:
                     bad.append(f"{rel} -> {m}")  # shared -> method, or method -> method
             else:
                 if top == "pyswip" and rel != Path("service/kb.py"):
@@ -117,6 +125,7 @@ def test_every_domain_error_has_one_status() -> None:
 
 def test_the_method_packages_are_found() -> None:
     assert {"slam", "eigenspace", "qualitative", "viewpoint"} <= set(METHODS)
+    assert all((NUMERIC / f"{c}.py").exists() for c in COMPOSITES)
 
 
 @pytest.mark.parametrize("root", [NUMERIC, SERVICE], ids=["numeric", "service"])
@@ -132,6 +141,19 @@ def test_the_check_sees_a_back_edge(tmp_path: Path, monkeypatch: pytest.MonkeyPa
     (fake / "shared.py").write_text("def f():\n    from numeric.slam.x import y\n")
     monkeypatch.setattr(__import__(__name__, fromlist=["ROOT"]), "ROOT", tmp_path)
     assert back_edges(fake) == ["numeric/shared.py -> numeric.slam.x"]
+
+
+def test_the_check_sees_a_composite_imported(tmp_path: Path,
+                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """A composite (numeric/mission.py) may import a method package; a method package
+    importing it is reported."""
+    fake = tmp_path / "numeric"
+    (fake / "viewpoint").mkdir(parents=True)
+    (fake / "viewpoint" / "__init__.py").write_text("")
+    (fake / "viewpoint" / "online.py").write_text("from numeric.mission import Trace\n")
+    (fake / "mission.py").write_text("from numeric.viewpoint.online import Run\n")
+    monkeypatch.setattr(__import__(__name__, fromlist=["ROOT"]), "ROOT", tmp_path)
+    assert back_edges(fake) == ["numeric/viewpoint/online.py -> numeric.mission"]
 
 
 def test_the_openapi_documents_every_answer() -> None:

@@ -209,3 +209,35 @@ def test_one_mission_per_world(client: TestClient, mission_run: dict[str, Any]) 
     assert again.status_code == 409, again.text
     assert again.headers["content-type"].startswith("application/problem+json")
     assert wait_job(client, r.headers["location"])["status"] == "done"
+
+
+def test_the_evaluation_judges_a_trace_against_the_truth(tmp_path: Any) -> None:
+    """numeric.mission.evaluate without a run: the anchored pose's errors (0.5 m and
+    30 degrees at most), the objects verified, a false one; and the figure of the trace."""
+    from numeric.figures import mission_figure
+    from numeric.mission import MissionTrace, evaluate
+    from numeric.viewpoint.online import SummaryRun
+
+    w = World(mission_world())
+    trace = MissionTrace(truth_path=[np.array([1.0, 1.0, 0.0]), np.array([3.0, 1.0, 0.0])],
+                         fix=(np.array([1.0, 1.0, 0.1]), np.array([1.18, 1.24, 0.0])),
+                         landmarks=["rn0a", "rn0b"])
+    ev = evaluate(trace, w, wandered=False)
+    assert ev.localization_error_m == pytest.approx(0.3) and ev.localized_by == "eigenspace"
+    assert ev.pose_ok and (ev.objects, ev.objects_verified, ev.false_verified) == (3, 0, 0)
+    assert not ev.success(verified=True)  # the world has objects and none was verified
+    assert list(ev.record()) == ["localization_error_m", "heading_error_rad", "localized_by",
+                                 "objects", "objects_verified", "false_verified"]
+    trace.summary = SummaryRun(path=[np.array([6.0, 5.0]), np.array([7.0, 6.0])], log=[],
+                               verified={"mug": np.array([7.2, 6.6])}, rejected={},
+                               unverified={}, grid=None, elapsed_s=10.0)  # type: ignore[arg-type]
+    ev = evaluate(trace, w, wandered=True)
+    assert ev.localized_by == "wander" and ev.success(verified=True)
+    assert not ev.success(verified=False)
+    trace.summary.verified["ghost"] = np.array([8.0, 6.0])
+    assert evaluate(trace, w, wandered=True).false_verified == 1
+    assert not evaluate(trace, w, wandered=True).success(verified=True)
+    trace.fix = (np.array([1.0, 1.0, 0.6]), np.array([1.0, 1.0, 0.0]))  # 34 degrees off
+    assert not evaluate(trace, w, wandered=False).pose_ok
+    mission_figure(trace, w, str(tmp_path / "m.png"), "a trace")
+    assert (tmp_path / "m.png").read_bytes()[:4] == b"\x89PNG"

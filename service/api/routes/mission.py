@@ -8,9 +8,8 @@ from fastapi import APIRouter, Response, status
 
 from service.api.strict import StrictJsonRoute
 from service.deps import MissionDep, WorldDep
-from service.mission import MissionConfig
 from service.schemas.jobs import JobOut
-from service.schemas.mission import MissionRecordOut
+from service.schemas.mission import MissionConfig, MissionRecordOut
 
 router = APIRouter(prefix="/worlds/{world}", tags=["mission"], route_class=StrictJsonRoute)
 
