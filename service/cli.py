@@ -352,7 +352,7 @@ def plan(scene: str = typer.Argument(..., help="SCENE.json: a viewpoint-plan req
     from numeric.viewpoint.planner import ViewpointPlanner
     from numeric.world import World
     from service.schemas.viewpoint import PlanRequest
-    from service.viewpoint import local_grouper, report_json
+    from service.viewpoint import local_grouper, plan_answer
 
     try:
         req = PlanRequest.model_validate_json(Path(scene).read_text())
@@ -376,29 +376,29 @@ def plan(scene: str = typer.Argument(..., help="SCENE.json: a viewpoint-plan req
         raise typer.Exit(2) from None
     finally:
         kb.close()
-    out = report_json("scene", report, "posted" if req.grid else "simulated", grid, req)
+    out = plan_answer("scene", report, "posted" if req.grid else "simulated", grid, req)
     t = Table(title=f"groups ({req.loss}, t_limit {req.time_limit_s:g} s)")
     for col in ("group", "kind", "members", "value", "t_obs (s)", "strategy"):
         t.add_column(col)
-    for g in out["groups"]:
-        t.add_row(g["name"], g["kind"], ",".join(map(str, g["members"])), f"{g['value']:.1f}",
-                  f"{g['t_obs_s']:.2f}", g.get("strategy", "explore"))
+    for g in out.groups:
+        t.add_row(g.name, g.kind, ",".join(map(str, g.members)), f"{g.value:.1f}",
+                  f"{g.t_obs_s:.2f}", g.strategy or "explore")
     console.print(t)
     t = Table(title="plans (best first)")
     for col in ("plan", "V", "time (s)", "loss", "U"):
         t.add_column(col)
-    for p in [out["plan"], *out["runner_ups"]]:
-        t.add_row(" → ".join(p["groups"]) or "(leave)", f"{p['value']:.1f}",
-                  f"{p['expected_time_s']:.2f}",
-                  "∞" if p["loss"] is None else f"{p['loss']:.2f}",
-                  "-∞" if p["utility"] is None else f"{p['utility']:.2f}")
+    for p in [out.plan, *out.runner_ups]:
+        t.add_row(" → ".join(p.groups) or "(leave)", f"{p.value:.1f}",
+                  f"{p.expected_time_s:.2f}",
+                  "∞" if p.loss is None else f"{p.loss:.2f}",
+                  "-∞" if p.utility is None else f"{p.utility:.2f}")
     console.print(t)
-    console.print(f"planning {out['timings_ms']['total']:.1f} ms "
-                  f"(tables built {out['tables']['built']})")
+    console.print(f"planning {out.timings_ms['total']:.1f} ms "
+                  f"(tables built {out.tables.built})")
     if png:
         plan_figure(report, req, grid, png)
         console.print(f"wrote {png}")
-    console.print_json(json.dumps({"plan": out["plan"]}))
+    console.print_json(json.dumps({"plan": out.plan.model_dump(exclude_unset=True)}))
 
 
 @app.command()

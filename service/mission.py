@@ -491,13 +491,12 @@ class MissionService:
                                                   y=float(xy[1]))
                                       for c, (t, xy) in seen.items()])
         plan = await self.viewpoint.plan(run.world, req)
-        best = plan["plan"]
-        run.trace.plan_poses = [tuple(st["pose"]) for st in best["steps"]]
+        best = plan.plan
+        run.trace.plan_poses = [(st.pose[0], st.pose[1], st.pose[2]) for st in best.steps]
         await self._record(run, "viewpoint_plan", candidates=sorted(seen),
-                           grid=plan["grid"]["source"], groups=best["groups"],
-                           expected_time_s=best["expected_time_s"] or -1.0,
-                           utility=best["utility"] or 0.0, feasible=best["feasible"],
-                           ok=True)
+                           grid=plan.grid.source, groups=best.groups,
+                           expected_time_s=best.expected_time_s or -1.0,
+                           utility=best.utility or 0.0, feasible=best.feasible, ok=True)
         report("verifying candidates", 0.8)
         stop = threading.Event()
 

@@ -21,13 +21,13 @@ from numeric.occupancy import OccupancyMap
 from numeric.viewpoint.planner import GroupSpec
 from service.compute import Cached, ComputePool, blob_key
 from service.kb import KnowledgeBase
-from service.schemas.viewpoint import PlanRequest
+from service.schemas.viewpoint import PlanRequest, ViewpointPlanOut
 from service.slam import MAP_ARTIFACT
 from service.store import Store
-from service.viewpoint_tasks import finish_task, prepare_task, report_json
+from service.viewpoint_tasks import finish_task, plan_answer, prepare_task
 from service.worlds import ArtifactKind, WorldService
 
-__all__ = ["ViewpointService", "kb_grouper", "local_grouper", "report_json"]
+__all__ = ["ViewpointService", "kb_grouper", "local_grouper", "plan_answer"]
 
 SCENE_ARTIFACT = "viewpoint_scene"
 
@@ -73,7 +73,7 @@ class ViewpointService:
             return "slam_map", Cached(blob_key(blob), blob, OccupancyMap.from_npz)
         return "simulated", self.worlds.cached_model(world)
 
-    async def plan(self, world: str, req: PlanRequest) -> dict[str, Any]:
+    async def plan(self, world: str, req: PlanRequest) -> ViewpointPlanOut:
         """One planning step: the grid and step 1 in a compute worker, the grouping by
         the world's Prolog rules, steps 3-4 and the answer in a compute worker."""
         self.worlds.require(world)  # 404 for an unknown world

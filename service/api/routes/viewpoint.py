@@ -16,7 +16,8 @@ router = APIRouter(prefix="/worlds/{world}", tags=["viewpoint planning"],
 
 @router.post("/viewpoint-plan", response_model=ViewpointPlanOut,
              response_model_exclude_unset=True)
-async def post_plan(world: WorldDep, body: ViewpointPlanIn, vp: ViewpointDep) -> dict[str, Any]:
+async def post_plan(world: WorldDep, body: ViewpointPlanIn,
+                    vp: ViewpointDep) -> ViewpointPlanOut:
     """Group the candidates and unknown regions (Prolog rules), estimate each group's
     verification time (24 viewpoints, eqs. 5-10) and value (eqs. 15-17), and choose the
     ordered plan maximising U = V - L(t) (eq. 11) under loss L1, L2 or L3. The grid is the
