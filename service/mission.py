@@ -74,7 +74,7 @@ from service.disconnect import thread_to_end
 from service.eigenspace import EigenspaceService
 from service.jobs import JobProgress, Jobs
 from service.kb import KnowledgeBase
-from service.schemas.mission import MissionConfig
+from service.schemas.mission import MissionConfig, MissionRecordOut
 from service.schemas.slam import ScanIn
 from service.schemas.viewpoint import CandidateIn, ObjectType, PlanRequest
 from service.slam import SlamService
@@ -195,12 +195,12 @@ class MissionService:
 
         return self.jobs.start(world, MISSION_JOB, work)
 
-    def record(self, world: str) -> dict[str, Any]:
+    def record(self, world: str) -> MissionRecordOut:
         """The world's last mission record as stored (the facts' rows)."""
         self.worlds.require(world)
         blob = self.worlds.store.artifact(world, MISSION_ARTIFACT)
         steps = json.loads(blob)["steps"] if blob is not None else []
-        return {"world": world, "steps": steps}
+        return MissionRecordOut(world=world, steps=steps)
 
     def check(self, world: str, config: MissionConfig) -> None:
         """404 / 422 before any work: the world, the goal landmark, the room and door."""
@@ -452,8 +452,7 @@ class MissionService:
         scans = await asyncio.to_thread(take)
         if len(scans) < 2:
             await self._fail(run, "slam_map", "the robot did not move", scans=len(scans))
-        status = await self.slam.create(run.world, SlamOptions(method=run.config.slam_method))
-        rid = status["id"]
+        rid = (await self.slam.create(run.world, SlamOptions(method=run.config.slam_method))).id
         for i in range(0, len(scans), 200):
             await self.slam.add_scans(run.world, rid, scans[i:i + 200])
         c = await self.slam.commit(run.world, rid)
@@ -462,9 +461,9 @@ class MissionService:
         run.trace.map = await self.slam.grid(run.world, rid)
         await self.slam.delete(run.world, rid)  # the committed map and facts stay
         await self._record(run, "slam_map", slam_run=rid, method=run.config.slam_method,
-                           scans=len(scans), loop_closures=c["loop_closures"],
-                           unknown_regions=len(c["unknown_regions"]),
-                           free_m2=c["map"]["free_m2"], ok=True)
+                           scans=len(scans), loop_closures=c.loop_closures,
+                           unknown_regions=len(c.unknown_regions), free_m2=c.map.free_m2,
+                           ok=True)
 
     # -- 5: the goal room ---------------------------------------------------------------
     async def _summarise(self, run: MissionRun, w: World, robot: TracedRobot,

@@ -35,7 +35,8 @@ from numeric.slam.runner import Slam, SlamOptions, create, warm_up
 from service.compute import BudgetExceeded
 from service.disconnect import thread_to_end
 from service.kb import KnowledgeBase
-from service.schemas.slam import ScanIn
+from service.schemas.common import PoseOut
+from service.schemas.slam import CommitOut, ScanIn, SlamRunListed, SlamRunOut
 from service.store import Store
 from service.worlds import ArtifactKind, WorldService
 
@@ -76,13 +77,15 @@ class Run:
     lock: asyncio.Lock = field(default_factory=asyncio.Lock)
     _map: tuple[tuple[int, bool], OccupancyMap] | None = None
 
-    def status(self) -> dict[str, Any]:
+    def status(self) -> SlamRunOut:
+        """The run's options, scans and keyframes so far, the last stamp and pose."""
         pose = self.slam.pose
-        return {"id": self.id, "world": self.world, "options": self.options.model_dump(),
-                "scans": self.scans, "keyframes": len(self.slam.keyframes),
-                "last_t": None if self.scans == 0 else self.last_t,
-                "pose": None if self.scans == 0 else
-                {"x": float(pose[0]), "y": float(pose[1]), "theta": float(pose[2])}}
+        # the options as a copy: the answer does not share the run's own
+        return SlamRunOut(id=self.id, world=self.world, options=self.options.model_dump(),
+                          scans=self.scans, keyframes=len(self.slam.keyframes),
+                          last_t=None if self.scans == 0 else self.last_t,
+                          pose=None if self.scans == 0 else PoseOut(
+                              x=float(pose[0]), y=float(pose[1]), theta=float(pose[2])))
 
 
 class SlamService:
@@ -125,7 +128,7 @@ class SlamService:
         SlamService._process(run, [to_scan(ScanIn.model_validate(r)) for r in rows])
         run.replayed = True
 
-    async def create(self, world: str, options: SlamOptions) -> dict[str, Any]:
+    async def create(self, world: str, options: SlamOptions) -> SlamRunOut:
         self.worlds.require(world)
         rid = "r" + uuid.uuid4().hex[:16]
         # the method's kernels loaded before the first scan, not during it (once)
@@ -136,16 +139,16 @@ class SlamService:
         self.runs[rid] = run
         return run.status()
 
-    def list_runs(self, world: str) -> list[dict[str, Any]]:
+    def list_runs(self, world: str) -> list[SlamRunListed]:
         self.worlds.require(world)
-        return [{"id": r.id, "method": r.options.method,
-                 "scans": r.scans if r.replayed else None}
+        return [SlamRunListed(id=r.id, method=r.options.method,
+                              scans=r.scans if r.replayed else None)
                 for r in self.runs.values() if r.world == world]
 
-    async def status(self, world: str, rid: str) -> dict[str, Any]:
+    async def status(self, world: str, rid: str) -> SlamRunOut:
         return (await self._run(world, rid)).status()
 
-    async def add_scans(self, world: str, rid: str, items: list[ScanIn]) -> dict[str, Any]:
+    async def add_scans(self, world: str, rid: str, items: list[ScanIn]) -> SlamRunOut:
         run = await self._run(world, rid)
         async with run.lock:
             scans: list[Scan] = []
@@ -226,7 +229,7 @@ class SlamService:
                 run._map = (key, g)
             return run._map[1]
 
-    async def commit(self, world: str, rid: str) -> dict[str, Any]:
+    async def commit(self, world: str, rid: str) -> CommitOut:
         """Make the run's map the world's map: facts into the knowledge base, grid stored."""
         run = await self._run(world, rid)
         if run.scans:  # global scan alignment first (graph SLAM, the improved RBPF)
@@ -248,8 +251,8 @@ class SlamService:
         blob, npz = await asyncio.to_thread(lambda: (json.dumps(call).encode(), g.to_npz()))
         async with self.worlds.write_artifact(world, FACTS_ARTIFACT) as w:
             reply = await w.commit(blob, {MAP_ARTIFACT: npz}, call)
-        return {"world": world, "run": rid, "facts": reply, "map": summary,
-                "unknown_regions": regions, "loop_closures": len(closures)}
+        return CommitOut(world=world, run=rid, facts=reply, map=summary,
+                         unknown_regions=regions, loop_closures=len(closures))
 
     async def summary(self, world: str) -> Any:
         self.worlds.require(world)

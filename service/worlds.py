@@ -29,6 +29,7 @@ from numeric.world import World, WorldDescription
 from numeric.worlds import TEMPLATES, from_template
 from service.compute import Cached, blob_key, load_world
 from service.kb import KbError, KnowledgeBase
+from service.schemas.common import WorldSummary
 from service.store import Store
 
 log = logging.getLogger(__name__)
@@ -255,7 +256,7 @@ class WorldService:
         self._drm_graphs.pop(world, None)
 
     # -- worlds ------------------------------------------------------------------------
-    async def create(self, desc: WorldDescription) -> dict[str, Any]:
+    async def create(self, desc: WorldDescription) -> WorldSummary:
         desc = resolve_description(desc)
         async with self._write:
             if self.store.world(desc.name) is not None:
@@ -288,12 +289,12 @@ class WorldService:
         blob = self.model(name).description.model_dump_json().encode()
         return Cached(blob_key(blob), blob, load_world)
 
-    def summary(self, name: str) -> dict[str, Any]:
-        w = self.model(name)
-        d = w.description
-        return {"name": d.name, "template": d.template, "landmarks": len(d.landmarks),
-                "walls": len(d.walls), "objects": len(d.objects),
-                "events": self.store.event_count(name)}
+    def summary(self, name: str) -> WorldSummary:
+        """What the world holds: its template, landmarks, walls, objects and events."""
+        d = self.model(name).description
+        return WorldSummary(name=d.name, template=d.template, landmarks=len(d.landmarks),
+                            walls=len(d.walls), objects=len(d.objects),
+                            events=self.store.event_count(name))
 
     def names(self) -> list[str]:
         return [r.name for r in self.store.worlds()]

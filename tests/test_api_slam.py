@@ -376,7 +376,7 @@ def test_a_cancelled_batch_keeps_store_and_memory_in_step(tmp_path: Any) -> None
 
     async def go() -> None:
         await svc.worlds.create(WorldDescription(name="w", template="loop"))
-        rid = (await svc.slam.create("w", SlamOptions(method="graph")))["id"]
+        rid = (await svc.slam.create("w", SlamOptions(method="graph"))).id
         task = asyncio.ensure_future(svc.slam.add_scans("w", rid, items))
         for _ in range(1200):  # cancel once some scans are in (a loaded machine is slow)
             await asyncio.sleep(0.05)
@@ -389,7 +389,7 @@ def test_a_cancelled_batch_keeps_store_and_memory_in_step(tmp_path: Any) -> None
         assert 0 < n < len(items)
         assert len(svc.store.slam_scans(rid)) == n
         st = await svc.slam.add_scans("w", rid, items[n:n + 5])
-        assert st["scans"] == n + 5 == len(svc.store.slam_scans(rid))
+        assert st.scans == n + 5 == len(svc.store.slam_scans(rid))
 
     try:
         asyncio.run(go())

@@ -30,7 +30,7 @@ async def post_mission(world: WorldDep, config: MissionConfig, mission: MissionD
 
 
 @router.get("/mission", response_model=MissionRecordOut)
-async def get_mission(world: WorldDep, mission: MissionDep) -> dict[str, Any]:
+async def get_mission(world: WorldDep, mission: MissionDep) -> MissionRecordOut:
     """The world's last mission record, step by step (empty if none ran); the same rows
     as the knowledge base's ``mission_step(S, What, Result)`` facts."""
     return mission.record(world)

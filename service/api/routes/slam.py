@@ -28,21 +28,21 @@ RunId = Annotated[str, Path(pattern=r"^r[0-9a-f]{1,64}$", description="SLAM run 
 
 @router.post("/slam-runs", status_code=status.HTTP_201_CREATED, response_model=SlamRunOut)
 async def post_run(world: WorldDep, options: SlamRunIn, slam: SlamDep,
-                   response: Response) -> dict[str, Any]:
+                   response: Response) -> SlamRunOut:
     """Start a SLAM run (method odom | icp | gated | rbpf | graph, particles, intensity weight
     alpha, RBPF proposal and resampling, map resolution, seed)."""
     run = await slam.create(world, options)
-    response.headers["Location"] = f"/worlds/{world}/slam-runs/{run['id']}"
+    response.headers["Location"] = f"/worlds/{world}/slam-runs/{run.id}"
     return run
 
 
 @router.get("/slam-runs", response_model=list[SlamRunListed])
-async def get_runs(world: WorldDep, slam: SlamDep) -> list[dict[str, Any]]:
+async def get_runs(world: WorldDep, slam: SlamDep) -> list[SlamRunListed]:
     return slam.list_runs(world)
 
 
 @router.get("/slam-runs/{rid}", response_model=SlamRunOut)
-async def get_run(world: WorldDep, rid: RunId, slam: SlamDep) -> dict[str, Any]:
+async def get_run(world: WorldDep, rid: RunId, slam: SlamDep) -> SlamRunOut:
     """Scans so far, keyframes, the current pose estimate."""
     return await slam.status(world, rid)
 
@@ -54,16 +54,16 @@ async def delete_run(world: WorldDep, rid: RunId, slam: SlamDep) -> Response:
 
 
 @router.post("/slam-runs/{rid}/scans", response_model=SlamRunOut)
-async def post_scans(world: WorldDep, rid: RunId, body: ScansIn, slam: SlamDep) -> dict[str, Any]:
+async def post_scans(world: WorldDep, rid: RunId, body: ScansIn, slam: SlamDep) -> SlamRunOut:
     """Stream up to 500 scans (each with its odometry) in increasing time order; the
     batch is all-or-nothing. Returns the run's status with the new pose."""
     return await slam.add_scans(world, rid, body.scans)
 
 
 @router.get("/slam-runs/{rid}/pose", response_model=SlamPoseOut)
-async def get_pose(world: WorldDep, rid: RunId, slam: SlamDep) -> dict[str, Any]:
+async def get_pose(world: WorldDep, rid: RunId, slam: SlamDep) -> SlamPoseOut:
     st = await slam.status(world, rid)
-    return {"t": st["last_t"], "pose": st["pose"], "scans": st["scans"]}
+    return SlamPoseOut(t=st.last_t, pose=st.pose, scans=st.scans)
 
 
 @router.get("/slam-runs/{rid}/trajectory", response_model=None, responses={200: {
@@ -74,7 +74,7 @@ async def get_trajectory(world: WorldDep, rid: RunId, slam: SlamDep,
     t, p = await slam.trajectory(world, rid)
     if format == "tum":
         return Response(format_tum(t, p), media_type="text/plain")
-    return {"t": t.tolist(), "poses": np.round(p, 6).tolist()}
+    return TrajectoryOut(t=t.tolist(), poses=np.round(p, 6).tolist())
 
 
 @router.get("/slam-runs/{rid}/map.png", response_class=Response,
@@ -102,7 +102,7 @@ async def get_map_yaml(world: WorldDep, rid: RunId, slam: SlamDep) -> Response:
 
 
 @router.post("/slam-runs/{rid}/commit", response_model=CommitOut)
-async def post_commit(world: WorldDep, rid: RunId, slam: SlamDep) -> dict[str, Any]:
+async def post_commit(world: WorldDep, rid: RunId, slam: SlamDep) -> CommitOut:
     """Make this run's map the world's map: keyframe poses, occupancy summary and
     enclosed unknown regions become facts; the grid is stored for the planners."""
     return await slam.commit(world, rid)

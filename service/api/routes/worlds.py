@@ -9,12 +9,12 @@ router = APIRouter(prefix="/worlds", tags=["worlds"], route_class=StrictJsonRout
 
 
 @router.get("", response_model=list[WorldSummary])
-async def list_worlds(worlds: WorldsDep) -> list[dict]:
+async def list_worlds(worlds: WorldsDep) -> list[WorldSummary]:
     return [worlds.summary(n) for n in worlds.names()]
 
 
 @router.post("", response_model=WorldSummary, status_code=status.HTTP_201_CREATED)
-async def create_world(body: WorldDescription, worlds: WorldsDep) -> dict:
+async def create_world(body: WorldDescription, worlds: WorldsDep) -> WorldSummary:
     """Create a world from a JSON description, a built-in ``template``, or both."""
     return await worlds.create(body)
 
