@@ -99,16 +99,17 @@ def wake_up(world: World, region: Region | None, odometry: OdometryConfig,
     return TracedRobot(world=world, pose=pose, odometry=odometry, rng=rng)
 
 
-def drive(robot: TracedRobot, action: dict[str, float], clearance_m: float = 0.3) -> None:
+def drive(robot: TracedRobot, alpha_rad: float, l_m: float, beta_rad: float,
+          clearance_m: float = 0.3) -> None:
     """The movement strategy's action (alpha, l, beta): turn, drive, turn; the drive
     stops ``clearance_m`` before a wall, as the strategy's model of a move has it
     (Maeda & Shirai §3.4; the robot's laser sees the wall)."""
-    robot.turn(action["alpha_rad"])
+    robot.turn(alpha_rad)
     room = free_distance(robot.pose[:2], robot.pose[2], robot.world.surfaces.a,
                          robot.world.surfaces.b)[0] - clearance_m
-    robot.forward(float(np.clip(min(action["l_m"], room), 0.0, None)))
+    robot.forward(float(np.clip(min(l_m, room), 0.0, None)))
     robot.collided = False
-    robot.turn(action["beta_rad"])
+    robot.turn(beta_rad)
 
 
 def landmark_pose(world: World, robot: Robot, observer: LandmarkObserver,

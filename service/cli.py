@@ -681,7 +681,6 @@ def eigen_localize(world: Annotated[str, typer.Argument(help="stored world with 
                             "2*pi*j/n")],
                    size: SizeOpt = None) -> None:
     """Localize one full turn of image files: state, pose when localized, candidates."""
-    import json
 
     import numpy as np
 
@@ -694,7 +693,7 @@ def eigen_localize(world: Annotated[str, typer.Argument(help="stored world with 
         wh = parse_size(size)
         turn = np.stack([decode_image(f.name, f.read_bytes(), wh) for f in files])
         r = asyncio.run(eig.localize(world, turn))
-        console.print_json(json.dumps(r))
+        console.print_json(r.model_dump_json())
     except (ChizuError, ValueError, OSError) as e:
         console.print(f"[red]{getattr(e, 'field', '')}: {e}[/red]")
         raise typer.Exit(2) from None

@@ -50,6 +50,18 @@ from service.compute import (
 )
 from service.jobs import JobProgress, Jobs
 from service.kb import KnowledgeBase
+from service.schemas.eigenspace import (
+    CameraOut,
+    EigenspaceOut,
+    LearningPointOut,
+    LocalizationOut,
+    MoveOut,
+    NextMoveOut,
+    PointOut,
+    SessionCreated,
+    SessionLocalizationOut,
+    TripletOut,
+)
 from service.store import Store
 from service.worlds import ArtifactKind, WorldService
 
@@ -177,20 +189,22 @@ class EigenspaceService:
             self._keep(world, a, blob)
         return a
 
-    def summary(self, world: str) -> dict[str, Any]:
+    def summary(self, world: str) -> EigenspaceOut:
         """The analysis summary plus what it learned: the learning points (id, x, y) and
         the localizable triplets (their points' ids, the three directions, the triangle's
         area, the common target and the candidate-multiple set, if any)."""
         a = self.analysis(world)
-        out = a.summary(self.worlds.model(world))
         facts = facts_call(world, a)  # the rows the knowledge base is given, plus more
         set_of, target = a.set_of(), a.triplets.target
-        out["points"] = [{"id": i, "x": x, "y": y} for i, (x, y) in enumerate(facts["points"])]
-        out["triplet_list"] = [
-            {"id": i, **row, "target": {"x": float(target[i, 0]), "y": float(target[i, 1])},
-             "candidate_set": None if set_of[i] < 0 else int(set_of[i])}
-            for i, row in enumerate(facts["triplets"])]
-        return out
+        return EigenspaceOut(
+            **a.summary(self.worlds.model(world)),
+            points=[LearningPointOut(id=i, x=x, y=y)
+                    for i, (x, y) in enumerate(facts["points"])],
+            triplet_list=[
+                TripletOut(id=i, **row, target=PointOut(x=float(target[i, 0]),
+                                                        y=float(target[i, 1])),
+                           candidate_set=None if set_of[i] < 0 else int(set_of[i]))
+                for i, row in enumerate(facts["triplets"])])
 
     # -- localization ---------------------------------------------------------------------
     async def _transition(self, world: str, state: dict[str, Any], triplets: list[int],
@@ -205,14 +219,15 @@ class EigenspaceService:
         return stop_report(session, vote, self.analysis(world).model, self.worlds.model(world))
 
     @staticmethod
-    def _answer(state: dict[str, Any], outcome: str, report: dict[str, Any]) -> dict[str, Any]:
-        """The answer: state, outcome, pose (in state Z), candidates (``report``:
-        :func:`service.compute.stop_report`)."""
+    def _answer(state: dict[str, Any], outcome: str, report: dict[str, Any]
+                ) -> dict[str, Any]:
+        """The fields of an answer: the state (as the Fig. 4 rules gave it), outcome, pose
+        (in state Z), candidates (``report``: :func:`service.compute.stop_report`)."""
         pose = report["estimate"] if state.get("state") == "z" else None
         return {"state": state, "outcome": outcome, "pose": pose, "stops": report["stops"],
                 "unique": report["unique"], "candidates": report["candidates"]}
 
-    async def localize(self, world: str, turn: list[str] | np.ndarray) -> dict[str, Any]:
+    async def localize(self, world: str, turn: list[str] | np.ndarray) -> LocalizationOut:
         """One stop from state X: state, pose (when Z) and candidates. The turn is
         decoded, matched, voted on and reported in a compute worker; the Fig. 4 rules
         decide the state."""
@@ -221,16 +236,17 @@ class EigenspaceService:
         assert isinstance(r1, FirstStop)
         r = await self._transition(world, {"state": "x"}, r1.session.stop_triplets(0),
                                    r1.vote.unique)
-        return self._answer(r["state"], r["outcome"], self._report(world, r1.session, r1.vote))
+        return LocalizationOut(**self._answer(r["state"], r["outcome"],
+                                              self._report(world, r1.session, r1.vote)))
 
-    async def create_session(self, world: str) -> dict[str, Any]:
+    async def create_session(self, world: str) -> SessionCreated:
         a = self.analysis(world)
         st = SessionState(world, Session(a.config.localization))
         sid = uuid.uuid4().hex
         async with self._session_lock:
             with self.store.transaction() as conn:
                 self.store.put_session(conn, sid, world, st.to_dict())
-        return {"id": sid, "world": world, "state": st.state, "stops": 0}
+        return SessionCreated(id=sid, world=world, state=st.state, stops=0)
 
     def _session(self, world: str, sid: str) -> SessionState:
         self.worlds.require(world)
@@ -240,15 +256,15 @@ class EigenspaceService:
                            field="session")
         return SessionState.from_dict(world, row[1])
 
-    async def session(self, world: str, sid: str) -> dict[str, Any]:
+    async def session(self, world: str, sid: str) -> SessionLocalizationOut:
         st = self._session(world, sid)
         vote = st.session.vote(self.analysis(world).set_of())
-        out = self._answer(st.state, st.history[-1]["outcome"] if st.history else "none",
-                           self._report(world, st.session, vote))
-        return {"id": sid, **out}
+        return SessionLocalizationOut(id=sid, **self._answer(
+            st.state, st.history[-1]["outcome"] if st.history else "none",
+            self._report(world, st.session, vote)))
 
     async def add_stop(self, world: str, sid: str, turn: list[str] | np.ndarray,
-                       motion: np.ndarray | None) -> dict[str, Any]:
+                       motion: np.ndarray | None) -> SessionLocalizationOut:
         """A stop: images of one full turn and the odometry (dx, dy, dtheta) since the
         previous stop's start, in that stop's frame."""
         a = self.analysis(world)  # 404s before the work
@@ -269,23 +285,24 @@ class EigenspaceService:
             st.history.append({"stop": k, "outcome": r["outcome"], "state": r["state"]})
             with self.store.transaction() as conn:
                 self.store.put_session(conn, sid, world, st.to_dict())
-        return {"id": sid, **self._answer(st.state, r["outcome"],
-                                          self._report(world, st.session, vote))}
+        return SessionLocalizationOut(id=sid, **self._answer(
+            st.state, r["outcome"], self._report(world, st.session, vote)))
 
-    async def next_move(self, world: str, sid: str) -> dict[str, Any]:
+    async def next_move(self, world: str, sid: str) -> NextMoveOut:
         """The movement strategy's action (alpha, l, beta) and its Q(Z) (§3.5),
         computed in a compute worker."""
         self.analysis(world)
         st = self._session(world, sid)
         if st.state.get("state") == "z":
-            return {"state": st.state, "action": None, "q_z": 1.0}
+            return NextMoveOut(state=st.state, action=None, q_z=1.0)
         m = st.state.get("set")
         dec = await self.compute.run_cached(
             next_move_task, (self._blobs[world], self.worlds.cached_model(world)),
             st.session, m if isinstance(m, int) else None)
-        return {"state": st.state,
-                "action": {"alpha_rad": float(dec.action[0]), "l_m": float(dec.action[1]),
-                           "beta_rad": float(dec.action[2])}, "q_z": dec.q_z}
+        return NextMoveOut(state=st.state,
+                           action=MoveOut(alpha_rad=float(dec.action[0]),
+                                          l_m=float(dec.action[1]),
+                                          beta_rad=float(dec.action[2])), q_z=dec.q_z)
 
     async def covering(self, world: str, x: float, y: float) -> list[dict[str, Any]]:
         self.analysis(world)
@@ -293,12 +310,12 @@ class EigenspaceService:
 
     # -- camera -------------------------------------------------------------------------
     async def render(self, world: str, pose: np.ndarray, config: CameraConfig | None,
-                     turn: int | None, fmt: str = "png") -> dict[str, Any]:
+                     turn: int | None, fmt: str = "png") -> CameraOut:
         """The simulated camera at ``pose`` (one image, or a full turn), rendered and
-        encoded in a compute worker: ``{"images_png": [...]}`` or ``{"images": [...]}``."""
+        encoded in a compute worker: ``images_png`` or ``images`` (the other unset)."""
         self.worlds.require(world)
         if config is None:
             a = self._analyses.get(world)
             config = a.config.camera if a is not None else CameraConfig()
-        return await self.compute.run_cached(camera_task, self.worlds.cached_model(world),
-                                             config, pose, turn, fmt)
+        return CameraOut(**await self.compute.run_cached(
+            camera_task, self.worlds.cached_model(world), config, pose, turn, fmt))

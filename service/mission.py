@@ -335,7 +335,7 @@ class MissionService:
         cam = Camera(w, a.config.camera.model_copy(update={"noise_sigma":
                                                            run.config.camera_noise}), rng=rng)
         n = len(a.model.directions)
-        sid = (await self.eigenspace.create_session(run.world))["id"]
+        sid = (await self.eigenspace.create_session(run.world)).id
         prev: np.ndarray | None = None
         for k in range(run.config.max_stops):
             report(f"localizing: stop {k + 1}", 0.05 + 0.25 * k / run.config.max_stops)
@@ -343,18 +343,17 @@ class MissionService:
             motion = None if prev is None else relative(prev, robot.odom_pose)
             ans = await self.eigenspace.add_stop(run.world, sid, imgs, motion)
             run.trace.stops.append(robot.pose.copy())
-            state = ans["state"]["state"]
-            if state == "z" and ans["pose"] is not None:
-                p = ans["pose"]
-                est = np.array([p["x"], p["y"], p["theta"]], dtype=float)
+            state = ans.state.state
+            if state == "z" and ans.pose is not None:
+                p = ans.pose
+                est = np.array([p.x, p.y, p.theta], dtype=float)
                 await self._record(run, "localize", session=sid, stops=k + 1, state="z",
                                    x=est[0], y=est[1], theta=est[2], ok=True)
                 return est
-            move = await self.eigenspace.next_move(run.world, sid)
-            act = move["action"]
+            act = (await self.eigenspace.next_move(run.world, sid)).action
             prev = robot.odom_pose.copy()
             if act is not None:
-                await thread_to_end(drive, robot, act)
+                await thread_to_end(drive, robot, act.alpha_rad, act.l_m, act.beta_rad)
             run.trace.truth_path.append(robot.pose.copy())
         await self._record(run, "localize", session=sid, stops=run.config.max_stops,
                            state=state, localized=False,

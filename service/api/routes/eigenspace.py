@@ -155,7 +155,7 @@ async def get_job(world: WorldDep, job_id: JobId, eig: EigenspaceDep) -> dict[st
 
 
 @router.get("/eigenspace", response_model=EigenspaceOut)
-async def get_eigenspace(world: WorldDep, eig: EigenspaceDep) -> dict[str, Any]:
+async def get_eigenspace(world: WorldDep, eig: EigenspaceDep) -> EigenspaceOut:
     """Summary of the learned eigenspace (images, K, triplet count, region coverage) with
     the learning points (``points``) and the localizable triplets (``triplet_list``)."""
     return eig.summary(world)
@@ -171,7 +171,7 @@ async def get_covering(world: WorldDep, eig: EigenspaceDep,
 
 @router.post("/localize", response_model=LocalizationOut)
 async def post_localize(world: WorldDep, body: TurnIn, eig: EigenspaceDep,
-                        request: Request) -> dict[str, Any]:
+                        request: Request) -> LocalizationOut:
     """One full turn of images -> state (X / Y / Z), pose when Z, candidates."""
     eig.analysis(world)  # 404 before decoding anything
     turn = await asyncio.to_thread(turn_payload, body)
@@ -187,7 +187,7 @@ async def post_localize_images(
                                                  "2*pi*j/n", min_length=1,
                                                  max_length=MAX_TURN_IMAGES)],
         size: Annotated[str | None, Form(description="resize to WIDTHxHEIGHT px")] = None
-        ) -> dict[str, Any]:
+        ) -> LocalizationOut:
     """``/localize`` for image files (multipart upload), e.g. straight from a camera."""
     h, w = eig.analysis(world).model.image_shape  # 404 before decoding anything
     wh = parse_size(size)
@@ -203,21 +203,22 @@ async def post_localize_images(
 @router.post("/localization-sessions", status_code=status.HTTP_201_CREATED,
              response_model=SessionCreated)
 async def post_session(world: WorldDep, eig: EigenspaceDep,
-                       response: Response) -> dict[str, Any]:
+                       response: Response) -> SessionCreated:
     """Start a multi-stop localization (state X)."""
     s = await eig.create_session(world)
-    response.headers["Location"] = f"/worlds/{world}/localization-sessions/{s['id']}"
+    response.headers["Location"] = f"/worlds/{world}/localization-sessions/{s.id}"
     return s
 
 
 @router.get("/localization-sessions/{sid}", response_model=SessionLocalizationOut)
-async def get_session(world: WorldDep, sid: SessionId, eig: EigenspaceDep) -> dict[str, Any]:
+async def get_session(world: WorldDep, sid: SessionId,
+                      eig: EigenspaceDep) -> SessionLocalizationOut:
     return await eig.session(world, sid)
 
 
 @router.post("/localization-sessions/{sid}/stops", response_model=SessionLocalizationOut)
 async def post_stop(world: WorldDep, sid: SessionId, body: StopIn,
-                    eig: EigenspaceDep, request: Request) -> dict[str, Any]:
+                    eig: EigenspaceDep, request: Request) -> SessionLocalizationOut:
     """One stop: a full turn of images plus the odometry since the previous stop."""
     motion = None if body.odometry is None else np.array(
         [body.odometry.dx, body.odometry.dy, body.odometry.dtheta])
@@ -230,7 +231,7 @@ async def post_stop(world: WorldDep, sid: SessionId, body: StopIn,
 
 @router.get("/localization-sessions/{sid}/next-move", response_model=NextMoveOut)
 async def get_next_move(world: WorldDep, sid: SessionId, eig: EigenspaceDep,
-                        request: Request) -> dict[str, Any]:
+                        request: Request) -> NextMoveOut:
     """The movement strategy's action (alpha, l, beta) maximising Q(Z), and that Q(Z)
     (computed in a compute worker, stopped if the client leaves)."""
     return await unless_disconnected(request, eig.next_move(world, sid))
@@ -238,7 +239,7 @@ async def get_next_move(world: WorldDep, sid: SessionId, eig: EigenspaceDep,
 
 @router.post("/camera", response_model=CameraOut, response_model_exclude_unset=True)
 async def post_camera(world: WorldDep, body: CameraIn, eig: EigenspaceDep,
-                      request: Request) -> dict[str, Any]:
+                      request: Request) -> CameraOut:
     """Render the simulated camera at a pose (one image, or a full turn): base64 PNG by
     default, nested lists with ``"format": "list"``."""
     pose = np.array([body.pose.x, body.pose.y, body.pose.theta])
