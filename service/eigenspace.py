@@ -62,6 +62,7 @@ from service.schemas.eigenspace import (
     SessionLocalizationOut,
     TripletOut,
 )
+from service.schemas.jobs import JobOut
 from service.store import Store
 from service.worlds import ArtifactKind, WorldService
 
@@ -146,7 +147,7 @@ class EigenspaceService:
 
     # -- learning -----------------------------------------------------------------------
     def start_learning(self, world: str, config: EigenspaceConfig,
-                       images: ImageSet | None = None) -> dict[str, Any]:
+                       images: ImageSet | None = None) -> JobOut:
         """A durable learning job (:mod:`service.jobs`): in the simulator, or from a
         camera's ``images``; its result is the analysis summary."""
         w = self.worlds.model(world)
@@ -168,7 +169,7 @@ class EigenspaceService:
 
         return self.jobs.start(world, LEARNING_JOB, work)
 
-    def job(self, world: str, job_id: str) -> dict[str, Any]:
+    def job(self, world: str, job_id: str) -> JobOut:
         self.worlds.require(world)
         return self.jobs.get(job_id, world)
 

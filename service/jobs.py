@@ -22,6 +22,7 @@ from typing import Any
 
 from numeric.errors import ChizuError, Conflict, NotFound
 from service.kb import KbError
+from service.schemas.jobs import JobOut
 from service.store import Store
 
 log = logging.getLogger(__name__)
@@ -82,7 +83,7 @@ class Jobs:
         """Start-up: every job still queued or running belonged to a process that ended."""
         return self.store.interrupt_jobs()
 
-    def start(self, world: str, kind: str, work: Work) -> dict[str, Any]:
+    def start(self, world: str, kind: str, work: Work) -> JobOut:
         """Queue ``work`` as a job of ``kind`` on ``world`` (one unfinished job per world
         and kind: else 409) and run it on the running event loop."""
         for st in UNFINISHED:
@@ -136,23 +137,22 @@ class Jobs:
             except Exception:  # noqa: BLE001
                 log.exception("job %s keeps its last status", jid)
 
-    def get(self, jid: str, world: str | None = None) -> dict[str, Any]:
+    def get(self, jid: str, world: str | None = None) -> JobOut:
         rows = self.store.jobs(jid=jid, world=world)
         if not rows:
             where = "" if world is None else f" for world {world!r}"
             raise NotFound(f"no job {jid!r}{where}", field="job")
-        return rows[0]
+        return JobOut(**rows[0])
 
-    def list(self, world: str | None = None, status: str | None = None
-             ) -> list[dict[str, Any]]:
-        return self.store.jobs(world=world, status=status)
+    def list(self, world: str | None = None, status: str | None = None) -> list[JobOut]:
+        return [JobOut(**row) for row in self.store.jobs(world=world, status=status)]
 
-    async def cancel(self, jid: str) -> dict[str, Any]:
+    async def cancel(self, jid: str) -> JobOut:
         """Cancel a queued or running job (409 for one that has ended); returns it."""
         job = self.get(jid)
         task = self._tasks.get(jid)
-        if job["status"] not in UNFINISHED or task is None:
-            raise Conflict(f"job {jid!r} is {job['status']}, not running", field="job")
+        if job.status not in UNFINISHED or task is None:
+            raise Conflict(f"job {jid!r} is {job.status}, not running", field="job")
         self._cancel[jid].set()
         task.cancel()
         await asyncio.gather(task, return_exceptions=True)

@@ -74,6 +74,7 @@ from service.disconnect import thread_to_end
 from service.eigenspace import EigenspaceService
 from service.jobs import JobProgress, Jobs
 from service.kb import KnowledgeBase
+from service.schemas.jobs import JobOut
 from service.schemas.mission import MissionConfig, MissionRecordOut
 from service.schemas.slam import ScanIn
 from service.schemas.viewpoint import CandidateIn, ObjectType, PlanRequest
@@ -184,7 +185,7 @@ class MissionService:
             MISSION_ARTIFACT, "mission_steps", "mission",
             lambda world, blob: {"world": world, "steps": json.loads(blob)["steps"]}))
 
-    async def start(self, world: str, config: MissionConfig) -> dict[str, Any]:
+    async def start(self, world: str, config: MissionConfig) -> JobOut:
         """A durable job (:mod:`service.jobs`) running one mission; its result is
         :meth:`MissionRun.result`. The input is checked first (404 / 422, no job)."""
         await asyncio.to_thread(self.check, world, config)

@@ -15,6 +15,7 @@ import httpx
 from fastapi.testclient import TestClient
 
 from service.app import create_app
+from service.schemas.jobs import JobOut
 from service.settings import Settings
 from tests.conftest import make_fig1_world, observation
 
@@ -133,11 +134,11 @@ def test_a_job_cancelled_before_it_starts_is_cancelled(tmp_path: Path) -> None:
         async def work(progress: Any) -> dict[str, Any]:
             return {"ok": True}
 
-        jid = jobs.start("w", "k", work)["id"]
-        cancelled = (await jobs.cancel(jid))["status"]  # before the task's first step
-        again = jobs.start("w", "k", work)["id"]
+        jid = jobs.start("w", "k", work).id
+        cancelled = (await jobs.cancel(jid)).status  # before the task's first step
+        again = jobs.start("w", "k", work).id
         await asyncio.sleep(0.05)
-        return cancelled, jobs.get(again)["status"]
+        return cancelled, jobs.get(again).status
 
     assert asyncio.run(scenario()) == ("cancelled", "done")
     store.close()
@@ -164,17 +165,17 @@ def test_a_job_past_its_budget_fails_and_says_why(tmp_path: Path) -> None:
             time.sleep(0.02)
         return {"ok": True}
 
-    async def scenario() -> dict[str, Any]:
+    async def scenario() -> JobOut:
         async def work(progress: Any) -> dict[str, Any]:
             return await asyncio.to_thread(slow, progress)
 
-        jid = jobs.start("w", "k", work)["id"]
-        while jobs.get(jid)["status"] in ("queued", "running"):
+        jid = jobs.start("w", "k", work).id
+        while jobs.get(jid).status in ("queued", "running"):
             await asyncio.sleep(0.02)
         return jobs.get(jid)
 
     job = asyncio.run(scenario())
-    assert job["status"] == "failed", job
-    assert "time budget of 0.2 s" in job["error"]["detail"]
+    assert job.status == "failed", job
+    assert job.error is not None and "time budget of 0.2 s" in job.error.detail
     assert len(steps) < 50  # stopped, not run to the end
     store.close()

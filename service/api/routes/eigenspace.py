@@ -98,11 +98,11 @@ def by_name(files: list[tuple[str, bytes]]) -> dict[str, bytes]:
 
 @router.post("/eigenspace", status_code=status.HTTP_202_ACCEPTED, response_model=JobOut)
 async def post_eigenspace(world: WorldDep, config: EigenspaceConfig,
-                          eig: EigenspaceDep, response: Response) -> dict[str, Any]:
+                          eig: EigenspaceDep, response: Response) -> JobOut:
     """Learn the world's eigenspace in the simulator and analyse it (triplets, region
     model, entry model, candidate-multiple sets).  Runs as a job: poll ``Location``."""
     job = eig.start_learning(world, config)
-    response.headers["Location"] = f"/worlds/{world}/eigenspace/jobs/{job['id']}"
+    response.headers["Location"] = f"/worlds/{world}/eigenspace/jobs/{job.id}"
     return job
 
 
@@ -124,7 +124,7 @@ async def post_eigenspace_images(
                                          "px, e.g. 64x32")] = None,
         config: Annotated[str | None, Form(description="EigenspaceConfig as JSON "
                                            "(n_directions and the image size come from "
-                                           "the images)")] = None) -> dict[str, Any]:
+                                           "the images)")] = None) -> JobOut:
     """Learn the world's eigenspace from a camera's own images (multipart upload): one
     full turn per learning point, optional calibration images of known pose for c_a
     and eq. 7. Runs as a job: poll ``Location``. Errors name the file."""
@@ -143,12 +143,12 @@ async def post_eigenspace_images(
         files = by_name(await read_uploads(images or [], "images"))
         image_set = await asyncio.to_thread(read_image_set, text, files, wh)
     job = eig.start_learning(world, cfg, image_set)
-    response.headers["Location"] = f"/worlds/{world}/eigenspace/jobs/{job['id']}"
+    response.headers["Location"] = f"/worlds/{world}/eigenspace/jobs/{job.id}"
     return job
 
 
 @router.get("/eigenspace/jobs/{job_id}", response_model=JobOut)
-async def get_job(world: WorldDep, job_id: JobId, eig: EigenspaceDep) -> dict[str, Any]:
+async def get_job(world: WorldDep, job_id: JobId, eig: EigenspaceDep) -> JobOut:
     """Progress of a learning job (stage, 0..1), its result (the analysis summary) when
     done, its error if failed; ``interrupted`` if the server stopped while it ran."""
     return eig.job(world, job_id)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 from fastapi import APIRouter, Path, Query
 
@@ -19,18 +19,18 @@ Status = Literal["queued", "running", "done", "failed", "cancelled", "interrupte
 @router.get("", response_model=list[JobOut])
 async def list_jobs(jobs: JobsDep,
                     world: Annotated[str | None, Query(pattern=ID_PATTERN)] = None,
-                    status: Status | None = None) -> list[dict[str, Any]]:
+                    status: Status | None = None) -> list[JobOut]:
     """Every job, oldest first; filtered by world and status."""
     return jobs.list(world, status)
 
 
 @router.get("/{job_id}", response_model=JobOut)
-async def get_job(job_id: JobId, jobs: JobsDep) -> dict[str, Any]:
+async def get_job(job_id: JobId, jobs: JobsDep) -> JobOut:
     return jobs.get(job_id)
 
 
 @router.delete("/{job_id}", response_model=JobOut)
-async def cancel_job(job_id: JobId, jobs: JobsDep) -> dict[str, Any]:
+async def cancel_job(job_id: JobId, jobs: JobsDep) -> JobOut:
     """Cancel a queued or running job: it ends ``cancelled`` and commits nothing; 409
     for a job that has already ended."""
     return await jobs.cancel(job_id)

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 from fastapi import APIRouter, Response, status
 
 from service.api.strict import StrictJsonRoute
@@ -16,7 +14,7 @@ router = APIRouter(prefix="/worlds/{world}", tags=["mission"], route_class=Stric
 
 @router.post("/missions", status_code=status.HTTP_202_ACCEPTED, response_model=JobOut)
 async def post_mission(world: WorldDep, config: MissionConfig, mission: MissionDep,
-                       response: Response) -> dict[str, Any]:
+                       response: Response) -> JobOut:
     """Run the end-to-end mission in the simulator, in this world's knowledge base: wake
     up lost and localize (eigenspace), reach the nearest landmark, follow the DRM's most
     probable path to the goal landmark while mapping (laser SLAM, committed), then plan
@@ -25,7 +23,7 @@ async def post_mission(world: WorldDep, config: MissionConfig, mission: MissionD
     mission per world at a time (409 while one runs). Runs as a job: poll ``Location``;
     its result is the record (also the ``mission_step/3`` facts, ``GET .../mission``)."""
     job = await mission.start(world, config)
-    response.headers["Location"] = f"/jobs/{job['id']}"
+    response.headers["Location"] = f"/jobs/{job.id}"
     return job
 
 
