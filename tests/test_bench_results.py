@@ -50,6 +50,20 @@ def test_the_command_is_written_from_the_repository_root() -> None:
         "python tests/bench/run.py"
 
 
+def test_the_mode_names_what_differs_from_make_bench() -> None:
+    import argparse
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--seeds", default="0")
+    ap.add_argument("--out", default="bench-out")
+    assert results.mode(ap, ap.parse_args(["--out", "x"]), ignore=["out"]) == results.FULL
+    got = results.mode(ap, ap.parse_args(["--quick", "--seeds", "0,1"]),
+                       {"quick": "the first 1500 scans"})
+    assert got == ("not as `make bench` runs it: --quick: the first 1500 scans; "
+                   "--seeds 0,1 (default 0)")
+
+
 def test_a_pipe_in_a_header_value_does_not_split_its_cell() -> None:
     prov = results.provenance("a | b", "x", datetime(2030, 1, 2, 3, 4, tzinfo=UTC))
     text = results.render("T", [], prov, "tests/bench/t.py")

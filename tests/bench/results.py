@@ -14,6 +14,7 @@ the committed pages).
 
 from __future__ import annotations
 
+import argparse
 import os
 import platform
 import shlex
@@ -124,6 +125,27 @@ def render(title: str, body: Iterable[str], prov: Provenance, script: str) -> st
             *[f"| {k} | {v.replace('|', chr(92) + '|')} |" for k, v in prov.rows()], ""]
     text = "\n".join([*head, *body]).rstrip("\n")
     return text + "\n"
+
+
+FULL = "as `make bench` runs it (every option at its default)"
+
+
+def mode(parser: argparse.ArgumentParser, args: argparse.Namespace,
+         explain: dict[str, str] | None = None, ignore: Iterable[str] = ()) -> str:
+    """The mode row of a script run with ``args``: :data:`FULL`, or each option that
+    differs from its default (``explain`` says in words what an option changes, e.g.
+    ``{"quick": "the first 1500 scans of each log"}``); options in ``ignore`` (where raw
+    outputs go, say) change no figure."""
+    explain = explain or {}
+    changed = []
+    for key, value in vars(args).items():
+        default = parser.get_default(key)
+        if key in ignore or value == default:
+            continue
+        flag = "--" + key.replace("_", "-")
+        what = flag if value is True else f"{flag} {value} (default {default})"
+        changed.append(f"{what}: {explain[key]}" if key in explain else what)
+    return FULL if not changed else "not as `make bench` runs it: " + "; ".join(changed)
 
 
 def write_page(bench: str, title: str, body: Iterable[str], mode: str,
