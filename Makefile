@@ -36,6 +36,9 @@ PYTEST_WORKERS ?= 2
 test: install
 	$(PY) -m pytest -n $(PYTEST_WORKERS)
 
+# every benchmark, hours in all: each script writes its page docs/results/<script>.md (the
+# command, date, commit, machine and its tables; tests/bench/results.py) and its raw
+# outputs (json, trajectories, figures) under bench-out/
 bench: install
 	$(PY) tests/bench/run.py
 	$(PY) tests/bench/eigenspace.py

@@ -18,8 +18,6 @@ import sys
 from pathlib import Path
 from types import ModuleType
 
-import pytest
-
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -37,19 +35,17 @@ hooks = _script("hooks")
 openapi_page = _script("openapi_page")
 
 
-@pytest.fixture(scope="module")
-def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("site")
+def build_site(out: Path) -> None:
+    """``mkdocs build --strict`` into ``out``, as ``make docs`` runs it."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get(
         "PYTHONPATH", "")]), "NO_MKDOCS_2_WARNING": "1", "DISABLE_MKDOCS_2_WARNING": "true"}
     r = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir",
                         str(out)], cwd=ROOT, env=env, capture_output=True, text=True,
                        timeout=900)
     assert r.returncode == 0, f"mkdocs build --strict failed:\n{r.stdout}\n{r.stderr}"
-    return out
 
 
-def test_every_module_has_a_reference_page(site: Path) -> None:
+def modules_without_a_page(site: Path) -> list[str]:
     missing = []
     for package in ("numeric", "service"):
         for path in (ROOT / package).rglob("*.py"):
@@ -58,27 +54,37 @@ def test_every_module_has_a_reference_page(site: Path) -> None:
                 continue
             page = site.joinpath("reference", *(parts[:-1] if parts[-1] == "__init__"
                                                 else parts), "index.html")
-            if not page.exists() or ".".join(p for p in parts if p != "__init__") \
-                    not in page.read_text():
+            name = ".".join(p for p in parts if p != "__init__")
+            if not page.exists() or name not in page.read_text():
                 missing.append(str(path.relative_to(ROOT)))
-    assert not missing, missing
+    return missing
 
 
-def test_http_api_page_names_every_route(site: Path) -> None:
+def routes_not_on_the_http_page(site: Path) -> list[str]:
     from service.app import create_app
 
     page = (site / "http-api" / "index.html").read_text()
     paths = list(create_app().openapi()["paths"])
     assert "/health" in paths
-    assert [p for p in paths if f"<code>{p}</code>" not in page] == []
-    assert (site / "http-api" / "openapi.json").exists()
+    return [p for p in paths if f"<code>{p}</code>" not in page]
 
 
-def test_pages_load_nothing_from_other_hosts(site: Path) -> None:
+def pages_loading_from_other_hosts(site: Path) -> list[str]:
     remote = re.compile(r"<(?:script|link|img)\b[^>]*\b(?:src|href)=\"(?:https?:)?//")
-    offenders = [str(p.relative_to(site)) for p in site.rglob("*.html")
-                 if remote.search(p.read_text())]
-    assert offenders == []
+    return [str(p.relative_to(site)) for p in site.rglob("*.html")
+            if remote.search(p.read_text())]
+
+
+def test_the_site_builds_strict_with_every_module_route_and_nothing_remote(
+        tmp_path: Path) -> None:
+    """One build (one test, so that pytest-xdist's workers do not each build it)."""
+    site = tmp_path / "site"
+    build_site(site)
+    assert modules_without_a_page(site) == []
+    assert routes_not_on_the_http_page(site) == []
+    assert (site / "http-api" / "openapi.json").exists()
+    assert (site / "results" / "index.html").exists()
+    assert pages_loading_from_other_hosts(site) == []
 
 
 def test_sphinx_roles_become_code() -> None:
