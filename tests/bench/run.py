@@ -38,7 +38,7 @@ from numeric.worlds import office_world  # noqa: E402
 from service.kb import KnowledgeBase  # noqa: E402
 from service.settings import PROLOG_DIR  # noqa: E402
 from service.worlds import WorldService  # noqa: E402
-from tests.bench.results import write_page  # noqa: E402
+from tests.bench.results import FULL, write_page  # noqa: E402
 from tests.conftest import LiveServer  # noqa: E402
 
 OUT = ROOT / "bench-out"
@@ -218,7 +218,7 @@ def main() -> None:
             "Figure: bench-out/qual_vs_quant.png."]
     print("\n".join(body))
     write_page("run", "Qualitative navigation: DRM over REST, and qualitative vs "
-               "quantitative navigation", body, "full (the script has one mode)")
+               "quantitative navigation", body, FULL)
 
 
 if __name__ == "__main__":
