@@ -643,20 +643,24 @@ def main() -> None:
              f"{cfg.localization.same_position_m} m and "
              f"{np.rad2deg(cfg.localization.same_heading_rad):.0f} deg.", "",
              f"Analysis of A: {a.summary(w)}", ""]
-    for key, title, fn in (("speed", "Speed", lambda: speed(cfg, a, w)),
-                           ("table1", "Table 1", lambda: table1(cfg, a, rng)),
-                           ("fig6", "Table 2 and Fig. 6", lambda: fig6_part(a, w, rng)),
-                           ("s54", "§5.4 learning strategy", lambda: section54(cfg, w)),
-                           ("unseen", "Rooms nobody tuned on (default parameters)",
-                            lambda: unseen(cfg, rng))):
-        if PARTS and key not in PARTS:
-            continue
+    todo = [(key, title, fn) for key, title, fn in (
+        ("speed", "Speed", lambda: speed(cfg, a, w)),
+        ("table1", "Table 1", lambda: table1(cfg, a, rng)),
+        ("fig6", "Table 2 and Fig. 6", lambda: fig6_part(a, w, rng)),
+        ("s54", "§5.4 learning strategy", lambda: section54(cfg, w)),
+        ("unseen", "Rooms nobody tuned on (default parameters)", lambda: unseen(cfg, rng)))
+        if not PARTS or key in PARTS]
+    for i, (_, title, fn) in enumerate(todo):
         t0 = time.perf_counter()
         rows = fn()
         parts += [f"## {title}", "", *rows, "", f"({time.perf_counter() - t0:.0f} s)", ""]
         print("\n".join(parts[-len(rows) - 4:]), flush=True)
+        # the page after each part; until the last, it says which parts are still to come
+        left = [t for _, t, _ in todo[i + 1:]]
+        mode = run_mode() + (f" (page written while running: {', '.join(left)} still to "
+                             "come)" if left else "")
         write_page("eigenspace", "Eigenspace localization benchmark (Maeda & Shirai in the "
-                   "simulator)", parts, run_mode())
+                   "simulator)", parts, mode)
 
 
 if __name__ == "__main__":
