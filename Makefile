@@ -5,7 +5,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: run test bench lint install prolog clean
+.PHONY: run test bench docs lint install prolog clean
 
 # SWI-Prolog (pyswip needs libswipl): apt swi-prolog-nox when swipl is missing.
 prolog:
@@ -22,7 +22,7 @@ $(STAMP): pyproject.toml
 	  SUDO=$$( [ "$$(id -u)" -eq 0 ] || echo sudo ); \
 	  $$SUDO apt-get install -y -qq python3-venv python3-pip && $(PYTHON) -m venv $(VENV); }
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[dev]'
+	$(PY) -m pip install -q -e '.[dev,docs]'
 	@touch $(STAMP)
 
 install: prolog $(STAMP)
@@ -36,6 +36,9 @@ PYTEST_WORKERS ?= 2
 test: install
 	$(PY) -m pytest -n $(PYTEST_WORKERS)
 
+# every benchmark, hours in all: each script writes its page docs/results/<script>.md (the
+# command, date, commit, machine and its tables; tests/bench/results.py) and its raw
+# outputs (json, trajectories, figures) under bench-out/
 bench: install
 	$(PY) tests/bench/run.py
 	$(PY) tests/bench/eigenspace.py
@@ -48,9 +51,15 @@ bench: install
 	$(PY) tests/bench/slam_batch.py
 	$(PY) tests/bench/mission.py
 
+# the documentation site into site/ (mkdocs.yml); --strict: a broken link or reference
+# fails it. MkDocs' plugins print a notice about a future MkDocs 2 on every build: silenced.
+DOCS_ENV := NO_MKDOCS_2_WARNING=1 DISABLE_MKDOCS_2_WARNING=true
+docs: install
+	$(DOCS_ENV) $(VENV)/bin/mkdocs build --strict
+
 lint: install
-	$(VENV)/bin/ruff check numeric service tests
+	$(VENV)/bin/ruff check numeric service tests docs/_scripts
 	$(VENV)/bin/mypy numeric service
 
 clean:
-	rm -rf $(VENV) var bench-out
+	rm -rf $(VENV) var bench-out site

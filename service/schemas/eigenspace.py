@@ -28,7 +28,7 @@ Image = Annotated[list[Row], Field(min_length=1, max_length=MAX_IMAGE_SIDE)]
 
 class TurnIn(BaseModel):
     """One full turn of grey images in [0, 1], in order of relative heading 2*pi*j/n
-    (counter-clockwise from the robot's heading): as nested lists ``images`` [n][H][W]
+    (counter-clockwise from the robot's heading): as nested lists ``images[n][H][W]``
     or as base64 PNG files ``images_png`` (8-bit grey), exactly one of the two."""
 
     # exactly one of the two, and neither is null: so the schema says (oneOf)

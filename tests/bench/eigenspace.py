@@ -1,5 +1,6 @@
 """Eigenspace localization benchmark: the paper's Table 1, Table 2, Fig. 6 and §5.4 in the
-simulator, plus speed ratios.  Writes bench-out/eigenspace.md and bench-out/fig6.png.
+simulator, plus speed ratios. Writes docs/results/eigenspace.md (rewritten after each
+part) and bench-out/fig6.png.
 
     .venv/bin/python tests/bench/eigenspace.py [--quick] [--parts speed,table1,fig6,s54,unseen]
 """
@@ -13,6 +14,8 @@ from pathlib import Path
 
 import matplotlib
 
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
@@ -42,8 +45,9 @@ from numeric.errors import InvalidInput  # noqa: E402
 from numeric.geometry import relative, wrap_angle  # noqa: E402
 from numeric.world import World, WorldDescription  # noqa: E402
 from numeric.worlds import room_a, room_b, room_c, room_d  # noqa: E402
+from tests.bench.results import FULL, write_page  # noqa: E402
 
-OUT = Path("bench-out")
+OUT = ROOT / "bench-out"
 QUICK = "--quick" in sys.argv
 #: ``--parts fig6,unseen``: only those parts (speed, table1, fig6, s54, unseen)
 PARTS = set(sys.argv[sys.argv.index("--parts") + 1].split(",")) if "--parts" in sys.argv else set()
@@ -202,14 +206,27 @@ def run_trial(a: EigenspaceAnalysis, w: World, cam: Camera, pose: np.ndarray,
     return entered, est, info
 
 
-def table2_fig6(a: EigenspaceAnalysis, w: World, rng: np.random.Generator
-                ) -> tuple[list[str], list[str]]:
+#: one localized run's errors (Table 2): position (m) of the proposed estimate, the nearest
+#: learning image, the 3 nearest and eq. 5 alone, then the direction errors (deg) alike
+Errors = tuple[float, ...]
+
+
+def _errors(est: np.ndarray, info: dict[str, object]) -> Errors:
+    truth = np.asarray(info["truth"])
+    answers = [est, *(np.asarray(info[k]) for k in ("nearest", "idw3", "eq5"))]
+    return (*(float(np.linalg.norm(x[:2] - truth[:2])) for x in answers),
+            *(float(np.rad2deg(abs(wrap_angle(x[2] - truth[2])))) for x in answers))
+
+
+def fig6_trials(a: EigenspaceAnalysis, w: World, rng: np.random.Generator, seeds: int,
+                trials: int, max_obs: int
+                ) -> tuple[dict[str, list[np.ndarray]], list[Errors], list[str]]:
+    """Every policy from the same random starts, per seed: the share of runs that entered
+    a right region by each observation (Fig. 6's curves), and for the movement strategy's
+    localized runs their errors and what let a wrong answer through (Table 2)."""
     cam = Camera(w, a.config.camera.model_copy(update={"noise_sigma": NOISE}), rng=rng)
-    seeds = 2 if QUICK else 20
-    trials = 15 if QUICK else 40
-    max_obs = 5
     curves: dict[str, list[np.ndarray]] = {p: [] for p in POLICIES}
-    errs: list[tuple[float, ...]] = []
+    errs: list[Errors] = []
     causes: list[str] = []
     for seed in range(seeds):
         r = np.random.default_rng(100 + seed)
@@ -221,18 +238,14 @@ def table2_fig6(a: EigenspaceAnalysis, w: World, rng: np.random.Generator
                 e = np.array(entered + [entered[-1]] * (max_obs - len(entered)), dtype=float)
                 hits += np.maximum.accumulate(e)
                 if est is not None and policy == "strategy":
-                    truth = np.asarray(info["truth"])
-                    near, idw = np.asarray(info["nearest"]), np.asarray(info["idw3"])
-                    eq5 = np.asarray(info["eq5"])
-                    errs.append(tuple(float(x) for x in (
-                        np.linalg.norm(est[:2] - truth[:2]), np.linalg.norm(near[:2] - truth[:2]),
-                        np.linalg.norm(idw[:2] - truth[:2]), np.linalg.norm(eq5[:2] - truth[:2]),
-                        np.rad2deg(abs(wrap_angle(est[2] - truth[2]))),
-                        np.rad2deg(abs(wrap_angle(near[2] - truth[2]))),
-                        np.rad2deg(abs(wrap_angle(idw[2] - truth[2]))),
-                        np.rad2deg(abs(wrap_angle(eq5[2] - truth[2]))))))
+                    errs.append(_errors(est, info))
                     causes.append(str(info["cause"]) if info["cause"] else "right")
             curves[policy].append(hits / len(starts))
+    return curves, errs, causes
+
+
+def table2(a: EigenspaceAnalysis, errs: list[Errors], causes: list[str]) -> list[str]:
+    """Table 2: position and direction errors by method, and the wrong answers' causes."""
     e = np.array(errs)
     ratio = e[:, 0].mean() / e[:, 1].mean()
     t2 = ["| method | position error [m] | direction error [deg] |", "|---|---|---|"]
@@ -251,6 +264,13 @@ def table2_fig6(a: EigenspaceAnalysis, w: World, rng: np.random.Generator
     for cause in sorted(set(causes), key=lambda c: (c == "right", c)):
         sel = np.array([c == cause for c in causes])
         t2.append(f"| {cause} | {int(sel.sum())} | {e[sel, 0].mean():.2f} |")
+    return t2
+
+
+def fig6(curves: dict[str, list[np.ndarray]], seeds: int, trials: int) -> list[str]:
+    """Fig. 6 as a figure (bench-out/fig6.png) and a table, with the paired differences
+    of the strategies against random moves."""
+    max_obs = len(curves[POLICIES[0]][0])
     fig, ax = plt.subplots(figsize=(5, 3.5))
     x = np.arange(1, max_obs + 1)
     for policy, style in zip(POLICIES, ("o-", "^:", "s--"), strict=True):
@@ -274,8 +294,16 @@ def table2_fig6(a: EigenspaceAnalysis, w: World, rng: np.random.Generator
         f6.append(f"| {p} − random (paired) | " + " | ".join(
             f"{m:+.2f} ± {sd:.2f}" for m, sd in zip(d.mean(0), d.std(0), strict=True)) + " |")
     f6 += ["", f"mean ± std over {seeds} seeds of {trials} random starts each; "
-           "P(a right region entered by that observation)."]
-    return t2, f6
+           "P(a right region entered by that observation). Figure: bench-out/fig6.png."]
+    return f6
+
+
+def table2_fig6(a: EigenspaceAnalysis, w: World, rng: np.random.Generator
+                ) -> tuple[list[str], list[str]]:
+    seeds = 2 if QUICK else 20
+    trials = 15 if QUICK else 40
+    curves, errs, causes = fig6_trials(a, w, rng, seeds, trials, max_obs=5)
+    return table2(a, errs, causes), fig6(curves, seeds, trials)
 
 
 def additions_from_grid(name: str, seed: int, holes: int = 0
@@ -580,6 +608,29 @@ def unseen(cfg: EigenspaceConfig, rng: np.random.Generator) -> list[str]:
     return rows
 
 
+def fig6_part(a: EigenspaceAnalysis, w: World, rng: np.random.Generator) -> list[str]:
+    """Table 2, then Fig. 6's table (a blank line between: two tables, not one)."""
+    t2, f6 = table2_fig6(a, w, rng)
+    return [*t2, "", *f6]
+
+
+def run_mode() -> str:
+    """The results page's mode row: what ``--quick`` and ``--parts`` leave out."""
+    if not QUICK and not PARTS:
+        return FULL
+    out = []
+    if QUICK:
+        out.append("--quick: fewer observations, seeds, starts and rooms' trials in every "
+                   "part (Table 1 20 observations per room instead of 60, Fig. 6 2 seeds x "
+                   "15 starts instead of 20 x 40; §5.4 2 seeds on the grid and on the "
+                   "thinned grid instead of 20 and 10, the sparse start 1 seed and at most 6 "
+                   "additions instead of 3 and 10; 12 sessions per unseen room instead of "
+                   "120)")
+    if PARTS:
+        out.append(f"--parts {','.join(sorted(PARTS))}: only those parts")
+    return "not as `make bench` runs it: " + "; ".join(out)
+
+
 def main() -> None:
     OUT.mkdir(exist_ok=True)
     rng = np.random.default_rng(0)
@@ -588,25 +639,28 @@ def main() -> None:
     t0 = time.perf_counter()
     a = learn_with_strategy(w, cfg)
     print("analysis of A", a.summary(w), f"{time.perf_counter() - t0:.1f} s", flush=True)
-    parts = ["# Eigenspace localization benchmark", "",
-             f"Command: `.venv/bin/python tests/bench/eigenspace.py{' --quick' if QUICK else ''}`"
-             f"; pixel noise sigma {NOISE}; correct = within "
+    parts = [f"Pixel noise sigma {NOISE}; correct = within "
              f"{cfg.localization.same_position_m} m and "
              f"{np.rad2deg(cfg.localization.same_heading_rad):.0f} deg.", "",
              f"Analysis of A: {a.summary(w)}", ""]
-    for key, title, fn in (("speed", "Speed", lambda: speed(cfg, a, w)),
-                           ("table1", "Table 1", lambda: table1(cfg, a, rng)),
-                           ("fig6", "Table 2 and Fig. 6", lambda: sum(table2_fig6(a, w, rng), [])),
-                           ("s54", "§5.4 learning strategy", lambda: section54(cfg, w)),
-                           ("unseen", "Rooms nobody tuned on (default parameters)",
-                            lambda: unseen(cfg, rng))):
-        if PARTS and key not in PARTS:
-            continue
+    todo = [(key, title, fn) for key, title, fn in (
+        ("speed", "Speed", lambda: speed(cfg, a, w)),
+        ("table1", "Table 1", lambda: table1(cfg, a, rng)),
+        ("fig6", "Table 2 and Fig. 6", lambda: fig6_part(a, w, rng)),
+        ("s54", "§5.4 learning strategy", lambda: section54(cfg, w)),
+        ("unseen", "Rooms nobody tuned on (default parameters)", lambda: unseen(cfg, rng)))
+        if not PARTS or key in PARTS]
+    for i, (_, title, fn) in enumerate(todo):
         t0 = time.perf_counter()
         rows = fn()
         parts += [f"## {title}", "", *rows, "", f"({time.perf_counter() - t0:.0f} s)", ""]
         print("\n".join(parts[-len(rows) - 4:]), flush=True)
-        (OUT / "eigenspace.md").write_text("\n".join(parts))
+        # the page after each part; until the last, it says which parts are still to come
+        left = [t for _, t, _ in todo[i + 1:]]
+        mode = run_mode() + (f" (page written while running: {', '.join(left)} still to "
+                             "come)" if left else "")
+        write_page("eigenspace", "Eigenspace localization benchmark (Maeda & Shirai in the "
+                   "simulator)", parts, mode)
 
 
 if __name__ == "__main__":

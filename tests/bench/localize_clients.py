@@ -4,9 +4,9 @@ full turn of 72 PNG images per request (rendered once by the service's camera), 
 and 4 clients sending the same number of requests. The body is encoded once, so the
 clients (on the same machine) take little CPU from the server.
 
-    .venv/bin/python tests/bench/localize_clients.py [--requests 300] [--out bench-out]
+    .venv/bin/python tests/bench/localize_clients.py [--requests 300]
 
-Writes OUT/localize_clients.md: requests per second and p50 / p95 latency per number of
+Writes docs/results/localize_clients.md: requests per second and p50 / p95 latency per number of
 workers and clients, and the speed-up of 2 workers over 1 at each number of clients
 (the machine's cores bound it: 2 here, shared by the server's event loop, the
 workers and the clients).
@@ -152,15 +152,14 @@ HEALTH: dict[str, str] = {}  # what GET /health took meanwhile
 
 
 def main() -> None:
+    from tests.bench.results import mode, write_page
+
     ap = argparse.ArgumentParser()
     ap.add_argument("--requests", type=int, default=300)
-    ap.add_argument("--out", default="bench-out")
     args = ap.parse_args()
-    out = Path(args.out)
-    out.mkdir(exist_ok=True)
     res = {w: serve_and_measure(w, args.requests) for w in (1, 2)}
-    lines = ["# Localization throughput: compute workers x concurrent clients (live server, "
-             "room A, 72-image PNG turns)", "",
+    lines = [f"A live server on room A, {args.requests} requests of one 72-image PNG turn "
+             "each per block.", "",
              "| workers | clients | requests/s | p50 (ms) | p95 (ms) | 2 workers vs 1 | "
              "CPU ms per request: server / workers / clients |",
              "|---|---|---|---|---|---|---|"]
@@ -176,8 +175,9 @@ def main() -> None:
               "throughput (2 cores over the CPU a request takes in all, against one core over "
               "a worker's part).", "", "`GET /health` every 50 ms meanwhile:", ""]
     lines += [f"- {k}: {v}" for k, v in HEALTH.items()]
-    (out / "localize_clients.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
+    write_page("localize_clients", "Localization throughput: compute workers x concurrent "
+               "clients", lines, mode(ap, args))
 
 
 if __name__ == "__main__":

@@ -8,8 +8,8 @@ objects and cabinet drawn per world; the same parameters everywhere).
 Each world is one task (service/mission_batch.py) on a Dask LocalCluster of W worker
 processes (default 2, this machine's cores; 0: in this process): it learns the world's
 eigenspace once (the mission's default: 1 m grid), then every seed wakes the robot up
-somewhere else. Writes bench-out/mission.md, bench-out/mission.csv and
-bench-out/mission.png (the first run).
+somewhere else. Writes docs/results/mission.md (the table), and bench-out/mission.csv
+and bench-out/mission-KIND.png (the first run of each kind).
 """
 
 from __future__ import annotations
@@ -29,9 +29,12 @@ from numeric.worlds import random_mission_world  # noqa: E402
 from service.executors import batch_executor  # noqa: E402
 from service.mission import MissionConfig  # noqa: E402
 from service.mission_batch import run_missions  # noqa: E402
+from tests.bench.results import FULL, write_page  # noqa: E402
 
 OUT = ROOT / "bench-out"
 QUICK = "--quick" in sys.argv
+#: seeds on the mission world and random offices that `make bench` runs (--quick: 5, 2)
+FULL_SEEDS, FULL_WORLDS = 20, 6
 
 
 def arg(name: str, default: int) -> int:
@@ -69,8 +72,8 @@ def table(rows: list[dict[str, Any]]) -> list[str]:
 
 def main() -> None:
     OUT.mkdir(exist_ok=True)
-    seeds = arg("--seeds", 5 if QUICK else 20)
-    worlds = arg("--worlds", 2 if QUICK else 6)
+    seeds = arg("--seeds", 5 if QUICK else FULL_SEEDS)
+    worlds = arg("--worlds", 2 if QUICK else FULL_WORLDS)
     local = arg("--local-workers", 2)
     mission = WorldDescription(name="mission", template="mission").model_dump(mode="json")
     tasks = [(mission, {}, list(range(seeds)), "mission", True)]
@@ -88,20 +91,23 @@ def main() -> None:
             (OUT / f"mission-{kind.replace(' ', '-')}.png").write_bytes(png)
     busy = sum((r["learning_s"] or 0.0) + r["mission_s"] for r in rows)
     where = f"a Dask LocalCluster of {local} worker processes" if local else "this process"
-    lines = ["# Mission benchmark", "",
-             f"`.venv/bin/python tests/bench/mission.py{' --quick' if QUICK else ''}` "
-             f"({seeds} seeds on the mission world, {worlds} random offices x 2 seeds; one "
-             f"task per world on {where}: {wall:.0f} s wall, {busy:.0f} s of task time)",
+    lines = [f"{seeds} seeds on the mission world, {worlds} random offices x 2 seeds; one "
+             f"task per world on {where}: {wall:.0f} s wall, {busy:.0f} s of task time.",
              "", *table(rows), "",
              "Success: every step done, the pose the mission went on from within 0.5 m "
              "and 30 deg of the truth, at least one real object verified and no false one. "
              "Completed: the same without the pose's accuracy."]
-    (OUT / "mission.md").write_text("\n".join(lines) + "\n")
     with open(OUT / "mission.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
     print("\n".join(lines))
+    full = (seeds, worlds) == (FULL_SEEDS, FULL_WORLDS) and local == 2
+    write_page("mission", "Mission benchmark: the end-to-end mission over seeds and "
+               "random offices", lines, FULL if full else
+               f"not as `make bench` runs it: {seeds} seeds on the mission world and "
+               f"{worlds} random offices (make bench: {FULL_SEEDS} and {FULL_WORLDS})"
+               + (f", {local} local workers (make bench: 2)" if local != 2 else ""))
 
 
 if __name__ == "__main__":

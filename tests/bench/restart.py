@@ -2,9 +2,9 @@
 from its snapshot (the event-made facts every SNAPSHOT_EVERY events, then the events
 after it) and, in the same run, by replaying every event (the snapshot deleted).
 
-    .venv/bin/python tests/bench/restart.py [--writes 1000,10000,100000] [--out bench-out]
+    .venv/bin/python tests/bench/restart.py [--writes 1000,10000,100000]
 
-Writes OUT/restart.md.
+Writes docs/results/restart.md.
 """
 
 from __future__ import annotations
@@ -48,15 +48,12 @@ def start_up(settings) -> float:  # type: ignore[no-untyped-def]
 def main() -> None:
     from service.container import open_services
     from service.settings import Settings
+    from tests.bench.results import mode, write_page
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--writes", default="1000,10000,100000")
-    ap.add_argument("--out", default="bench-out")
     args = ap.parse_args()
-    out = Path(args.out)
-    out.mkdir(exist_ok=True)
-    lines = ["# Start-up time against stored writes (one world, observation events)", "",
-             "| writes | start-up, snapshot + tail (s) | start-up, full replay (s) | ratio |",
+    lines = ["| writes | start-up, snapshot + tail (s) | start-up, full replay (s) | ratio |",
              "|---|---|---|---|"]
     for n in (int(w) for w in args.writes.split(",")):
         with tempfile.TemporaryDirectory() as d:
@@ -72,7 +69,8 @@ def main() -> None:
             full = start_up(settings)
         lines.append(f"| {n} | {snap:.3f} | {full:.3f} | {full / snap:.1f}x |")
         print(lines[-1], flush=True)
-    (out / "restart.md").write_text("\n".join(lines) + "\n")
+    write_page("restart", "Start-up time against stored writes (one world, observation "
+               "events)", lines, mode(ap, args))
 
 
 if __name__ == "__main__":

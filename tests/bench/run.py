@@ -1,8 +1,10 @@
 """make bench: DRM build time and path latency over REST, and qualitative vs quantitative.
 
-Writes bench-out/results.md, bench-out/qual_vs_quant.png and prints the tables.
-Speeds are reported next to a baseline measured in the same run (GET /health
-over the same HTTP stack), since these machines are shared and noisy.
+    .venv/bin/python tests/bench/run.py
+
+Writes docs/results/run.md (the tables) and bench-out/qual_vs_quant.png. Speeds are
+reported next to a baseline measured in the same run (GET /health over the same HTTP
+stack), since these machines are shared and noisy.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import httpx
 import numpy as np
@@ -35,6 +38,7 @@ from numeric.worlds import office_world  # noqa: E402
 from service.kb import KnowledgeBase  # noqa: E402
 from service.settings import PROLOG_DIR  # noqa: E402
 from service.worlds import WorldService  # noqa: E402
+from tests.bench.results import FULL, write_page  # noqa: E402
 from tests.conftest import LiveServer  # noqa: E402
 
 OUT = ROOT / "bench-out"
@@ -95,14 +99,52 @@ def bench_rest(sizes: tuple[int, ...] = (4, 20, 40), queries: int = 200) -> list
     return rows
 
 
+def world_drm(kb: KnowledgeBase, name: str, ids: list[str], obs: list) -> Any:
+    """The DRM the rules build from ``obs`` in a fresh knowledge-base world ``name``."""
+    kb.call("create_world", world=name, landmarks=ids, rule_probabilities={}, parameters={})
+    for o in obs:
+        op, args = WorldService.event_call(name, "observation", o.model_dump())
+        kb.call(op, **args)
+    drm = kb.call("drm", world=name)
+    return build_drm(drm["nodes"], edges_from_records(drm["edges"]))
+
+
+def navigate_pair(w: World, g: Any, obs: list, est: Any, ocfg: ObserverConfig,
+                  a: str, b: str, rng: np.random.Generator) -> dict[str, tuple[bool, float]]:
+    """From landmark ``a`` to ``b`` (a random heading) by each planner, the same sensors:
+    the DRM's most probable path, the metric route in the estimated map, and that route
+    with continuous localisation. ``(success, travelled m)`` per planner."""
+    cfg, odo = NavConfig(), OdometryConfig()
+    sb = max(ocfg.bearing_noise_rad, 1e-3)
+    sd = max(ocfg.distance_noise_m, 1e-2) + 0.05
+    start = np.array([*w.landmark_position(a), rng.uniform(-np.pi, np.pi)])
+
+    def robot() -> tuple[Robot, LandmarkObserver]:
+        return (Robot(w, start.copy(), odo, np.random.default_rng(rng.integers(1 << 31))),
+                LandmarkObserver(w, ocfg, np.random.default_rng(rng.integers(1 << 31))))
+
+    out: dict[str, tuple[bool, float]] = {}
+    rob = robot()
+    p = max_probability_path(g, a, b)
+    r = execute_drm_path(*rob, p.steps, cfg) if p is not None else None
+    out["qualitative"] = (r.success, r.travelled_m) if r is not None else (False, 0.0)
+    rob = robot()
+    route = quantitative_route(obs, est, a, b)
+    if route is None:
+        return {**out, "quantitative": (False, 0.0), "quantitative_tracked": (False, 0.0)}
+    r = execute_quantitative(*rob, route, est, cfg)
+    out["quantitative"] = (r.success, r.travelled_m)
+    r = execute_quantitative_tracked(*robot(), route, est, cfg, sb, sd)
+    out["quantitative_tracked"] = (r.success, r.travelled_m)
+    return out
+
+
 def bench_navigation(levels: tuple[float, ...] = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0),
                      pairs: int = 40, seeds: int = 2) -> list[dict]:
     """Noise level L: bearing sigma = L * 1 deg, range sigma = L * 1 % of range + L * 1 cm."""
     kb = KnowledgeBase(PROLOG_DIR)
     w = World(office_world(name="navbench"))
     ids = w.landmark_ids
-    cfg = NavConfig()
-    odo = OdometryConfig()
     rows = []
     for level in levels:
         ocfg = ObserverConfig(bearing_noise_rad=np.deg2rad(1.0) * level,
@@ -112,46 +154,14 @@ def bench_navigation(levels: tuple[float, ...] = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0),
         for seed in range(seeds):
             obs = survey(w, ocfg, seed=100 + seed)
             name = f"nav_{int(level * 10)}_{seed}"
-            kb.call("create_world", world=name, landmarks=ids, rule_probabilities={},
-                    parameters={})
-            for o in obs:
-                op, args = WorldService.event_call(name, "observation", o.model_dump())
-                kb.call(op, **args)
-            drm = kb.call("drm", world=name)
-            g = build_drm(drm["nodes"], edges_from_records(drm["edges"]))
-            sb = max(ocfg.bearing_noise_rad, 1e-3)
-            sd = max(ocfg.distance_noise_m, 1e-2) + 0.05
-            est = estimate_landmark_positions(obs, sb, sd)
+            g = world_drm(kb, name, ids, obs)
+            est = estimate_landmark_positions(obs, max(ocfg.bearing_noise_rad, 1e-3),
+                                              max(ocfg.distance_noise_m, 1e-2) + 0.05)
             rng = np.random.default_rng(seed)
             for _ in range(pairs):
                 a, b = rng.choice(ids, 2, replace=False)
-                start = np.array([*w.landmark_position(a), rng.uniform(-np.pi, np.pi)])
-                # qualitative
-                robot = Robot(w, start.copy(), odo, np.random.default_rng(rng.integers(1 << 31)))
-                observer = LandmarkObserver(w, ocfg, np.random.default_rng(rng.integers(1 << 31)))
-                p = max_probability_path(g, a, b)
-                if p is None:
-                    res["qualitative"].append((False, 0.0))
-                else:
-                    r = execute_drm_path(robot, observer, p.steps, cfg)
-                    res["qualitative"].append((r.success, r.travelled_m))
-                # quantitative, same sensors
-                robot = Robot(w, start.copy(), odo, np.random.default_rng(rng.integers(1 << 31)))
-                observer = LandmarkObserver(w, ocfg, np.random.default_rng(rng.integers(1 << 31)))
-                route = quantitative_route(obs, est, a, b)
-                if route is None:
-                    res["quantitative"].append((False, 0.0))
-                    res["quantitative_tracked"].append((False, 0.0))
-                else:
-                    r = execute_quantitative(robot, observer, route, est, cfg)
-                    res["quantitative"].append((r.success, r.travelled_m))
-                    # the same route with continuous localisation in the estimated map
-                    robot = Robot(w, start.copy(), odo,
-                                  np.random.default_rng(rng.integers(1 << 31)))
-                    observer = LandmarkObserver(w, ocfg,
-                                                np.random.default_rng(rng.integers(1 << 31)))
-                    r = execute_quantitative_tracked(robot, observer, route, est, cfg, sb, sd)
-                    res["quantitative_tracked"].append((r.success, r.travelled_m))
+                for planner, r in navigate_pair(w, g, obs, est, ocfg, a, b, rng).items():
+                    res[planner].append(r)
             kb.call("drop_world", world=name)
         for planner, xs in res.items():
             ok = [length for s, length in xs if s]
@@ -203,10 +213,12 @@ def main() -> None:
     rest = bench_rest()
     nav = bench_navigation()
     plot(nav, OUT / "qual_vs_quant.png")
-    md = ("## DRM build and path latency (REST, `make bench`)\n\n" + table(rest) +
-          "\n\n## Qualitative vs quantitative navigation (`make bench`)\n\n" + table(nav) + "\n")
-    (OUT / "results.md").write_text(md)
-    print(md)
+    body = ["## DRM build and path latency (REST)", "", table(rest), "",
+            "## Qualitative vs quantitative navigation", "", table(nav), "",
+            "Figure: bench-out/qual_vs_quant.png."]
+    print("\n".join(body))
+    write_page("run", "Qualitative navigation: DRM over REST, and qualitative vs "
+               "quantitative navigation", body, FULL)
 
 
 if __name__ == "__main__":

@@ -9,9 +9,9 @@ is its own and the peers (OpenKarto's matcher, small_gicp; tests/bench/slam_peer
 are timed on the same machine in the same run. --quick runs the first 1500 scans of each
 log (relations inside that span only). --seeds 0,1,2 runs the particle filters once per
 seed (the others once) and adds a table of the mean and the worst seed. Writes
-OUT/slam.md, OUT/slam.json, the trajectories (TUM; traj-LOG-METHOD-sN.tum for seed N > 0),
-the maps of graph SLAM and of the improved RBPF's seed 0, and OUT/maps-LOG.png (the two
-side by side).
+docs/results/slam.md (the tables) and, under --out (bench-out), slam.json, the
+trajectories (TUM; traj-LOG-METHOD-sN.tum for seed N > 0), the maps of graph SLAM and of
+the improved RBPF's seed 0, and maps-LOG.png (the two side by side).
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from numeric.geometry import compose, invert, relative, wrap_angle
+from numeric.scan import LaserLog
 from numeric.slam.datasets import slam_data_dir
 from numeric.slam.evaluation import (
     LOCAL_MAX_GAP_S,
@@ -40,7 +41,7 @@ from numeric.slam.evaluation import (
 )
 from numeric.slam.logs import read_log, read_relations
 from numeric.slam.matching.intensity_icp import IcpConfig, Reference, intensity_icp
-from numeric.slam.runner import SlamOptions, run_log
+from numeric.slam.runner import SlamOptions, SlamResult, run_log
 from numeric.slam.simulate import simulated_log
 
 DATA = slam_data_dir() or Path("../shared/data/slam")
@@ -64,6 +65,25 @@ LOOP_GAP_S = 60.0
 Row = dict[str, Any]
 #: sequential scan-matching peers run by tests/bench/slam_peers.py
 PEERS = ("karto", "small_gicp")
+#: the methods whose maps are written (at 5 cm) and shown side by side
+SHOWN = ("graph", "rbpf (improved)")
+
+
+def estimate(log: LaserLog, label: str, seed: int) -> tuple[np.ndarray, np.ndarray, float,
+                                                            Any, SlamResult | None]:
+    """``(times, poses, seconds, estimator, result)`` of method ``label`` on ``log``; the
+    peers give no estimator and no result."""
+    from tests.bench.slam_peers import peer_odometry
+
+    if label in PEERS:
+        times, poses, seconds = peer_odometry(log, label)
+        return times, poses, seconds, None, None
+    # maps at 5 cm for the methods whose maps are shown; the others drift over hundreds of
+    # metres on some logs, so their (unused) maps are kept coarse
+    opts = SlamOptions(map_resolution_m=0.05 if label in SHOWN else 0.5,  # type: ignore[arg-type]
+                       seed=seed, **METHODS[label])
+    slam, res = run_log(log, opts)
+    return res.times, res.poses, res.seconds, slam, res
 
 
 def one_run(name: str, label: str, quick: bool, out: Path,
@@ -74,7 +94,6 @@ def one_run(name: str, label: str, quick: bool, out: Path,
     import resource
 
     from numeric.slam.logs import write_tum
-    from tests.bench.slam_peers import peer_odometry
 
     f = dict(LOGS)[name]
     log = read_log(DATA / name / f)
@@ -86,25 +105,13 @@ def one_run(name: str, label: str, quick: bool, out: Path,
     base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     slug = label.split()[0] + ("-improved" if "improved" in label else "")
     slug += f"-s{seed}" if seed else ""
+    times, poses, seconds, slam, res = estimate(log, label, seed)
     online = float("nan")  # before the end-of-run alignment, where there is one
-    if label in PEERS:
-        times, poses, seconds = peer_odometry(log, label)
-        closures = 0
-        slam = None
-    else:
-        # maps at 5 cm for the methods whose maps are shown; the others drift over
-        # hundreds of metres on some logs, so their (unused) maps are kept coarse
-        shown = label in ("graph", "rbpf (improved)")
-        opts = SlamOptions(map_resolution_m=0.05 if shown else 0.5,  # type: ignore[arg-type]
-                           seed=seed, **METHODS[label])
-        slam, res = run_log(log, opts)
-        times, poses, seconds = res.times, res.poses, res.seconds
-        if res.online_poses is not None:
-            online = relation_errors(times, res.online_poses, rt, rd).trans_m
-        closures = len(getattr(slam, "closures", []))
-        if label in ("graph", "rbpf (improved)") and not seed:
-            (out / f"map-{name}-{slug}.png").write_bytes(res.map.to_png())
-            (out / f"map-{name}-{slug}.pgm").write_bytes(res.map.to_pgm())
+    if res is not None and res.online_poses is not None:
+        online = relation_errors(times, res.online_poses, rt, rd).trans_m
+    if res is not None and label in SHOWN and not seed:
+        (out / f"map-{name}-{slug}.png").write_bytes(res.map.to_png())
+        (out / f"map-{name}-{slug}.pgm").write_bytes(res.map.to_pgm())
     write_tum(out / f"traj-{name}-{slug}.tum", times, poses)
     e = relation_errors(times, poses, rt, rd)
     fails = local_failures(times, poses, log.times, log.odometry, rt, rd)
@@ -112,17 +119,18 @@ def one_run(name: str, label: str, quick: bool, out: Path,
     loop = (rt[:, 1] - rt[:, 0]) > LOOP_GAP_S
     el = relation_errors(times, poses, rt[loop], rd[loop]) if np.any(loop) else None
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    nan = float("nan")
     return {"log": name, "method": label, "seed": seed, "scans": len(log),
             "duration_s": log.duration_s,
             "trans": e.trans_m, "trans_std": e.trans_std_m, "rot": e.rot_deg,
             "trans_online": online,
             "rot_std": e.rot_std_deg, "n": e.n,
-            "loop_trans": el.trans_m if el else float("nan"),
-            "loop_trans_std": el.trans_std_m if el else float("nan"),
-            "loop_rot": el.rot_deg if el else float("nan"), "loop_n": el.n if el else 0,
+            "loop_trans": el.trans_m if el else nan,
+            "loop_trans_std": el.trans_std_m if el else nan,
+            "loop_rot": el.rot_deg if el else nan, "loop_n": el.n if el else 0,
             "seconds": seconds, "realtime": log.duration_s / max(seconds, 1e-9),
             "peak_rss_mb": rss / 1024.0, "peak_rss_base_mb": base / 1024.0,
-            "closures": closures, "local_failures": len(fails),
+            "closures": len(getattr(slam, "closures", [])), "local_failures": len(fails),
             # the RBPF's resamplings and accepted loop starts (None for other methods)
             "resamples": getattr(slam, "resamples", None),
             "loop_starts": None if starts is None else len(starts),
@@ -298,20 +306,17 @@ def peers(lines: list[str], pairs_per_log: int) -> None:
 def reference_lattice(lines: list[str]) -> None:
     """How the reference relations were made: the share of short relations (time gap
     under LOOP_GAP_S) whose translation differs from the raw odometry's by a point of a
-    5 cm lattice (|d| = 0.05 * hypot(i, j) within 1 mm). On mit-csail almost all do: the
-    references there are odometry corrected in 5 cm steps, so a trajectory exact to the
-    real motion still differs from them by the lattice's rounding, about 0.05 * 0.383 =
-    0.019 m on average if that rounding is uniform over a cell; only an estimate made
-    with the same 5 cm steps can come near 0.004.
+    5 cm lattice (|d| = 0.05 * hypot(i, j) within 1 mm). Where most do, the references
+    are odometry corrected in 5 cm steps, so a trajectory exact to the real motion still
+    differs from them by the lattice's rounding (about 0.05 * 0.383 = 0.019 m on average
+    if that rounding is uniform over a cell), and only an estimate made with the same
+    steps can score far below that.
 
     The rotations too: the reference's rotation minus the odometry's, modulo 0.25°, is
     counted in 0.005° bins; the column is the share in the two fullest bins (2 × 2 %
-    if it were spread evenly). On mit-csail 97.4 % of the short relations sit in two
-    bins, 0.1° either side of a multiple of 0.25° (session 26): the rotations too were
-    corrected in steps, and Graph Mapping's 0.05° there is below the step itself. On
-    aces (85.8 %) the references are made the same way, yet Graph Mapping scores 0.044
-    there: its 0.004 on mit-csail says its estimate made the same steps as the
-    references, not that the motion can be known that well."""
+    if it were spread evenly). A large share says the rotations were corrected in steps
+    as well, and a published rotational error below the step says the estimate made the
+    same steps as the references, not that the motion can be known that well."""
     lines += ["", "## Reference relations: translation vs raw odometry on a 5 cm lattice", "",
               "| log | short relations | on the lattice | of them exactly odometry | "
               "rotation vs odometry in the two fullest 0.005° bins mod 0.25° |",
@@ -344,14 +349,8 @@ def reference_scan_fit(lines: list[str]) -> None:
     into surfaces); the score is the mean cell probability under B's returns. A
     reference *contradicted* by the scans scores 0.05 less than the odometry while
     correcting it by at least 0.1 m or 2°; one that *improves* on it scores 0.05 more.
-    On aces, mit-csail and fr079 the references improve on the odometry in a third to
-    two thirds of the relations and are contradicted in about 1 %; on fr-clinic they
-    improve on it in 1.4 % and are contradicted in 7.6 %, in stretches (797-827 s,
-    1965-2041 s, 3227-3402 s, 3839-3862 s: the reference turns by 5-20° where the
-    odometry, the scans and every SLAM estimate run straight), and on average they fit
-    the scans worse than the odometry (session 28). No time offset mends it (shifting
-    the reference times by ±0.2-2 s fits worse). fr-clinic's errors, chizu's and the
-    published ones alike, carry that."""
+    Where references are contradicted in stretches, every method's relation error there
+    (chizu's and the published ones alike) carries the references' own error."""
     from numeric.probability_grid import GridConfig, ProbabilityGrid
     from numeric.slam.keyframes import connect_returns
     from numeric.slam.matching.correlative import PrecomputedGrid
@@ -432,7 +431,7 @@ def profile(lines: list[str]) -> None:
                 seen += 1
 
 
-def main() -> None:
+def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default="bench-out")
@@ -450,6 +449,21 @@ def main() -> None:
                          "processes (times are then shared-core times)")
     ap.add_argument("--scheduler", default=None,
                     help="an existing Dask scheduler (or CHIZU_DASK_SCHEDULER)")
+    return ap
+
+
+#: what the options that differ from `make bench` change, in words (the results page)
+EXPLAIN = {"quick": "the first 1500 scans of each log (relations inside that span only) "
+                    "and 60 scan pairs per log instead of 200",
+           "skip_extras": "the relation-error table only",
+           "local_workers": "runs side by side: their times are shared-core times"}
+
+
+def main() -> None:
+    from service.executors import batch_executor
+    from tests.bench.results import mode, write_page
+
+    ap = parser()
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(exist_ok=True)
@@ -457,15 +471,11 @@ def main() -> None:
         print(json.dumps(one_run(args.one[0], args.one[1], args.quick, out, args.seed)))
         return
     names = args.logs.split(",")
-    labels = args.methods.split(",")
-    scope = "quick: first 1500 scans per log" if args.quick else "full logs"
-    lines = [f"# SLAM benchmark ({scope})", ""]
-    from service.executors import batch_executor
-
+    lines: list[str] = []
     with batch_executor(args.scheduler, args.local_workers) as ex:
         if ex is not None:
             lines += ["Runs side by side on Dask: times are shared-core times.", ""]
-        accuracy(args.quick, out, names, labels, lines, ex,
+        accuracy(args.quick, out, names, args.methods.split(","), lines, ex,
                  tuple(dict.fromkeys(int(x) for x in args.seeds.split(","))))
     maps_figure(out, names)
     if not args.skip_extras:
@@ -474,8 +484,11 @@ def main() -> None:
         reference_scan_fit(lines)
         peers(lines, 60 if args.quick else 200)
         profile(lines)
-    (out / "slam.md").write_text("\n".join(lines) + "\n")
+    lines += ["", f"Raw outputs in {out}/: slam.json (every run's figures), the trajectories "
+              "(TUM), the maps of graph SLAM and the improved RBPF, maps-LOG.png."]
     print("\n".join(lines))
+    write_page("slam", "SLAM benchmark: the Freiburg logs", lines,
+               mode(ap, args, EXPLAIN, ignore=("out", "one", "seed", "scheduler")))
 
 
 if __name__ == "__main__":

@@ -1,10 +1,10 @@
 """SLAM batches on Dask: the same tasks in this process and on a LocalCluster of 2
 worker processes (this machine's cores), wall time and whether the results agree.
 
-    .venv/bin/python tests/bench/slam_batch.py [--limit 1500] [--method gated] [--out bench-out]
+    .venv/bin/python tests/bench/slam_batch.py [--limit 1500] [--method gated]
 
 Tasks: the four Freiburg logs (the first --limit scans of each) with --method. Writes
-OUT/slam_batch.md.
+docs/results/slam_batch.md.
 """
 
 from __future__ import annotations
@@ -21,11 +21,11 @@ def main() -> None:
     from numeric.slam.batch import run_batch, tasks_for
     from numeric.slam.datasets import slam_data_dir
     from service.executors import batch_executor
+    from tests.bench.results import mode, write_page
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--limit", type=int, default=1500)
     ap.add_argument("--method", default="gated")
-    ap.add_argument("--out", default="bench-out")
     args = ap.parse_args()
     d = slam_data_dir()
     logs = [d / "aces" / "aces.recon.clf", d / "mit-csail" / "mit-csail.clf",
@@ -41,18 +41,15 @@ def main() -> None:
         t_there = time.perf_counter() - t1
     same = all(np.allclose(np.asarray(a.trajectory), np.asarray(b.trajectory), atol=1e-9)
                for a, b in zip(here, there, strict=True))
-    lines = [f"# SLAM batch on Dask ({len(tasks)} runs: {args.method}, first {args.limit} "
-             "scans of each log)", "",
-             "| where | wall time (s) | speed-up |", "|---|---|---|",
+    lines = [f"{len(tasks)} runs: {args.method}, the first {args.limit} scans of each log.",
+             "", "| where | wall time (s) | speed-up |", "|---|---|---|",
              f"| this process, one after the other | {t_here:.1f} | 1.00x |",
              f"| Dask LocalCluster, 2 worker processes | {t_there:.1f} | "
              f"{t_here / t_there:.2f}x |", "",
              f"Results identical: {same} (trajectories to 1e-9). The cluster's start-up "
              "(about 2 s) is outside its time."]
-    out = Path(args.out)
-    out.mkdir(exist_ok=True)
-    (out / "slam_batch.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
+    write_page("slam_batch", "SLAM batches on Dask", lines, mode(ap, args))
 
 
 if __name__ == "__main__":

@@ -24,8 +24,8 @@ return 200 with a consistent map, and POST commit must succeed. Before the strea
 scans, check what the body-size limit lets through.
 
 An RBPF run that does not keep up at --particles is repeated at --fallback-particles
-(labelled). Writes OUT/slam-stream.md (the tables) and OUT/slam-stream.json (every
-latency).
+(labelled). Writes docs/results/slam_stream.md (the tables) and OUT/slam-stream.json
+(every latency; OUT is --out, bench-out).
 """
 
 from __future__ import annotations
@@ -145,76 +145,102 @@ class Stream:
         return "yes" if late <= 0.01 * max(self.sent, 1) else "bounded"
 
 
-def check_maps(c: httpx.Client, base: str, scans: int, last_pose: dict[str, float],
-               sent_t: list[float]) -> dict[str, Any]:
-    """GET the maps and the trajectory after the stream; each must be 200 and sane."""
-    from PIL import Image
+class EndpointCheck:
+    """GETs of a run's outputs after the stream, each checked for a 200 and a sane body;
+    ``out`` gathers the figures, ``problems`` what failed."""
 
-    out: dict[str, Any] = {}
-    problems: list[str] = []
+    def __init__(self, c: httpx.Client, base: str) -> None:
+        self.c, self.base = c, base
+        self.out: dict[str, Any] = {}
+        self.problems: list[str] = []
 
-    def get(path: str) -> tuple[httpx.Response, float]:
+    def get(self, path: str) -> tuple[httpx.Response, float]:
         t = time.perf_counter()
-        r = c.get(base + path)
+        r = self.c.get(self.base + path)
         ms = (time.perf_counter() - t) * 1e3
         if r.status_code != 200:
-            problems.append(f"GET {path}: {r.status_code} {r.text[:200]}")
+            self.problems.append(f"GET {path}: {r.status_code} {r.text[:200]}")
         return r, ms
 
-    r, ms = get("/map.png")  # the first map request builds the grid
-    if r.status_code == 200:
+    def png(self) -> None:
+        from PIL import Image
+
+        r, ms = self.get("/map.png")  # the first map request builds the grid
+        if r.status_code != 200:
+            return
         img = Image.open(BytesIO(r.content))
-        grey = np.asarray(img.convert("L"))
-        free = float(np.mean(grey > 250))
-        out["png"] = {"ms": ms, "kb": len(r.content) / 1024, "size": img.size, "free": free}
+        free = float(np.mean(np.asarray(img.convert("L")) > 250))
+        self.out["png"] = {"ms": ms, "kb": len(r.content) / 1024, "size": img.size,
+                           "free": free}
         if r.content[:8] != b"\x89PNG\r\n\x1a\n" or free <= 0.01:
-            problems.append(f"map.png: not a map ({free:.3f} free)")
-    r, ms = get("/map.pgm")
-    if r.status_code == 200:
+            self.problems.append(f"map.png: not a map ({free:.3f} free)")
+
+    def pgm(self) -> None:
+        r, ms = self.get("/map.pgm")
+        if r.status_code != 200:
+            return
         m = re.match(rb"P5\s+(?:#.*\n\s*)*(\d+)\s+(\d+)\s+(\d+)\s", r.content)
         if m is None:
-            problems.append("map.pgm: no P5 header")
-        else:
-            w, h = int(m[1]), int(m[2])
-            px = np.frombuffer(r.content[m.end():], np.uint8)
-            occ, free = float(np.mean(px == 0)), float(np.mean(px == 254))
-            out["pgm"] = {"ms": ms, "size": (w, h), "occupied": occ, "free": free}
-            if px.size != w * h or occ <= 0 or free <= 0.01:
-                problems.append(f"map.pgm: {px.size} bytes for {w}x{h}, occ {occ}, free {free}")
-            if "png" in out and tuple(out["png"]["size"]) != (w, h):
-                problems.append(f"map.png {out['png']['size']} vs map.pgm {(w, h)}")
-    r, ms = get("/map.yaml")
-    if r.status_code == 200:
+            self.problems.append("map.pgm: no P5 header")
+            return
+        w, h = int(m[1]), int(m[2])
+        px = np.frombuffer(r.content[m.end():], np.uint8)
+        occ, free = float(np.mean(px == 0)), float(np.mean(px == 254))
+        self.out["pgm"] = {"ms": ms, "size": (w, h), "occupied": occ, "free": free}
+        if px.size != w * h or occ <= 0 or free <= 0.01:
+            self.problems.append(f"map.pgm: {px.size} bytes for {w}x{h}, occ {occ}, "
+                                 f"free {free}")
+        if "png" in self.out and tuple(self.out["png"]["size"]) != (w, h):
+            self.problems.append(f"map.png {self.out['png']['size']} vs map.pgm {(w, h)}")
+
+    def yaml(self) -> None:
+        r, ms = self.get("/map.yaml")
+        if r.status_code != 200:
+            return
         y = r.text
         res = re.search(r"resolution:\s*([0-9.eE+-]+)", y)
-        ok = ("image: map.pgm" in y and res is not None and "origin:" in y)
-        out["yaml"] = {"ms": ms, "resolution": float(res[1]) if res else None}
-        if not ok:
-            problems.append(f"map.yaml: {y[:200]!r}")
-    r, ms = get("/trajectory")
-    if r.status_code == 200:
-        tr = r.json()
-        n = len(tr["poses"])
-        out["trajectory"] = {"ms": ms, "poses": n, "kb": len(r.content) / 1024}
-        if n != scans or not np.allclose(tr["t"], sent_t):
-            problems.append(f"trajectory: {n} poses for {scans} scans")
-        # /pose is the estimate the trajectory ends with (graph SLAM: iSAM2's current
-        # estimate of the latest node, read without changing the run)
-        end = tr["poses"][-1]
-        gap = math.hypot(end[0] - last_pose["x"], end[1] - last_pose["y"])
-        out["trajectory"]["end_vs_pose_mm"] = gap * 1e3
-        if gap > 0.01:  # rounding of the JSON, no more
-            problems.append(f"trajectory ends {gap:.2f} m from the last pose")
-    r, ms = get("/trajectory?format=tum")
-    if r.status_code == 200 and len(r.text.strip().splitlines()) != scans:
-        problems.append("trajectory?format=tum: wrong line count")
-    t = time.perf_counter()
-    r = c.post(base + "/commit")
-    out["commit"] = {"ms": (time.perf_counter() - t) * 1e3, "status": r.status_code}
-    if r.status_code != 200:
-        problems.append(f"POST commit: {r.status_code} {r.text[:200]}")
-    out["problems"] = problems
-    return out
+        self.out["yaml"] = {"ms": ms, "resolution": float(res[1]) if res else None}
+        if not ("image: map.pgm" in y and res is not None and "origin:" in y):
+            self.problems.append(f"map.yaml: {y[:200]!r}")
+
+    def trajectory(self, scans: int, last_pose: dict[str, float], sent_t: list[float]) -> None:
+        r, ms = self.get("/trajectory")
+        if r.status_code == 200:
+            tr = r.json()
+            n = len(tr["poses"])
+            self.out["trajectory"] = {"ms": ms, "poses": n, "kb": len(r.content) / 1024}
+            if n != scans or not np.allclose(tr["t"], sent_t):
+                self.problems.append(f"trajectory: {n} poses for {scans} scans")
+            # /pose is the estimate the trajectory ends with (graph SLAM: iSAM2's current
+            # estimate of the latest node, read without changing the run)
+            end = tr["poses"][-1]
+            gap = math.hypot(end[0] - last_pose["x"], end[1] - last_pose["y"])
+            self.out["trajectory"]["end_vs_pose_mm"] = gap * 1e3
+            if gap > 0.01:  # rounding of the JSON, no more
+                self.problems.append(f"trajectory ends {gap:.2f} m from the last pose")
+        r, ms = self.get("/trajectory?format=tum")
+        if r.status_code == 200 and len(r.text.strip().splitlines()) != scans:
+            self.problems.append("trajectory?format=tum: wrong line count")
+
+    def commit(self) -> None:
+        t = time.perf_counter()
+        r = self.c.post(self.base + "/commit")
+        self.out["commit"] = {"ms": (time.perf_counter() - t) * 1e3, "status": r.status_code}
+        if r.status_code != 200:
+            self.problems.append(f"POST commit: {r.status_code} {r.text[:200]}")
+
+
+def check_maps(c: httpx.Client, base: str, scans: int, last_pose: dict[str, float],
+               sent_t: list[float]) -> dict[str, Any]:
+    """GET the maps and the trajectory after the stream, then commit; each must be 200 and
+    sane. The figures by endpoint, and ``problems``."""
+    check = EndpointCheck(c, base)
+    check.png()
+    check.pgm()
+    check.yaml()
+    check.trajectory(scans, last_pose, sent_t)
+    check.commit()
+    return {**check.out, "problems": check.problems}
 
 
 def bad_scans(c: httpx.Client, base: str, good: dict[str, Any],
@@ -249,58 +275,83 @@ def bad_scans(c: httpx.Client, base: str, good: dict[str, Any],
     return out
 
 
-def stream(url: str, label: str, options: dict[str, Any], bodies: list[bytes],
-           dicts: list[dict[str, Any]], rate: float, give_up_lag_s: float,
-           server: Server) -> Stream:
-    st = Stream(label, options)
-    period = 1.0 / rate
-    n = len(bodies)
+@dataclass(frozen=True)
+class Feed:
+    """What a stream sends: the scans (request bodies, and as dicts), at ``rate`` Hz; a
+    stream more than ``give_up_lag_s`` behind its schedule stops."""
+
+    bodies: list[bytes]
+    dicts: list[dict[str, Any]]
+    rate: float
+    give_up_lag_s: float
+
+
+def health_p50_ms(c: httpx.Client, n: int = 30) -> float:
+    """Median latency of ``GET /health``: the HTTP stack's own cost, the baseline."""
+    hs = []
+    for _ in range(n):
+        t = time.perf_counter()
+        c.get("/health")
+        hs.append((time.perf_counter() - t) * 1e3)
+    return pct(hs, 50)
+
+
+def send_scans(c: httpx.Client, base: str, feed: Feed, st: Stream) -> dict[str, Any]:
+    """Post the scans one a request, scan k at t0 + k/rate (at once when behind), with the
+    malformed scans after the middle one; the last answer. Fills ``st``'s latencies,
+    lags and counts."""
+    period, n = 1.0 / feed.rate, len(feed.bodies)
     bad_at = n // 2
     hdr = {"content-type": "application/json"}
+    last: dict[str, Any] = {}
+    t0 = time.perf_counter() + 0.05
+    for k, b in enumerate(feed.bodies):
+        target = t0 + k * period
+        now = time.perf_counter()
+        if now < target:
+            time.sleep(target - now)
+        start = time.perf_counter()
+        r = c.post(base + "/scans", content=b, headers=hdr)
+        end = time.perf_counter()
+        st.sent += 1
+        st.latencies_ms.append((end - start) * 1e3)
+        st.lags_s.append(start - target)
+        if r.status_code != 200:
+            st.errors.append(f"scan {k}: {r.status_code} {r.text[:200]}")
+            if len(st.errors) > 5:
+                break
+            continue
+        last = r.json()
+        st.scans = last["scans"]
+        st.final_lag_s = end - target
+        if k == bad_at:
+            st.bad = bad_scans(c, base, feed.dicts[k + 1] if k + 1 < n else feed.dicts[k],
+                               feed.dicts[k]["t"])
+        if k == bad_at + 1 and st.bad:
+            st.bad["next_good_scans"] = last["scans"]
+            st.bad["next_good_ok"] = last["scans"] == st.bad["scans_before"] + 1
+        if end - target > feed.give_up_lag_s:
+            st.stopped_at = k + 1
+            break
+    st.wall_s = time.perf_counter() - t0
+    return last
+
+
+def stream(url: str, label: str, options: dict[str, Any], feed: Feed,
+           server: Server) -> Stream:
+    """One SLAM run over REST fed by ``feed``: latencies, lags, the CPU of the server and
+    of the rest of the machine meanwhile, the malformed scans' answers and the outputs'
+    checks."""
+    st = Stream(label, options)
     with httpx.Client(base_url=url, timeout=600) as c:
-        hs = []
-        for _ in range(30):
-            t = time.perf_counter()
-            c.get("/health")
-            hs.append((time.perf_counter() - t) * 1e3)
-        st.health_p50_ms = pct(hs, 50)
+        st.health_p50_ms = health_p50_ms(c)
         r = c.post(f"/worlds/{WORLD}/slam-runs", json=options)
         if r.status_code != 201:
             raise RuntimeError(f"create run {options}: {r.status_code} {r.text}")
         base = f"/worlds/{WORLD}/slam-runs/{r.json()['id']}"
-        last: dict[str, Any] = {}
         cpu0, busy0, load0 = server.cpu_s(), busy_jiffies(), os.getloadavg()[0]
         client0 = time.process_time()
-        t0 = time.perf_counter() + 0.05
-        for k, b in enumerate(bodies):
-            target = t0 + k * period
-            now = time.perf_counter()
-            if now < target:
-                time.sleep(target - now)
-            start = time.perf_counter()
-            r = c.post(base + "/scans", content=b, headers=hdr)
-            end = time.perf_counter()
-            st.sent += 1
-            st.latencies_ms.append((end - start) * 1e3)
-            st.lags_s.append(start - target)
-            if r.status_code != 200:
-                st.errors.append(f"scan {k}: {r.status_code} {r.text[:200]}")
-                if len(st.errors) > 5:
-                    break
-                continue
-            last = r.json()
-            st.scans = last["scans"]
-            st.final_lag_s = end - target
-            if k == bad_at:
-                st.bad = bad_scans(c, base, dicts[k + 1] if k + 1 < n else dicts[k],
-                                   dicts[k]["t"])
-            if k == bad_at + 1 and st.bad:
-                st.bad["next_good_scans"] = last["scans"]
-                st.bad["next_good_ok"] = last["scans"] == st.bad["scans_before"] + 1
-            if end - target > give_up_lag_s:
-                st.stopped_at = k + 1
-                break
-        st.wall_s = time.perf_counter() - t0
+        last = send_scans(c, base, feed, st)
         client_cpu = time.process_time() - client0
         st.server_cpu_s = server.cpu_s() - cpu0
         busy = (busy_jiffies() - busy0) / TICK
@@ -309,10 +360,11 @@ def stream(url: str, label: str, options: dict[str, Any], bodies: list[bytes],
         if st.bad and last.get("pose") and st.bad.get("pose_before"):
             p0, p1 = st.bad["pose_before"], last["pose"]
             st.bad["moved_after_m"] = math.hypot(p1["x"] - p0["x"], p1["y"] - p0["y"])
-            o0, o1 = dicts[bad_at]["odom"], dicts[st.scans - 1]["odom"]
+            o0 = feed.dicts[len(feed.bodies) // 2]["odom"]
+            o1 = feed.dicts[st.scans - 1]["odom"]
             st.bad["odom_moved_m"] = math.hypot(o1[0] - o0[0], o1[1] - o0[1])
         if st.scans:
-            sent_t = [d["t"] for d in dicts[:st.scans]]
+            sent_t = [d["t"] for d in feed.dicts[:st.scans]]
             st.endpoints = check_maps(c, base, st.scans, last["pose"], sent_t)
         st.peak_rss_mb = server.peak_rss_mb()
     return st
@@ -405,7 +457,7 @@ def fmt_endpoints(s: Stream) -> str:
     return f"| {s.label} | {png} | {pgm} | {yml} | {tra} | {com} | {verdict} | {bad} |"
 
 
-def main() -> None:
+def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--log", type=Path, default=None, help="CARMEN log (default: aces)")
     ap.add_argument("--scans", type=int, default=1500, help="first N scans of the log")
@@ -418,22 +470,11 @@ def main() -> None:
                     help="stop a stream once it is this many seconds behind")
     ap.add_argument("--skip-size-checks", action="store_true")
     ap.add_argument("--out", type=Path, default=Path("bench-out"))
-    a = ap.parse_args()
+    return ap
 
-    path = a.log or default_log()
-    log = read_log(path).head(a.scans)
-    dicts = [scan_dict(s) for s in log.scans]
-    bodies = [body([d]) for d in dicts]
-    from service.settings import Settings
 
-    max_body = Settings().max_body_bytes
-    a.out.mkdir(parents=True, exist_ok=True)
-    cores = os.cpu_count() or 1
-    print(f"{path.name}: {len(dicts)} scans of {len(dicts[0]['ranges'])} beams "
-          f"(log rate {len(log) / max(log.duration_s, 1e-9):.1f} Hz), one scan per request "
-          f"({np.mean([len(b) for b in bodies]) / 1024:.1f} KiB) at {a.rate:g} Hz; "
-          f"{cores} cores, load {os.getloadavg()[0]:.1f}", flush=True)
-
+def method_runs(a: argparse.Namespace) -> list[tuple[str, dict[str, Any]]]:
+    """``(label, run options)`` of each method of ``--methods``."""
     runs: list[tuple[str, dict[str, Any]]] = []
     for m in [m.strip() for m in a.methods.split(",") if m.strip()]:
         if m == "rbpf":
@@ -441,66 +482,58 @@ def main() -> None:
                          {"method": "rbpf", "proposal": "improved", "particles": a.particles}))
         else:
             runs.append((m, {"method": m}))
+    return runs
 
-    results: list[Stream] = []
+
+def serve_and_stream(label: str, opts: dict[str, Any], feed: Feed,
+                     size_checks_max_body: int | None) -> tuple[Stream, list[list[str]]]:
+    """A fresh server and world, the body-size checks first if ``size_checks_max_body``
+    is given, then one stream; errors the server logged count as the stream's."""
     size_rows: list[list[str]] = []
-    while runs:
-        label, opts = runs.pop(0)
-        with tempfile.TemporaryDirectory(prefix="chizu-stream-") as tmp:
-            server = Server(Path(tmp))
-            try:
-                r = httpx.post(server.url + "/worlds", json={"name": WORLD}, timeout=60)
-                if r.status_code != 201:
-                    raise RuntimeError(f"create world: {r.status_code} {r.text}")
-                if not size_rows and not a.skip_size_checks:
-                    size_rows = size_checks(server.url, dicts, max_body)
-                print(f"streaming {label} ...", flush=True)
-                s = stream(server.url, label, opts, bodies, dicts, a.rate, a.give_up_lag,
-                           server)
-            finally:
-                server.stop()
-            errors_logged = [ln for ln in server.log_path.read_text().splitlines()
-                             if " 500 " in ln or "Traceback" in ln]
-            if errors_logged:
-                s.errors.extend(errors_logged[:5])
-        results.append(s)
-        print(fmt_stream(s, a.rate), flush=True)
-        if (opts["method"] == "rbpf" and s.verdict(a.rate) != "yes" and a.fallback_particles
-                and opts["particles"] != a.fallback_particles):
-            runs.insert(0, (f"rbpf improved, {a.fallback_particles} particles (fallback)",
-                            {**opts, "particles": a.fallback_particles}))
+    with tempfile.TemporaryDirectory(prefix="chizu-stream-") as tmp:
+        server = Server(Path(tmp))
+        try:
+            r = httpx.post(server.url + "/worlds", json={"name": WORLD}, timeout=60)
+            if r.status_code != 201:
+                raise RuntimeError(f"create world: {r.status_code} {r.text}")
+            if size_checks_max_body is not None:
+                size_rows = size_checks(server.url, feed.dicts, size_checks_max_body)
+            print(f"streaming {label} ...", flush=True)
+            s = stream(server.url, label, opts, feed, server)
+        finally:
+            server.stop()
+        errors_logged = [ln for ln in server.log_path.read_text().splitlines()
+                         if " 500 " in ln or "Traceback" in ln]
+        s.errors.extend(errors_logged[:5])
+    return s, size_rows
 
+
+def report(results: list[Stream], size_rows: list[list[str]], intro: str,
+           rate: float, scans: int) -> list[str]:
+    """The page's tables: the streams, the outputs after them, the body sizes."""
+    cores = os.cpu_count() or 1
     other = max(s.other_cores for s in results)
     lines = [
-        f"SLAM streaming over REST: {path.name}, first {len(dicts)} scans "
-        f"({len(dicts[0]['ranges'])} beams), one scan per POST at {a.rate:g} Hz "
-        f"(the log's own rate is {len(log) / max(log.duration_s, 1e-9):.1f} Hz), "
-        "uvicorn + one worker on loopback, a fresh server and run per method.",
-        "",
+        intro, "",
         f"Machine: {cores} cores; up to {other:.2f} cores were busy with other work during "
         "the streams" + (" (another benchmark was running: latencies and capacity are "
                          "pessimistic; server CPU ms/scan is the steadier figure)."
-                         if other > 0.3 else "."),
-        "",
+                         if other > 0.3 else "."), "",
         "| method | scans | latency p50 / p95 / p99 / max (ms) | max lag (s) | final lag (s) "
         "| sent > 1 period late | achieved (Hz) | capacity scans/s (× target) "
         "| server CPU ms/scan | /health p50 (ms) | other cores busy | server peak RSS (MB) "
         "| kept up |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
-        *[fmt_stream(s, a.rate) for s in results],
-        "",
+        *[fmt_stream(s, rate) for s in results], "",
         "Capacity = scans / sum of request latencies (what one client sending back to back "
         "would get). Kept up = yes: the lag behind the schedule stays ≤ 1 s and ≤ 1 % of "
         "scans are sent more than one period late; lag bounded: the lag stays ≤ 1 s but more "
-        "scans are late (single updates longer than a period); no: the lag grew.",
-        "",
+        "scans are late (single updates longer than a period); no: the lag grew.", "",
         "After the stream (first GET of a map builds the grid; the others reuse it), and the "
-        f"malformed scans sent after scan {len(dicts) // 2}:",
-        "",
+        f"malformed scans sent after scan {scans // 2}:", "",
         "| method | map.png | map.pgm | map.yaml | trajectory | commit | maps | bad scans |",
         "|---|---|---|---|---|---|---|---|",
-        *[fmt_endpoints(s) for s in results],
-    ]
+        *[fmt_endpoints(s) for s in results]]
     gaps = [s.label for s in results
             if s.endpoints.get("trajectory", {}).get("end_vs_pose_mm", 0) > 50]
     if gaps:
@@ -512,10 +545,47 @@ def main() -> None:
         lines += ["", "Body sizes (a separate odom run):", "",
                   "| body | size | status | ms |", "|---|---|---|---|",
                   *["| " + " | ".join(r) + " |" for r in size_rows]]
-    text = "\n".join(lines) + "\n"
-    print()
-    print(text)
-    (a.out / "slam-stream.md").write_text(text)
+    return lines
+
+
+def main() -> None:
+    from service.settings import Settings
+    from tests.bench.results import mode, write_page
+
+    ap = parser()
+    a = ap.parse_args()
+    path = a.log or default_log()
+    log = read_log(path).head(a.scans)
+    dicts = [scan_dict(s) for s in log.scans]
+    feed = Feed([body([d]) for d in dicts], dicts, a.rate, a.give_up_lag)
+    log_rate = len(log) / max(log.duration_s, 1e-9)
+    a.out.mkdir(parents=True, exist_ok=True)
+    print(f"{path.name}: {len(dicts)} scans of {len(dicts[0]['ranges'])} beams "
+          f"(log rate {log_rate:.1f} Hz), one scan per request "
+          f"({np.mean([len(b) for b in feed.bodies]) / 1024:.1f} KiB) at {a.rate:g} Hz; "
+          f"{os.cpu_count() or 1} cores, load {os.getloadavg()[0]:.1f}", flush=True)
+    runs = method_runs(a)
+    results: list[Stream] = []
+    size_rows: list[list[str]] = []
+    while runs:
+        label, opts = runs.pop(0)
+        check_sizes = not size_rows and not a.skip_size_checks
+        s, rows = serve_and_stream(label, opts, feed,
+                                   Settings().max_body_bytes if check_sizes else None)
+        size_rows = size_rows or rows
+        results.append(s)
+        print(fmt_stream(s, a.rate), flush=True)
+        if (opts["method"] == "rbpf" and s.verdict(a.rate) != "yes" and a.fallback_particles
+                and opts["particles"] != a.fallback_particles):
+            runs.insert(0, (f"rbpf improved, {a.fallback_particles} particles (fallback)",
+                            {**opts, "particles": a.fallback_particles}))
+    intro = (f"{path.name}, first {len(dicts)} scans ({len(dicts[0]['ranges'])} beams), one "
+             f"scan per POST at {a.rate:g} Hz (the log's own rate is {log_rate:.1f} Hz), "
+             "uvicorn + one worker on loopback, a fresh server and run per method.")
+    lines = report(results, size_rows, intro, a.rate, len(dicts))
+    print("\n" + "\n".join(lines))
+    write_page("slam_stream", "SLAM streaming over REST: does a run keep up with the robot?",
+               lines, mode(ap, a, ignore=("out",)))
     (a.out / "slam-stream.json").write_text(json.dumps(
         [{"label": s.label, "options": s.options, "scans": s.scans,
           "latencies_ms": s.latencies_ms, "lags_s": s.lags_s, "wall_s": s.wall_s,

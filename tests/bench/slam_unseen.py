@@ -1,7 +1,7 @@
 """SLAM on offices nobody tuned it on: random floors, random tours, two lasers.
 
-    .venv/bin/python tests/bench/slam_unseen.py [--seeds 1,2] [--methods graph,rbpf,karto]
-                                                [--out bench-out]
+    .venv/bin/python tests/bench/slam_unseen.py [--seeds 1,2] [--lasers urg,lms]
+                                                [--methods odom,karto,graph,rbpf]
 
 Every parameter of chizu's SLAM was chosen on the four Freiburg logs. This bench drives
 the simulator (one world model, one laser model, one odometry model: ``numeric.worlds``,
@@ -18,7 +18,8 @@ The references are the true poses: relations (Kümmerle et al. 2009) between sca
 apart every 0.5 s, and between every pair of scans more than 60 s apart whose true
 poses lie within 2 m and 0.5 rad of each other (at most 600, evenly picked): the
 loop-spanning ones. Each method runs with its defaults (the same parameters as on the
-real logs; the improved RBPF with 512 particles, seed 0). Writes OUT/slam_unseen.md.
+real logs; the improved RBPF with 512 particles, seed 0). Writes
+docs/results/slam_unseen.md.
 """
 
 from __future__ import annotations
@@ -80,17 +81,15 @@ def _fmt(e: RelationErrors | None) -> str:
 
 
 def main() -> None:
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # tests.bench.slam_peers
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # tests.bench.*
+    from tests.bench.results import mode, write_page
+
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", default="1,2")
     ap.add_argument("--lasers", default="urg,lms")
     ap.add_argument("--methods", default="odom,karto,graph,rbpf")
-    ap.add_argument("--out", default="bench-out")
     a = ap.parse_args()
-    out = Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
-    lines = ["# SLAM on unseen offices (simulated; references are the true poses)", "",
-             "Relation error (Kümmerle et al. 2009), translational mean ± std (m) / "
+    lines = ["Relation error (Kümmerle et al. 2009), translational mean ± std (m) / "
              "rotational mean (deg), on the relations 1 s apart and on the loop-spanning "
              "ones (more than 60 s apart, true poses within 2 m); speed as a multiple of "
              "the log's real time.", "",
@@ -112,7 +111,8 @@ def main() -> None:
                        f"| {_fmt(el)} | {speed} |")
                 lines.append(row)
                 print(row, flush=True)
-    (out / "slam_unseen.md").write_text("\n".join(lines) + "\n")
+    write_page("slam_unseen", "SLAM on unseen offices (simulated; references are the true "
+               "poses)", lines, mode(ap, a))
 
 
 if __name__ == "__main__":

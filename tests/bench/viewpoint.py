@@ -4,7 +4,7 @@ search), and the online summarisation run of §7.3.
 
     .venv/bin/python tests/bench/viewpoint.py [--quick]
 
-Writes bench-out/viewpoint.md and figures next to it. Times are medians on this machine;
+Writes docs/results/viewpoint.md and the figures in bench-out/. Times are medians on this machine;
 compare the ratios, not the absolute figures (shared, noisy 2-core machines).
 """
 
@@ -42,6 +42,7 @@ from numeric.world import World  # noqa: E402
 from numeric.worlds import SUMMARY_DOOR, summary_room  # noqa: E402
 from service.cli import DEFAULT_TYPES  # noqa: E402
 from service.viewpoint import local_grouper  # noqa: E402
+from tests.bench.results import FULL, write_page  # noqa: E402
 
 OUT = ROOT / "bench-out"
 TYPES = DEFAULT_TYPES
@@ -101,12 +102,20 @@ def table1(grouper: Any, lines: list[str]) -> None:
               "Paper's L2 losses: G_B 2.76, G_A → G_B 296.26.", ""]
 
 
-def fig11b(grouper: Any, lines: list[str], repeat: int) -> None:
-    lines += ["## Fig. 11(b): four candidates, three object groups, two unknown regions", "",
-              "Room `fig11b` seen from the door; t_limit 30 s, k_lim 0.5, v 0.4 m/s, "
-              "t_verify 2 s, unknown regions ≥ 1.5 m² (smaller shadows are not groups).", ""]
+def _group_costs(rep: Any) -> list[GroupCost]:
+    return [GroupCost(g.name, g.spec.kind, g.value, g.t_obs, g.entries) for g in rep.groups]
+
+
+#: Fig. 11(b)'s plans in the paper, by loss; its letters A-C are object groups, D-E
+#: unknown regions
+PAPER_FIG11B = {"L1": "B → C → E", "L2": "B → C → D", "L3": "B → C → D"}
+
+
+def fig11b_plans(grouper: Any, req: PlanRequest, grid: Any, lines: list[str]
+                 ) -> dict[str, tuple[PlanRequest, Any]]:
+    """The scene's groups, then the chosen plan and runner-up under each loss beside the
+    paper's (a figure per loss); ``(request, report)`` by loss."""
     planner = ViewpointPlanner()
-    req, grid = scene("fig11b", "L2", t_verify_s=2.0, min_area_m2=1.5)
     rep = planner.plan(req, grid, grouper)
     lines += ["| group | kind | members | V | t_obs (s) | how |", "|---|---|---|---|---|---|"]
     for g in rep.groups:
@@ -116,48 +125,57 @@ def fig11b(grouper: Any, lines: list[str], repeat: int) -> None:
                      f"{g.value:.1f} | {g.t_obs:.2f} | {how} |")
     lines += ["", "| loss | chosen plan | V | time (s) | U | runner-up | paper |",
               "|---|---|---|---|---|---|---|"]
-    paper = {"L1": "B → C → E", "L2": "B → C → D", "L3": "B → C → D"}
-    reports: dict[str, Any] = {}
+    reports: dict[str, tuple[PlanRequest, Any]] = {}
     for loss in ("L1", "L2", "L3"):
         r = req.model_copy(update={"loss": loss})
         rep = planner.plan(r, grid, grouper)
         best, second = rep.plans[0], rep.plans[1] if len(rep.plans) > 1 else None
         lines.append(f"| {loss} | {' → '.join(rep.names(best)) or '(leave)'} | "
                      f"{best.value:.1f} | {best.time:.2f} | {fmt(best.utility)} | "
-                     f"{' → '.join(rep.names(second)) if second else ''} | {paper[loss]} |")
+                     f"{' → '.join(rep.names(second)) if second else ''} | "
+                     f"{PAPER_FIG11B[loss]} |")
         plan_figure(rep, r, grid, str(OUT / f"viewpoint_fig11b_{loss}.png"))
         reports[loss] = (r, rep)
-    # item 6: the paper's plans, evaluated with our costs, under every way of matching
-    # its letters to our groups (objects A-C to ours, regions D-E to ours)
+    return reports
+
+
+def paper_plans(reports: dict[str, tuple[PlanRequest, Any]], grid: Any,
+                lines: list[str]) -> None:
+    """The paper's plans evaluated with chizu's values and times, under the matching of
+    its letters to our groups (objects A-C to ours, regions D-E to ours) that suits each
+    plan best."""
     lines += ["", "The paper's plans evaluated with chizu's values and times, under the "
               "matching of its letters to our groups that suits each plan best:", "",
               "| loss | paper's plan | as our groups | V | time (s) | U | our optimum U |",
               "|---|---|---|---|---|---|---|"]
     for loss, (r, rep) in reports.items():
-        costs = [GroupCost(g.name, g.spec.kind, g.value, g.t_obs, g.entries)
-                 for g in rep.groups]
-        prob = Problem.with_travel(costs, np.array(r.robot), np.array(r.exit), r.speed_m_s,
-                                   r.loss_function(), geodesic(TravelMap(grid)))
+        prob = Problem.with_travel(_group_costs(rep), np.array(r.robot), np.array(r.exit),
+                                   r.speed_m_s, r.loss_function(), geodesic(TravelMap(grid)))
         objs = [i for i, g in enumerate(rep.groups) if g.spec.kind == "objects"]
         unks = [i for i, g in enumerate(rep.groups) if g.spec.kind == "unknown"]
         best_u, best_map = -np.inf, None
         for po in itertools.permutations(objs):
             for pu in itertools.permutations(unks):
                 letter = dict(zip("ABCDE", list(po) + list(pu), strict=False))
-                order = tuple(letter[c] for c in paper[loss].split(" → "))
+                order = tuple(letter[c] for c in PAPER_FIG11B[loss].split(" → "))
                 plan = evaluate(prob, order)
                 u = plan.utility if np.isfinite(plan.utility) else -np.inf
                 if best_map is None or u > best_u:
                     best_u, best_map = u, (order, plan)
         assert best_map is not None
         order, plan = best_map
-        lines.append(f"| {loss} | {paper[loss]} | "
+        lines.append(f"| {loss} | {PAPER_FIG11B[loss]} | "
                      f"{' → '.join(rep.groups[i].name for i in order)} | {plan.value:.1f} | "
                      f"{plan.time:.2f} | {fmt(plan.utility)} | "
                      f"{fmt(rep.plans[0].utility)} |")
-    # planning time of the whole request (grouping in Prolog, local plans, global plan)
-    tables = TableCache()
-    warm = ViewpointPlanner(tables)
+
+
+def planning_times(grouper: Any, req: PlanRequest, grid: Any, lines: list[str],
+                   repeat: int) -> None:
+    """Planning time of the whole request (grouping in Prolog, local plans, global plan):
+    re-planning, the paper's exhaustive search, a first plan, without the pattern
+    tables, and the global plan alone."""
+    warm = ViewpointPlanner(TableCache())
     warm.plan(req, grid, grouper)
     t_dp = median_ms(lambda: warm.plan(req, grid, grouper), repeat)
     ex = req.model_copy(update={"solver": "exhaustive"})
@@ -166,8 +184,8 @@ def fig11b(grouper: Any, lines: list[str], repeat: int) -> None:
                      max(3, repeat // 4))
     rep = warm.plan(req, grid, grouper)
     gl = median_ms(lambda: solve(Problem.build(
-        [GroupCost(g.name, g.spec.kind, g.value, g.t_obs, g.entries) for g in rep.groups],
-        np.array(req.robot), np.array(req.exit), req.speed_m_s, req.loss_function())), repeat)
+        _group_costs(rep), np.array(req.robot), np.array(req.exit), req.speed_m_s,
+        req.loss_function())), repeat)
     # the pattern table's speed-up (eq. 6 vs eq. 5 on the free viewpoints, fresh tables)
     notab = req.model_copy(update={"use_table": False})
     t_notab = median_ms(lambda: ViewpointPlanner(TableCache()).plan(notab, grid, grouper),
@@ -183,6 +201,16 @@ def fig11b(grouper: Any, lines: list[str], repeat: int) -> None:
               f"{'met' if t_dp <= 20 else 'missed'} at {t_dp:.1f} ms. Pattern tables: a first "
               f"plan takes {cold / t_notab:.2f}× the time of planning without tables, a "
               f"re-plan {t_dp / t_notab:.2f}× (paper: ≈ 1/6).", ""]
+
+
+def fig11b(grouper: Any, lines: list[str], repeat: int) -> None:
+    lines += ["## Fig. 11(b): four candidates, three object groups, two unknown regions", "",
+              "Room `fig11b` seen from the door; t_limit 30 s, k_lim 0.5, v 0.4 m/s, "
+              "t_verify 2 s, unknown regions ≥ 1.5 m² (smaller shadows are not groups).", ""]
+    req, grid = scene("fig11b", "L2", t_verify_s=2.0, min_area_m2=1.5)
+    reports = fig11b_plans(grouper, req, grid, lines)
+    paper_plans(reports, grid, lines)
+    planning_times(grouper, req, grid, lines, repeat)
 
 
 def scaling(lines: list[str], quick: bool) -> None:
@@ -216,7 +244,8 @@ def scaling(lines: list[str], quick: bool) -> None:
 
 
 def branch_and_bound(lines: list[str], quick: bool) -> None:
-    """Item 3 of the scaling work: exact past 20 groups, or the gap."""
+    """The global plan past the DP's reach: branch and bound, exact within its budget or
+    with the gap to its upper bound."""
     lines += ["## Global plan past 20 groups: branch and bound (1 s budget)", "",
               "Random scenes as above (10 m room, t_limit 60 s, k_lim 0.5). Branch and bound "
               "over layers of partial tours with a knapsack bound, started from the DP's "
@@ -283,12 +312,8 @@ def cluster_scene(k: int, seed: int = 0) -> tuple[PlanRequest, Any]:
 
 
 def group_size(grouper: Any, lines: list[str], quick: bool) -> None:
-    """Item 1 of the scaling work: planning time against objects per group, 1-16."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    """Planning time against objects per group, 1-16: exact local plans up to
+    ``EXACT_GROUP`` objects, a bound beyond, and how far the bound is from exact."""
     from numeric.viewpoint import verification as ver
 
     lines += ["## Planning time vs objects per group (local plan: t_seq, t_par)", "",
@@ -330,6 +355,21 @@ def group_size(grouper: Any, lines: list[str], quick: bool) -> None:
         lines.append(f"| {k} | {len(objs)} | {first[-1]:.0f} | {again[-1]:.0f} | "
                      f"{big.t_obs:.1f} | {big.local.strategy if big.local else ''} | "
                      f"{'yes' if big.local and big.local.exact else 'bound'} | {gap} |")
+    group_size_figure(ks, first, again)
+    i12 = ks.index(12)
+    lines += ["", f"12 objects: {first[i12]:.0f} ms first plan, {again[i12]:.0f} ms re-plan "
+              "(goal ≤ 200 ms). Figure: bench-out/viewpoint_group_size.png.", ""]
+
+
+def group_size_figure(ks: list[int], first: list[float], again: list[float]) -> None:
+    """bench-out/viewpoint_group_size.png: planning time against objects per group."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from numeric.viewpoint import verification as ver
+
     fig, ax = plt.subplots(figsize=(5, 3.5))
     ax.plot(ks, first, "o-", label="first plan")
     ax.plot(ks, again, "s--", label="re-plan (tables warm)")
@@ -339,10 +379,6 @@ def group_size(grouper: Any, lines: list[str], quick: bool) -> None:
     ax.legend()
     fig.tight_layout()
     fig.savefig(OUT / "viewpoint_group_size.png", dpi=120)
-    i12 = ks.index(12)
-    lines += ["", f"12 objects: {first[i12]:.0f} ms first plan, {again[i12]:.0f} ms re-plan "
-              "(goal ≤ 200 ms; before: no answer in 300 s). Figure: "
-              "bench-out/viewpoint_group_size.png.", ""]
 
 
 def online(grouper: Any, lines: list[str]) -> None:
@@ -371,7 +407,7 @@ def online(grouper: Any, lines: list[str]) -> None:
 
 
 def online_random(grouper: Any, lines: list[str], quick: bool) -> None:
-    """Item 2: the online loop in rooms nobody tuned on, with cabinets in the way: does
+    """The online loop in rooms nobody tuned on, with cabinets in the way: does
     it keep L1's time limit, with travel along shortest paths vs straight lines; and the
     re-plan times over the whole runs."""
     from numeric.viewpoint.planner import ObjectType, ViewpointPlanner
@@ -474,8 +510,7 @@ def main() -> None:
     quick = "--quick" in sys.argv
     OUT.mkdir(exist_ok=True)
     grouper, kb = local_grouper(ROOT / "prolog")
-    lines = ["# Viewpoint planning benchmark", "",
-             f"`.venv/bin/python tests/bench/viewpoint.py{' --quick' if quick else ''}`", ""]
+    lines: list[str] = []
     try:
         table1(grouper, lines)
         fig11b(grouper, lines, 10 if quick else 30)
@@ -487,8 +522,13 @@ def main() -> None:
         estimates(grouper, lines, quick)
     finally:
         kb.close()
-    (OUT / "viewpoint.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
+    write_page("viewpoint", "Viewpoint planning benchmark", lines, FULL if not quick else
+               "not as `make bench` runs it: --quick: Fig. 11(b)'s times are medians of 10 "
+               "instead of 30; fewer group counts in the scaling tables (exhaustive search up "
+               "to 8 groups instead of 9) and in branch and bound (20 and 30 groups, 2 scenes "
+               "instead of 18-35 and 8); 8 cluster sizes instead of 16; 6 random rooms "
+               "instead of 20")
 
 
 if __name__ == "__main__":
