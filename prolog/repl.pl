@@ -2,7 +2,7 @@
     world current, so that the paper's relations can be asked without the
     world argument:  ?- reachable(a, c, P, M).
     Eigenspace helpers: eig_state_after/2, covers/3, ...; SLAM map helpers:
-    explored_fraction(F), largest_unknown_region(Id, A),
+    committed_map(Run), explored_fraction(F), largest_unknown_region(Id, A),
     unknown_region_within(X, Y, R, Id, D), map_path_length(L),
     loop_closure_count(N), closes_loop(ScanA, ScanB).  The world's facts
     (map_pose/5, loop_closure/4, ...) live in its module 'world:W'.
@@ -15,6 +15,7 @@
             align/5,                % ?L1, ?L2, ?L3, ?Kind, -P
             rec/3,                  % ?L1, ?L2, -P
             drm_edge/4,             % ?From, ?To, -P, -Method
+            landmark/1,             % ?Landmark
             eig_stop_outcome/3,     % +Triplets, +Unique, -Outcome
             eig_next_state/3,       % +Prev, +Outcome, -Next
             eig_state_after/2,      % +Stops, -State
@@ -26,6 +27,7 @@
             map_path_length/1,      % -L
             loop_closure_count/1,   % -N
             closes_loop/2,          % ?ScanA, ?ScanB
+            committed_map/1,        % ?Run
             observation_group/3,    % ?G, ?Kind, ?Members
             same_group/2,           % ?A, ?B
             plan_step/4,            % ?K, ?G, ?Pose, ?Times
@@ -81,6 +83,7 @@ lr(A, B, C, P) :- w(W), qualitative:lr(W, A, B, C, P).
 align(A, B, C, K, P) :- w(W), qualitative:align(W, A, B, C, K, P).
 rec(A, B, P) :- w(W), qualitative:rec(W, A, B, P).
 drm_edge(A, B, P, M) :- w(W), drm:drm_edge(W, A, B, P, M, _).
+landmark(L) :- w(W), world_module(W, M), M:landmark(L).
 
 %   Eigenspace localization (eigenspace.pl), e.g.
 %   ?- eig_state_after([stop([3, 7], false), stop([7], false)], S).
@@ -98,6 +101,7 @@ unknown_region_within(X, Y, R, Id, D) :- w(W), slam:unknown_region_within(W, X, 
 map_path_length(L) :- w(W), slam:map_path_length(W, L).
 loop_closure_count(N) :- w(W), slam:loop_closure_count(W, N).
 closes_loop(A, B) :- w(W), slam:closes_loop(W, A, B).
+committed_map(Run) :- w(W), world_module(W, M), M:committed_map(Run).
 
 %   The last viewpoint scene and plan (grouping.pl), e.g.
 %   ?- plan_step(K, G, pose(X, Y, Th), times(TravelM, ObserveS, PRecog, DoneAtS)).
