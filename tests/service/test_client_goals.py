@@ -12,10 +12,10 @@ import pytest
 from fastapi.testclient import TestClient
 
 from service.kb import KbError, KnowledgeBase
-from tests.test_api_eigenspace import SMALL, wait_job
+from tests.eigenspace.test_api import SMALL, wait_job
 
 PROBLEM = "application/problem+json"
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def is_problem(r, status: int, field: str | None = None) -> None:  # type: ignore[no-untyped-def]

@@ -12,8 +12,8 @@ import pytest
 from fastapi.testclient import TestClient
 
 from tests.conftest import make_fig1_world, observation
-from tests.test_api_slam import scan_json
-from tests.test_service_container import plan_body
+from tests.service.test_container_write_path import plan_body
+from tests.slam.test_api import scan_json
 
 PROBLEM = "application/problem+json"
 
