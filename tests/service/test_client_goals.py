@@ -1,28 +1,17 @@
-"""Hostile and careless clients (issue "Hardening"): each request that once answered 500,
-blocked or lost its headers, sent again."""
+"""A client's own Prolog goal on the one engine: a goal that raises is the client's error,
+non-finite numbers in an answer come back as text, a client's goal runs under the shorter
+time limit, /health answers while a goal holds the engine, and a goal whose client has
+left is dropped before it runs or stopped while it runs."""
 
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
-import pytest
 from fastapi.testclient import TestClient
 
 from service.kb import KbError, KnowledgeBase
-from tests.eigenspace.test_api import SMALL, wait_job
-
-PROBLEM = "application/problem+json"
-ROOT = Path(__file__).resolve().parents[2]
-
-
-def is_problem(r, status: int, field: str | None = None) -> None:  # type: ignore[no-untyped-def]
-    assert r.status_code == status, r.text
-    assert r.headers["content-type"].startswith(PROBLEM), r.headers
-    if field is not None:
-        assert r.json()["field"] == field, r.text
+from tests.service.test_malformed_requests import is_problem
 
 
 def test_a_goal_that_raises_is_the_clients_error(client: TestClient) -> None:
@@ -43,33 +32,6 @@ def test_non_finite_numbers_in_an_answer_are_text(client: TestClient) -> None:
     json.loads(r.text)  # strict JSON
 
 
-def test_405_names_the_allowed_methods(client: TestClient) -> None:
-    r = client.put("/worlds/demo/query", json={})
-    is_problem(r, 405)
-    assert "POST" in r.headers["allow"]
-    r = client.delete("/health")
-    is_problem(r, 405)
-    assert "GET" in r.headers["allow"]
-
-
-def test_a_chunked_body_over_the_limit_is_413(client: TestClient) -> None:
-    """No Content-Length (chunked): 9 MiB was "400 error parsing the body"."""
-
-    def chunks() -> Iterator[bytes]:
-        for _ in range(9):
-            yield b" " * (1 << 20)
-
-    r = client.post("/worlds", content=chunks(), headers={"content-type": "application/json"})
-    is_problem(r, 413, "body")
-
-    def small() -> Iterator[bytes]:
-        yield b'{"name": "chunked_ok", '
-        yield b'"template": "demo"}'
-
-    r = client.post("/worlds", content=small(), headers={"content-type": "application/json"})
-    assert r.status_code == 201, r.text  # a chunked body within the limit still works
-
-
 def test_client_goals_get_the_shorter_limit() -> None:
     """The engine is one thread: a client's own goal runs under kb_query_time_limit_s,
     everything else under kb_time_limit_s."""
@@ -77,145 +39,6 @@ def test_client_goals_get_the_shorter_limit() -> None:
     kb.time_limit_s, kb.inference_limit, kb.query_time_limit_s = 10.0, 1000, 2.0
     assert json.loads(kb._request("query", {}))["time_limit_s"] == 2.0
     assert json.loads(kb._request("facts", {}))["time_limit_s"] == 10.0
-
-
-def png_header(width: int, height: int) -> bytes:
-    """A PNG whose header says ``width`` x ``height`` grey pixels (its pixel data is one
-    empty deflate stream: any decoder that got that far would fail or bomb)."""
-    import struct
-    import zlib
-
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        return (struct.pack(">I", len(data)) + kind + data
-                + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF))
-
-    ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
-    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b""))
-            + chunk(b"IEND", b""))
-
-
-@pytest.fixture(scope="module")
-def learned(client: TestClient) -> str:
-    assert client.post("/worlds", json={"name": "hard_eig", "template": "room_a"}
-                       ).status_code == 201
-    job = wait_job(client, client.post("/worlds/hard_eig/eigenspace", json=SMALL
-                                       ).headers["location"])
-    assert job["status"] == "done", job
-    return "hard_eig"
-
-
-def test_huge_pngs_are_refused_from_their_header(client: TestClient, learned: str) -> None:
-    """A 14 000 x 14 000 PNG was a 500 (Pillow's decompression-bomb error); eight
-    4 000 x 4 000 ones were decoded on the event loop for seconds. Now the header is
-    compared with the eigenspace's image size first: 422 naming the image, nothing
-    decoded. An upload likewise."""
-    import base64
-
-    turn = client.post(f"/worlds/{learned}/camera",
-                       json={"pose": {"x": 3, "y": 5}, "turn": 72}).json()["images_png"]
-    for side, k in ((14_000, 0), (4_000, 5)):
-        bad = list(turn)
-        bad[k] = base64.b64encode(png_header(side, side)).decode()
-        r = client.post(f"/worlds/{learned}/localize", json={"images_png": bad})
-        is_problem(r, 422, f"images_png[{k}]")
-        assert f"{side} x {side}" in r.json()["detail"] or "bomb" in r.json()["detail"]
-    files = [("images", (f"{i}.png", base64.b64decode(p), "image/png"))
-             for i, p in enumerate(turn)]
-    files[3] = ("images", ("3.png", png_header(4000, 4000), "image/png"))
-    is_problem(client.post(f"/worlds/{learned}/localize/images", files=files), 422, "images[3]")
-    r = client.post(f"/worlds/{learned}/localize", json={"images_png": turn})
-    assert r.status_code == 200, r.text  # the real turn still localizes
-
-
-def test_a_learning_job_has_a_size_cap(client: TestClient) -> None:
-    """Grid spacing 0.06 m x 360 directions x 256 x 256 images was accepted (and would
-    run for days); now refused before the job starts, naming the spacing. The paper's
-    size starts."""
-    assert client.post("/worlds", json={"name": "cap_w", "template": "room_a"}
-                       ).status_code == 201
-    r = client.post("/worlds/cap_w/eigenspace", json={
-        "learning": {"spacing_m": 0.06, "n_directions": 360},
-        "camera": {"width_px": 256, "height_px": 256}})
-    is_problem(r, 422, "learning.spacing_m")
-    assert client.get("/jobs", params={"world": "cap_w"}).json() == []
-
-
-def test_text_outside_the_bmp_round_trips(client: TestClient) -> None:
-    """An emoji in candidates[].type was stored as two unpaired surrogates (the bridge
-    sent JSON with \\ud83d\\ude00 escapes, which Prolog read as two code points);
-    reading the fact back through /query was a 500. Now the text round-trips."""
-    kind = "mug\U0001F600"
-    app = {"a": [40, 40, 40, 40], "b": [0.5, 0.5, 0.5, 0.5], "k": 2.0, "theta_half": 0.8}
-    body = {"robot": [0.5, 0.5, 0], "exit": [0.5, 0.5], "time_limit_s": 60,
-            "object_types": [{"name": kind, "value": 10, "appearance": app}],
-            "grid": {"width": 40, "height": 40, "resolution_m": 0.1,
-                     "data": [0] * 1600},
-            "candidates": [{"id": "c1", "type": kind, "x": 2.0, "y": 2.0}]}
-    assert client.post("/worlds", json={"name": "emoji", "template": "demo"}).status_code == 201
-    r = client.post("/worlds/emoji/viewpoint-plan", json=body)
-    assert r.status_code == 200, r.text
-    r = client.post("/worlds/emoji/query", json={"goal": "vp_candidate(c1, T, _, _, _)"})
-    assert r.status_code == 200, r.text
-    assert r.json()["solutions"] == [{"T": kind}]
-    assert any(kind in f for f in client.get("/worlds/emoji/facts").json())
-
-
-def test_start_up_loads_a_snapshot_instead_of_replaying(tmp_path: Path) -> None:
-    """Every SNAPSHOT_EVERY events a world's event-made facts are stored; a restart
-    loads them and replays only the events after. The relations are the same as
-    before the restart and as a full replay from the events alone."""
-    import sqlite3
-
-    from service.app import create_app
-    from service.settings import Settings
-    from service.worlds import SNAPSHOT_EVERY
-    from tests.conftest import make_fig1_world, observation
-
-    settings = Settings(data_dir=tmp_path, demo_world="")
-    kinds = ("lr", "align", "rec", "rea", "reachable")
-    with TestClient(create_app(settings)) as c:
-        make_fig1_world(c, "snap")
-        for i in range(SNAPSHOT_EVERY + 30):
-            at, seen = (("b", ["a", "c"]), ("d", ["a", "c"]))[i % 2]
-            r = c.post("/worlds/snap/observations", json=observation(at, seen, heading=0.01 * i))
-            assert r.status_code == 201, r.text
-        assert c.post("/worlds/snap/reached", json={"from": "c", "to": "b"}).status_code == 201
-        before = {k: c.get("/worlds/snap/relations", params={"kind": k}).json() for k in kinds}
-    db = sqlite3.connect(settings.db_path)
-    (snapped,) = db.execute("SELECT event_id FROM snapshots WHERE world = 'snap'").fetchone()
-    (last,) = db.execute("SELECT max(id) FROM events WHERE world = 'snap'").fetchone()
-    assert 0 < snapped < last  # a snapshot, and events after it to replay
-    with TestClient(create_app(settings)) as c:
-        after = {k: c.get("/worlds/snap/relations", params={"kind": k}).json() for k in kinds}
-    assert after == before
-    (blob,) = db.execute("SELECT facts FROM snapshots WHERE world = 'snap'").fetchone()
-    for tampered in ({**json.loads(blob), "rules": "other rules"},  # made by other rules
-                     {**json.loads(blob), "facts": ["halt"]}):  # refused by load_snapshot
-        db.execute("UPDATE snapshots SET facts = ?", (json.dumps(tampered),))
-        db.commit()
-        with TestClient(create_app(settings)) as c:  # the events alone give the same
-            replayed = {k: c.get("/worlds/snap/relations", params={"kind": k}).json()
-                        for k in kinds}
-        assert replayed == before
-        assert db.execute("SELECT count(*) FROM snapshots").fetchone() == (0,)  # dropped
-        db.execute("INSERT INTO snapshots SELECT 'snap', ?, ?, 0", (snapped, blob))
-        db.commit()
-    db.close()
-
-
-def test_a_snapshot_is_read_as_data(client: TestClient) -> None:
-    """load_snapshot asserts only ground qualitative facts: a goal, a variable or a
-    fact of another kind is refused naming it."""
-    kb = client.app.state.services.kb  # type: ignore[attr-defined]
-    from service.kb import KbError
-
-    for bad in ("halt", "lr(a, X, c)", "landmark(z)", "lr(a, b", "map_pose(r1, 0, 0, 0, 0)"):
-        try:
-            kb.call("load_snapshot", world="demo", facts=["rec(c0, c1)", bad])
-        except KbError as e:
-            assert e.field == "facts[1]", e
-        else:
-            raise AssertionError(f"{bad!r} was loaded")
 
 
 def test_health_answers_while_a_query_holds_the_engine(client: TestClient) -> None:
@@ -274,25 +97,6 @@ def test_a_query_whose_client_left_is_dropped(client: TestClient) -> None:
         raise AssertionError("the departed client's query was answered")
     busy.join()
     assert queued[0].cancelled()  # dropped, never run
-
-
-def test_stored_state_from_earlier_versions_still_loads(tmp_path: Path) -> None:
-    """A snapshot in the first format (a bare list) or unreadable, and an analysis whose
-    config a later bound refuses, do not stop a world from loading."""
-    from numeric.eigenspace.analysis import stored_config
-    from service.store import Store
-
-    store = Store(tmp_path / "s.sqlite3")
-    with store.transaction() as conn:
-        store.insert_world(conn, "w", {"name": "w"})
-        conn.execute("INSERT INTO snapshots VALUES ('w', 3, ?, 0)", ('["rec(a, b)"]',))
-    assert store.snapshot("w") == (3, "", ["rec(a, b)"])  # rules unknown: replayed
-    with store.transaction() as conn:
-        conn.execute("UPDATE snapshots SET facts = 'not json'")
-    assert store.snapshot("w") == (3, "", [])
-    store.close()
-    cfg = stored_config({"strategy": {"alphas_rad": [90.0]}, "seed": 4})
-    assert cfg.seed == 4 and len(cfg.strategy.alphas_rad) == 8  # the defaults
 
 
 def test_a_running_query_whose_client_left_is_stopped(client: TestClient) -> None:
