@@ -85,8 +85,8 @@ def service_answers() -> dict[str, Any]:
 
     from service.app import create_app
     from service.settings import Settings
-    from tests.test_api_eigenspace import SMALL
-    from tests.test_api_viewpoint import table1_body
+    from tests.eigenspace.test_api import SMALL
+    from tests.viewpoint.test_api import table1_body
 
     out: dict[str, Any] = {}
     with tempfile.TemporaryDirectory() as d, TestClient(create_app(Settings(

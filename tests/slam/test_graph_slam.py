@@ -630,7 +630,7 @@ def test_the_odometry_heading_sigma_learned_follows_the_odometrys_quality() -> N
     well below the fixed model's and leave the second's at it."""
     from numeric.world import World
     from numeric.worlds import from_template
-    from tests.drives import room_a_drives
+    from tests.slam.drives import room_a_drives
 
     scales = {}
     for name, log in room_a_drives(World(from_template("room_a", "room_a")), None).items():

@@ -1,21 +1,30 @@
 """A seeded bad-input table per endpoint: NaN and Infinity as raw JSON text, an empty
 body, the wrong shape, a string for a number, a huge body, text Prolog cannot take.
 Each is a 4xx problem+json naming the field (413 for the huge one), and the service
-answers /health afterwards."""
+answers /health afterwards. A method a path does not take is a 405 naming the methods it
+does; a chunked body over the size limit is a 413."""
 
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
 from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
 
 from tests.conftest import make_fig1_world, observation
-from tests.test_api_slam import scan_json
-from tests.test_service_container import plan_body
+from tests.service.test_container_write_path import plan_body
+from tests.slam.test_api import scan_json
 
 PROBLEM = "application/problem+json"
+
+
+def is_problem(r, status: int, field: str | None = None) -> None:  # type: ignore[no-untyped-def]
+    assert r.status_code == status, r.text
+    assert r.headers["content-type"].startswith(PROBLEM), r.headers
+    if field is not None:
+        assert r.json()["field"] == field, r.text
 
 
 @pytest.fixture(scope="module")
@@ -153,3 +162,30 @@ def test_json_types_are_strict(client: TestClient, endpoints: Any) -> None:
         r = client.post("/worlds/rel_room/viewpoint-plan", content=body,
                         headers={"content-type": ctype})
         assert r.status_code == 422 and r.json()["field"] == "grid.width", (ctype, r.text)
+
+
+def test_405_names_the_allowed_methods(client: TestClient) -> None:
+    r = client.put("/worlds/demo/query", json={})
+    is_problem(r, 405)
+    assert "POST" in r.headers["allow"]
+    r = client.delete("/health")
+    is_problem(r, 405)
+    assert "GET" in r.headers["allow"]
+
+
+def test_a_chunked_body_over_the_limit_is_413(client: TestClient) -> None:
+    """No Content-Length (chunked): 9 MiB was "400 error parsing the body"."""
+
+    def chunks() -> Iterator[bytes]:
+        for _ in range(9):
+            yield b" " * (1 << 20)
+
+    r = client.post("/worlds", content=chunks(), headers={"content-type": "application/json"})
+    is_problem(r, 413, "body")
+
+    def small() -> Iterator[bytes]:
+        yield b'{"name": "chunked_ok", '
+        yield b'"template": "demo"}'
+
+    r = client.post("/worlds", content=small(), headers={"content-type": "application/json"})
+    assert r.status_code == 201, r.text  # a chunked body within the limit still works

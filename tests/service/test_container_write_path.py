@@ -18,10 +18,10 @@ from fastapi.testclient import TestClient
 
 from service.app import create_app
 from service.settings import Settings
-from tests.test_api_eigenspace import SMALL, wait_job
-from tests.test_api_slam import scan_json
+from tests.eigenspace.test_api import SMALL, wait_job
+from tests.slam.test_api import scan_json
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 TYPES = [{"name": "A", "value": 50, "mean_count": 1.0}]
 
 

@@ -20,7 +20,7 @@ from numeric.slam.keyframes import voxel_downsample
 from numeric.slam.matching.intensity_icp import Reference
 from numeric.slam.runner import SlamOptions, run_log
 from numeric.slam.simulate import simulated_log
-from tests.test_slam_graph import CORRIDOR, scan_at
+from tests.slam.test_graph_slam import CORRIDOR, scan_at
 
 
 def test_a_corridor_match_is_uncertain_along_the_corridor_only() -> None:

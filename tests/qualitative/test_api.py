@@ -8,7 +8,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from tests.conftest import make_fig1_world, observation
-from tests.test_api_worlds import assert_problem
+from tests.service.test_worlds import assert_problem
 
 
 @pytest.fixture(scope="module")

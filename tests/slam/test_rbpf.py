@@ -36,7 +36,7 @@ from numeric.slam.rbpf.loop_start import Persistence, free_space_share
 from numeric.slam.rbpf.proposal import gaussian_fit
 from numeric.world import World
 from numeric.worlds import from_template, office_world
-from tests.drives import MODERATE_ODOMETRY, ODOMETRY_QUALITIES, room_a_drives
+from tests.slam.drives import MODERATE_ODOMETRY, ODOMETRY_QUALITIES, room_a_drives
 
 #: a 12 m laser sees the whole 10 m room: the scans pin the pose down
 LASER = LaserConfig(max_range_m=12.0, scan_period_s=0.2)

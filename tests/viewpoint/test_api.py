@@ -23,7 +23,7 @@ from service.app import create_app
 from service.settings import Settings
 from service.viewpoint import local_grouper
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 DOOR = list(SUMMARY_DOOR)
 TYPES = [{"name": "A", "value": 50, "mean_count": 1.0},
          {"name": "B", "value": 100, "mean_count": 0.5},

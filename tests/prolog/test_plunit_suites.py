@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-PROLOG = Path(__file__).resolve().parent.parent / "prolog"
+PROLOG = Path(__file__).resolve().parents[2] / "prolog"
 SUITES = sorted(PROLOG.glob("*.plt"))
 
 
