@@ -142,7 +142,7 @@ def whole_turn_interpolation(model: EigenspaceModel, q: np.ndarray, pose: np.nda
     localized sessions fell by 9-28 % (the benchmark's Table 2 in room A 0.205 -> 0.174
     m over 798 sessions; rooms nobody tuned on: the pentagon 0.194 -> 0.140 m, the
     L-shaped room 0.395 -> 0.360 m); either alone does about as well as eq. 5. The 4 m
-    was chosen over 2, 3 and 5 m in those two rooms (README).
+    was chosen over 2, 3 and 5 m in those two rooms (docs/notes/eigenspace.md).
 
     None when fewer than ``min_images`` images qualify, the points are nearly
     collinear, or the answer lies more than ``max_shift_m`` from ``pose``."""

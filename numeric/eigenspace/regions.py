@@ -18,7 +18,7 @@ paper's D_thd of 200 mm): Table 1 in room A 85 -> 96 %, the Table 2 error ratio 
 in metres, not a share of D_thd: it is the accuracy eq. 5 must have, and a larger D_thd
 should widen where the paper's test admits, not how far off eq. 5 may place. Tied to
 D_thd (0.15 m at D_thd 0.3 m), Table 1 at 0.3 m was 90-96 % in rooms A-D (60 turns
-each); with 0.1 m it is 96-100 % (see README).
+each); with 0.1 m it is 96-100 % (docs/notes/eigenspace.md).
 """
 
 from __future__ import annotations

@@ -49,7 +49,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs" / "tutorials").glob("*.md"))]
 ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]|\x1b[()][A-Z0-9]|\x1b[=>]")
 NUMBER = re.compile(r"-?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?")
@@ -340,7 +340,7 @@ def transcript(raw: str) -> str:
 
 
 def repl_main(spec_path: str) -> None:
-    """``python test_docs_commands.py repl SPEC``: drive one transcript (bash calls this,
+    """``python test_guide_commands.py repl SPEC``: drive one transcript (bash calls this,
     so the REPL runs where the document's commands ran), print what it showed."""
     spec = json.loads(Path(spec_path).read_text())
     sys.stdout.write(transcript(drive(spec["command"], spec["keys"], os.getcwd())) + "\n")
