@@ -23,8 +23,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from numeric.viewpoint.figures import plan_figure, run_figure  # noqa: E402
-
+from numeric.figures import plan_figure, run_figure  # noqa: E402
 from numeric.viewpoint.grid import TravelMap, look_around, scanned_grid, true_grid  # noqa: E402
 from numeric.viewpoint.online import Summariser, SummaryConfig  # noqa: E402
 from numeric.viewpoint.plan import (  # noqa: E402

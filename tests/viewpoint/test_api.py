@@ -173,7 +173,7 @@ def test_unreachable_places_are_unverifiable_not_errors(rooms: TestClient) -> No
 
 
 def test_awkward_scenes_get_a_plan_or_a_named_4xx(rooms: TestClient) -> None:
-    """Issue 14's list: two objects on one spot, an object outside the room, and a grid
+    """Awkward scenes: two objects on one spot, an object outside the room, and a grid
     of ~10 000 one-cell unknown holes each get a valid plan (or a 4xx naming the
     field), never a 500 or a hang."""
     on_one_spot = {**table1_body("L2"), "candidates": [
@@ -356,8 +356,8 @@ def test_online_summary_verifies_both_objects(grouper: Any) -> None:
                      np.array(SUMMARY_DOOR)).run()
     s = run.summary(w)
     # L2 punishes the overrun: the near kettle first, the false candidate rejected, and
-    # the far mug left out once time runs short (with the map of issue 12, whose walls
-    # are no longer painted free, the mug no longer fits; L1 below verifies both)
+    # the far mug left out once time runs short (on a map whose walls are not painted
+    # free the mug does not fit; L1 below verifies both)
     assert "kettle" in s["verified"]
     assert s["rejected"] == ["false1"]           # the false candidate is never recognised
     assert run.elapsed_s < 55 + 10
