@@ -1,9 +1,23 @@
-"""Laser SLAM with received-light intensity (Hara, Kawata, Ohya, Yuta).
+"""Laser SLAM with received-light intensity (Hara, Kawata, Ohya, Yuta), and graph SLAM
+with loop closure beyond it (Hess et al. 2016).
 
-One module per step of the paper: :mod:`scan` (§3, scans with intensity), :mod:`logs`
-(CARMEN / ROS readers, TUM trajectories), :mod:`intensity_icp` (§4, eqs. 1-3),
-:mod:`keyframes` (the reference "previous scan + map points in sensor range" and the
-per-keyframe likelihood fields), :mod:`gated` (§6, eq. 5, plus the plain odometry and
-ICP baselines), :mod:`rbpf` (§7, eqs. 6-9), :mod:`occupancy` (map export) and
-:mod:`evaluation` (Kümmerle et al. 2009 relation metric).
+Where each part of the papers lives:
+
+- the scans with intensity (§3): :mod:`numeric.scan`; logs (CARMEN, ROS bags) and TUM
+  trajectories: :mod:`~numeric.slam.logs`;
+- Intensity-ICP (§4, eqs. 1-3) and the other scan matchers both estimators share:
+  :mod:`~numeric.slam.matching`;
+- the map the matchers match against, keyframes and their likelihood fields:
+  :mod:`~numeric.slam.keyframes`;
+- the gated single-hypothesis SLAM (§6, eq. 5) and the odometry and ICP baselines:
+  :mod:`~numeric.slam.gated`;
+- the Rao-Blackwellized particle filter (§7, eqs. 6-9) with Grisetti et al.'s improved
+  proposal: :mod:`~numeric.slam.rbpf`;
+- graph SLAM (Hess et al. 2016, Cartographer): :mod:`~numeric.slam.graph`, its pose
+  graph on GTSAM in :mod:`~numeric.slam.pose_graph`;
+- the global scan alignment both estimators end a run with (after Lu & Milios 1997):
+  :mod:`~numeric.slam.alignment`;
+- one entry point for every method: :mod:`~numeric.slam.runner`; batches over logs and
+  settings: :mod:`~numeric.slam.batch`; simulated logs: :mod:`~numeric.slam.simulate`;
+- the relation metric of Kümmerle et al. 2009: :mod:`~numeric.slam.evaluation`.
 """
