@@ -11,7 +11,8 @@ from collections.abc import Callable
 import numpy as np
 
 from numeric.geometry import point_segment_distance
-from numeric.world import Feature, Landmark, Wall, WorldDescription, WorldObject
+from numeric.textures import TEXTURE_NAMES
+from numeric.world import Feature, Landmark, Wall, World, WorldDescription, WorldObject
 
 
 def office_world(name: str = "demo", rooms_per_side: int = 4, room_width_m: float = 6.0,
@@ -398,3 +399,59 @@ def random_summary_room(seed: int, name: str = "random_room") -> WorldDescriptio
 def from_template(template: str, name: str) -> WorldDescription:
     """The built-in world ``template`` under the name ``name``."""
     return TEMPLATES[template](name)
+
+
+#: the outlines :func:`random_camera_room` builds
+CAMERA_ROOM_SHAPES = ("l", "two_rooms", "hall")
+
+
+def random_camera_room(seed: int, shape: str, name: str = "camera_room") -> WorldDescription:
+    """A room nobody tuned the eigenspace method on, drawn from ``seed``: an L (9-13 m by
+    8-12 m, a 40-60 % notch), two rooms joined by a 1.0-1.4 m door (12-16 m by 5-8 m) or
+    a long hall (16-22 m by 4-6 m); wall pieces of 2.5-4 m with photographs drawn at
+    random, one to three boxes and up to one pillar in free space."""
+    if shape not in CAMERA_ROOM_SHAPES:
+        raise ValueError(f"shape is one of {CAMERA_ROOM_SHAPES}, not {shape!r}")
+    rng = np.random.default_rng(seed)
+    photos = tuple(t for t in TEXTURE_NAMES if t != "text")
+    textures = tuple(str(t) for t in rng.choice(photos, size=24))
+    piece = float(rng.uniform(2.5, 4.0))
+    inner: list[Wall] = []
+    if shape == "l":
+        w, h = rng.uniform(9.0, 13.0), rng.uniform(8.0, 12.0)
+        nx, ny = w * rng.uniform(0.4, 0.6), h * rng.uniform(0.4, 0.6)
+        outline = [(0.0, 0.0), (w, 0.0), (w, h - ny), (w - nx, h - ny), (w - nx, h), (0.0, h)]
+    elif shape == "two_rooms":
+        w, h = rng.uniform(12.0, 16.0), rng.uniform(5.0, 8.0)
+        outline = [(0.0, 0.0), (w, 0.0), (w, h), (0.0, h)]
+        x, door = w * rng.uniform(0.4, 0.6), rng.uniform(1.0, 1.4)
+        y0 = rng.uniform(0.5, h - 0.5 - door)
+        inner = [Wall(a=(x, 0.0), b=(x, y0), texture=textures[-1], reflectivity=0.6),
+                 Wall(a=(x, y0 + door), b=(x, h), texture=textures[-2], reflectivity=0.6)]
+    else:
+        w, h = rng.uniform(16.0, 22.0), rng.uniform(4.0, 6.0)
+        outline = [(0.0, 0.0), (w, 0.0), (w, h), (0.0, h)]
+    walls = _polygon_walls([(float(x), float(y)) for x, y in outline], textures, piece) + inner
+    objects: list[WorldObject] = []
+    room = World(WorldDescription(name=name, walls=walls))  # free space before the boxes
+    want = int(rng.integers(1, 4))
+    for _ in range(200):
+        if len(objects) >= want:
+            break
+        p = rng.uniform([0.0, 0.0], [w, h])
+        if not room.is_free(p[None], clearance_m=1.2)[0] or any(
+                np.hypot(o.x - p[0], o.y - p[1]) < 2.0 for o in objects):
+            continue
+        objects.append(WorldObject(id=f"box{len(objects)}", type="box", x=float(p[0]),
+                                   y=float(p[1]), theta=float(rng.uniform(-np.pi, np.pi)),
+                                   size_m=(0.6, 0.6, 0.8), texture="text"))
+    if shape != "hall" and rng.random() < 0.5:
+        p = rng.uniform([0.0, 0.0], [w, h])
+        if room.is_free(p[None], clearance_m=1.5)[0] and all(
+                np.hypot(o.x - p[0], o.y - p[1]) >= 2.0 for o in objects):
+            s = 0.3
+            walls += _polygon_walls([(p[0] - s, p[1] - s), (p[0] + s, p[1] - s),
+                                     (p[0] + s, p[1] + s), (p[0] - s, p[1] + s)],
+                                    (textures[-3],), 1.0)
+    return WorldDescription(name=name, walls=walls, objects=objects)
+
