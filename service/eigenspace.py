@@ -51,7 +51,9 @@ from service.compute import (
 from service.jobs import JobProgress, Jobs
 from service.kb import KnowledgeBase
 from service.schemas.eigenspace import (
+    MAX_COVERAGE_CELLS,
     CameraOut,
+    CoverageOut,
     EigenspaceOut,
     LearningPointOut,
     LocalizationOut,
@@ -304,6 +306,22 @@ class EigenspaceService:
                            action=MoveOut(alpha_rad=float(dec.action[0]),
                                           l_m=float(dec.action[1]),
                                           beta_rad=float(dec.action[2])), q_z=dec.q_z)
+
+    async def coverage(self, world: str, cell_m: float) -> CoverageOut:
+        """The eq.-7 coverage map (:meth:`EigenspaceAnalysis.coverage_map`)."""
+        a = self.analysis(world)
+        w = self.worlds.model(world)
+        lo, hi = w.bounds
+        cells = int(np.ceil((hi[0] - lo[0]) / cell_m) * np.ceil((hi[1] - lo[1]) / cell_m))
+        if cells > MAX_COVERAGE_CELLS:
+            raise InvalidInput(f"a {cell_m} m raster of this world has {cells} cells, more "
+                               f"than {MAX_COVERAGE_CELLS}: choose a larger cell",
+                               field="cell_m")
+        m = await asyncio.to_thread(a.coverage_map, w, cell_m)
+        grid = [[None if not np.isfinite(v) else float(v) for v in row] for row in m.p_enter]
+        return CoverageOut(origin=PointOut(x=float(m.origin[0]), y=float(m.origin[1])),
+                           cell_m=cell_m, rows=m.p_enter.shape[0], columns=m.p_enter.shape[1],
+                           share=m.share, p_enter=grid)
 
     async def covering(self, world: str, x: float, y: float) -> list[dict[str, Any]]:
         self.analysis(world)

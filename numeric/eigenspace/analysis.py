@@ -133,10 +133,21 @@ class EigenspaceAnalysis:
         region with probability >= 0.5, i.e. 1 - prod_l (1 - P(R^(l)|s)) >= 0.5 (eq. 7)."""
         if self.entry is None:
             return None
-        grid = free_grid(world, cell_m)
-        if len(grid) == 0:
-            return 0.0
-        return float(np.mean(self.layout(world).p_any(grid) >= 0.5))
+        return self.coverage_map(world, cell_m).share
+
+    def coverage_map(self, world: World, cell_m: float = 0.2) -> CoverageMap:
+        """Eq. 7's 1 - prod_l (1 - P(R^(l)|s)) on a raster of the world's bounds: where
+        one turn enters some localizable region, and where the floor is thin."""
+        lo, hi = world.bounds
+        xs = np.arange(lo[0] + cell_m / 2, hi[0], cell_m)
+        ys = np.arange(lo[1] + cell_m / 2, hi[1], cell_m)
+        cells = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
+        p = np.full(len(cells), np.nan)
+        free = world.is_free(cells) if len(cells) else np.zeros(0, dtype=bool)
+        if free.any():
+            p[free] = self.layout(world).p_any(cells[free])
+        return CoverageMap(origin=np.asarray(lo, dtype=float), cell_m=cell_m,
+                           p_enter=p.reshape(len(ys), len(xs)))
 
     def summary(self, world: World) -> dict[str, object]:
         return {"images": int(len(self.model.points) * len(self.model.directions)),
@@ -184,6 +195,23 @@ class EigenspaceAnalysis:
                                   int(meta.get("rejected_triplets", 0)),
                                   str(meta.get("source", "simulator")),
                                   list(meta.get("strategy_trace", [])))
+
+
+@dataclass
+class CoverageMap:
+    """P(some region is entered by one turn) per cell ``p_enter (rows, cols)`` (NaN where
+    the floor is not free), row ``i`` and column ``j`` centred at ``origin + cell_m
+    (j + 1/2, i + 1/2)``; covered where it is at least 0.5."""
+
+    origin: np.ndarray
+    cell_m: float
+    p_enter: np.ndarray
+
+    @property
+    def share(self) -> float:
+        """The covered share of the free cells (0 when none is free)."""
+        free = self.p_enter[np.isfinite(self.p_enter)]
+        return float(np.mean(free >= 0.5)) if len(free) else 0.0
 
 
 def free_grid(world: World, cell_m: float) -> np.ndarray:

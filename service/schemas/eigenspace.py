@@ -202,6 +202,25 @@ class EigenspaceOut(EigenspaceSummaryOut):
     triplet_list: list[TripletOut]
 
 
+#: cells a coverage map may have (a 0.05 m raster of a 22 m x 22 m building)
+MAX_COVERAGE_CELLS = 200_000
+
+
+class CoverageOut(BaseModel):
+    """Where one turn enters some localizable region (Maeda & Shirai eq. 7): the
+    probability per cell of a raster over the world's bounds, row ``i`` and column ``j``
+    centred at ``origin + cell_m (j + 1/2, i + 1/2)``; ``null`` where the floor is not
+    free. ``share`` is the covered share (probability at least 0.5) of the free floor,
+    the summary's ``region_coverage`` at the default cell."""
+
+    origin: PointOut
+    cell_m: float
+    rows: int
+    columns: int
+    share: float
+    p_enter: list[list[float | None]]
+
+
 class CoveringOut(BaseModel):
     triplet: int
     distance_m: float

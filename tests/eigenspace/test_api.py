@@ -268,3 +268,28 @@ def test_a_symmetric_room_answers_state_y_from_the_prolog_rules(client: TestClie
         assert out["outcome"] == "in_set" and out["pose"] is None
         xy = [(c["pose"]["x"], c["pose"]["y"]) for c in out["candidates"][:2]]
         assert len(xy) == 2 and np.hypot(xy[0][0] + xy[1][0] - 10, xy[0][1] + xy[1][1] - 8) < 1.0
+
+
+def test_the_coverage_map_shows_where_a_turn_enters_a_region(client: TestClient,
+                                                            learned: str) -> None:
+    """The eq.-7 raster over the room's bounds: free cells carry a probability, the rest
+    null; its covered share at the default cell is the summary's region coverage; a
+    coarser cell gives a coarser raster; a raster too fine or a bad cell is refused."""
+    summary = client.get(f"/worlds/{learned}/eigenspace").json()
+    m = client.get(f"/worlds/{learned}/eigenspace/coverage").json()
+    assert (m["rows"], m["columns"], m["cell_m"]) == (50, 50, 0.2)  # room A: 10 m square
+    assert len(m["p_enter"]) == 50 and all(len(r) == 50 for r in m["p_enter"])
+    cells = [v for r in m["p_enter"] for v in r]
+    free = [v for v in cells if v is not None]
+    assert 0 < len(free) < len(cells) and all(0.0 <= v <= 1.0 for v in free)
+    assert m["p_enter"][0][0] is None  # the corner cell is within the walls' clearance
+    assert m["share"] == pytest.approx(summary["region_coverage"])
+    assert m["share"] == pytest.approx(sum(v >= 0.5 for v in free) / len(free))
+    coarse = client.get(f"/worlds/{learned}/eigenspace/coverage", params={"cell_m": 1.0}).json()
+    assert (coarse["rows"], coarse["columns"]) == (10, 10)
+    for bad in ("0", "-1", "nan", "inf", "6", "x"):
+        assert_problem(client.get(f"/worlds/{learned}/eigenspace/coverage",
+                                  params={"cell_m": bad}), 422, "cell_m")
+    assert_problem(client.get(f"/worlds/{learned}/eigenspace/coverage",
+                              params={"cell_m": 0.01}), 422, "cell_m")
+    assert client.get("/worlds/nowhere/eigenspace/coverage").status_code == 404

@@ -28,6 +28,7 @@ from service.schemas.eigenspace import (
     MAX_TURN_IMAGES,
     CameraIn,
     CameraOut,
+    CoverageOut,
     CoveringOut,
     EigenspaceOut,
     LocalizationOut,
@@ -159,6 +160,18 @@ async def get_eigenspace(world: WorldDep, eig: EigenspaceDep) -> EigenspaceOut:
     """Summary of the learned eigenspace (images, K, triplet count, region coverage) with
     the learning points (``points``) and the localizable triplets (``triplet_list``)."""
     return eig.summary(world)
+
+
+@router.get("/eigenspace/coverage", response_model=CoverageOut)
+async def get_coverage(world: WorldDep, eig: EigenspaceDep,
+                       cell_m: Annotated[float, Query(gt=0.0, le=5.0, allow_inf_nan=False,
+                                                      description="raster cell (m)")] = 0.2
+                       ) -> CoverageOut:
+    """The coverage map: per cell of a raster, the probability that one turn there enters
+    some localizable region (eq. 7), and the covered share of the free floor. Thin floor
+    is where learning points would help (422 when the analysis has no entry model, as
+    one learned from a camera's images without calibration images)."""
+    return await eig.coverage(world, cell_m)
 
 
 @router.get("/eigenspace/covering", response_model=list[CoveringOut])
