@@ -42,6 +42,7 @@ test: install
 bench: install
 	$(PY) tests/bench/run.py
 	$(PY) tests/bench/eigenspace.py
+	$(PY) tests/bench/eigenspace_unseen.py
 	$(PY) tests/bench/slam.py
 	$(PY) tests/bench/slam_unseen.py
 	$(PY) tests/bench/slam_stream.py
