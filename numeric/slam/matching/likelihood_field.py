@@ -21,7 +21,10 @@ capped.
 
 The kernels are compiled with numba and release the GIL. They take a few bundles
 (:class:`Beams`, :class:`FieldPack`, :class:`MatchModel`, :class:`Workspace`), not the
-arrays one by one.
+arrays one by one. The per-beam helpers (:func:`_beam_value` and what it calls) are
+inlined into the beam loops at numba's level (``inline="always"``): called, each lookup
+would pass the bundles by value, which made a match six times slower
+(docs/notes/slam-rbpf.md, "Speed").
 """
 
 from __future__ import annotations
@@ -132,7 +135,7 @@ class LoopGrid(NamedTuple):
 KeyframeConsts = tuple[float, float, float, float, int, int, int, int, float, float]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _corners(off: int, nx: int, ny: int, ox: float, oy: float, inv_res: float, qx: float,
              qy: float) -> tuple[int, float, float]:
     """Where the bilinear interpolation at the keyframe-frame point (qx, qy) reads one
@@ -149,7 +152,7 @@ def _corners(off: int, nx: int, ny: int, ox: float, oy: float, inv_res: float, q
     return off + i * ny + j, u - i, v - j
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _interpolate(grid: np.ndarray, base: int, ny: int, fu: float, fv: float) -> float:
     """The bilinear value at :func:`_corners`' cell and fractions."""
     p00 = grid[base]
@@ -160,7 +163,7 @@ def _interpolate(grid: np.ndarray, base: int, ny: int, fu: float, fv: float) -> 
             + p01 * (1.0 - fu) * fv + p11 * fu * fv)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _slope(grid: np.ndarray, base: int, ny: int, fu: float, fv: float,
            inv_res: float) -> tuple[float, float]:
     """... and its gradient (per m). Apart from :func:`_interpolate`: the matcher needs
@@ -175,7 +178,7 @@ def _slope(grid: np.ndarray, base: int, ny: int, fu: float, fv: float,
 
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _lookup(fields: FieldPack, kf: KeyframeConsts, qx: float, qy: float, li: float,
             alpha: float, cut2: float, bound: float, grad: bool) -> tuple[float, float, float]:
     """Capped augmented squared residual at the keyframe-frame point (qx, qy) of the
@@ -210,7 +213,7 @@ def _lookup(fields: FieldPack, kf: KeyframeConsts, qx: float, qy: float, li: flo
     return best, gx, gy
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _keyframe(kpose: np.ndarray, fields: FieldPack, k: int) -> KeyframeConsts:
     """Keyframe ``k``'s constants as the lookups read them: its pose (cos, sin, x, y)
     from ``kpose``, its grid's offset, bands, nx, ny and origin from ``fields``."""
@@ -220,7 +223,7 @@ def _keyframe(kpose: np.ndarray, fields: FieldPack, k: int) -> KeyframeConsts:
             meta[k, 2], meta[k, 3], origins[k, 0], origins[k, 1])
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _to_keyframe(kf: KeyframeConsts, wx: float, wy: float) -> tuple[float, float]:
     """The world point (wx, wy) in the frame of keyframe ``kf``."""
     ck, sk, tx, ty = kf[0], kf[1], kf[2], kf[3]
@@ -229,7 +232,7 @@ def _to_keyframe(kf: KeyframeConsts, wx: float, wy: float) -> tuple[float, float
     return ck * dx + sk * dy, -sk * dx + ck * dy
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _beam_value(fields: FieldPack, kf: KeyframeConsts, geo: bool, qx: float, qy: float,
                 li: float, alpha: float, cut2: float, bound: float,
                 grad: bool) -> tuple[bool, float, float, float]:
