@@ -50,7 +50,9 @@ class LearningStrategyConfig(BaseModel):
                                        description="grid of candidate learning points")
     area_cell_m: float = Field(0.2, gt=0.01, le=10.0,
                                description="raster on which the localizable area is counted")
-    max_additions: int = Field(10, ge=0, le=200, description="learning points added at most")
+    max_additions: int = Field(30, ge=0, le=200,
+                               description="learning points added at most (a twin counts "
+                                           "with its point); the target usually ends it first")
     circle_points: int = Field(16, ge=4, le=360,
                                description="step 2's circle around tied candidates")
     learn_twins: bool = Field(
