@@ -29,6 +29,7 @@ from numeric.eigenspace.analysis import (
     analyse_images,
     learning_pixels,
 )
+from numeric.eigenspace.diagnosis import refusal
 from numeric.eigenspace.image_sets import ImageSet
 from numeric.eigenspace.learning_strategy import learn_with_strategy
 from numeric.eigenspace.localization import (
@@ -219,7 +220,14 @@ class EigenspaceService:
     def _report(self, world: str, session: Session, vote: Vote) -> dict[str, Any]:
         """:func:`service.compute.stop_report` with the eigenspace and the world's walls
         (the estimate interpolates the whole latest turn too)."""
-        return stop_report(session, vote, self.analysis(world).model, self.worlds.model(world))
+        a = self.analysis(world)
+        report = stop_report(session, vote, a.model, self.worlds.model(world))
+        why = refusal(a.regions, session, vote)
+        report["refused_by"] = None if why is None else {
+            "test": why.reason, "d_err_min_m": None if why.d_err_min_m is None
+            or not np.isfinite(why.d_err_min_m) else why.d_err_min_m,
+            "votes": why.votes, "rival_votes": why.rival_votes}
+        return report
 
     @staticmethod
     def _answer(state: dict[str, Any], outcome: str, report: dict[str, Any]
@@ -228,7 +236,8 @@ class EigenspaceService:
         (in state Z), candidates (``report``: :func:`service.compute.stop_report`)."""
         pose = report["estimate"] if state.get("state") == "z" else None
         return {"state": state, "outcome": outcome, "pose": pose, "stops": report["stops"],
-                "unique": report["unique"], "candidates": report["candidates"]}
+                "unique": report["unique"], "candidates": report["candidates"],
+                "refused_by": report["refused_by"]}
 
     async def localize(self, world: str, turn: list[str] | np.ndarray) -> LocalizationOut:
         """One stop from state X: state, pose (when Z) and candidates. The turn is

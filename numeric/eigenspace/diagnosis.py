@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from numeric.eigenspace.localization import RegionModel, Session, TurnCandidates, Vote
+from numeric.eigenspace.localization import RegionModel, Session, Vote
 from numeric.eigenspace.regions import estimation_error, triplet_differences
 
 REFUSALS = ("no_region", "plane_test", "vote_threshold", "vote_margin", "candidate_set")
@@ -44,16 +44,15 @@ class Refusal:
     rival_votes: float | None = None
 
 
-def refusal(regions: RegionModel, session: Session, turn: TurnCandidates,
-            vote: Vote) -> Refusal | None:
-    """Why the session, after ``turn`` (its latest stop), has no unique answer; None
-    when it has one."""
+def refusal(regions: RegionModel, session: Session, vote: Vote) -> Refusal | None:
+    """Why the session, after its latest stop, has no unique answer; None when it has
+    one. Without any hit so far, eq. 6 is judged on the latest turn's projections."""
     if vote.unique:
         return None
     if len(session.pose0) == 0:
         d_err = np.inf
-        if turn.projections is not None and len(regions.triplets):
-            d = triplet_differences(regions.model, regions.triplets, turn.projections)
+        if session.last_turn is not None and len(regions.triplets):
+            d = triplet_differences(regions.model, regions.triplets, session.last_turn)
             d_err = float(estimation_error(d, regions.triplets.area[None, :],
                                            regions.c_a).min())
         reason = "plane_test" if d_err < regions.d_thd_m else "no_region"

@@ -104,6 +104,21 @@ class LocalizationCandidate(BaseModel):
     members: int
 
 
+class RefusalOut(BaseModel):
+    """Why a stop left the session without a unique answer: the first of the paper's
+    tests to refuse it (``no_region``: eq. 6 admitted no image; ``plane_test``: none lay
+    near its triplet's plane, eq. 4; ``vote_threshold``, ``vote_margin``: the vote of
+    §2.5; ``candidate_set``: every hit in one candidate-multiple set, §3.3) and the figure
+    it refused on."""
+
+    test: Literal["no_region", "plane_test", "vote_threshold", "vote_margin",
+                  "candidate_set"]
+    d_err_min_m: float | None = Field(
+        None, description="the turn's smallest D_err (eq. 6) when no image was admitted")
+    votes: float | None = Field(None, description="the leading group's votes")
+    rival_votes: float | None = Field(None, description="the strongest disagreeing group's")
+
+
 class LocalizationOut(BaseModel):
     """The state after this stop, what the stop showed (``outcome``: none, unique,
     in_set, across, unlisted), the pose when z (the weighted mean of the winning group,
@@ -116,6 +131,8 @@ class LocalizationOut(BaseModel):
     stops: int
     unique: bool
     candidates: list[LocalizationCandidate]
+    refused_by: RefusalOut | None = Field(
+        None, description="why there is no unique answer yet (null when there is one)")
 
 
 class SessionLocalizationOut(LocalizationOut):

@@ -94,7 +94,7 @@ def session(a: EigenspaceAnalysis, world: World, fmap: FourierMap, cam: Camera,
         vote = s.vote(sets)
         if k == 0:
             trial.fourier_first = error(fmap.localize(imgs), pose)
-            why = refusal(regions, s, turn, vote)
+            why = refusal(regions, s, vote)
             trial.first_refusal = None if why is None else why.reason
         if vote.unique and vote.winner is not None:
             trial.answered_at = k + 1

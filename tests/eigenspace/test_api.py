@@ -293,3 +293,24 @@ def test_the_coverage_map_shows_where_a_turn_enters_a_region(client: TestClient,
     assert_problem(client.get(f"/worlds/{learned}/eigenspace/coverage",
                               params={"cell_m": 0.01}), 422, "cell_m")
     assert client.get("/worlds/nowhere/eigenspace/coverage").status_code == 404
+
+
+def test_an_unanswered_stop_says_which_test_refused_it(client: TestClient,
+                                                       learned: str) -> None:
+    """A unique answer carries no refusal; a turn from a corner, facing the walls, names
+    the first test that held it back, with the figure it refused on."""
+    out = client.post(f"/worlds/{learned}/localize",
+                      json={"images": turn(client, learned, 0.5, 0.5, 0.0)["images"]}).json()
+    assert not out["unique"]
+    why = out["refused_by"]
+    assert why["test"] in ("no_region", "plane_test", "vote_threshold", "vote_margin",
+                           "candidate_set")
+    if why["test"] == "no_region":
+        assert why["d_err_min_m"] >= client.get(f"/worlds/{learned}/eigenspace"
+                                                ).json()["d_thd_m"]
+    elif why["test"] != "plane_test":
+        assert why["votes"] > 0
+    for x, y in ((3.0, 5.0), (5.0, 3.0), (7.0, 7.0)):
+        a = client.post(f"/worlds/{learned}/localize",
+                        json={"images": turn(client, learned, x, y, 0.0)["images"]}).json()
+        assert (a["refused_by"] is None) == a["unique"]

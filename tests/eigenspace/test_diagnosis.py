@@ -50,7 +50,7 @@ def test_a_turn_outside_every_region_is_refused_by_eq6(analysis: EigenspaceAnaly
                           np.zeros(0, int), projections=q)
     s = Session(analysis.config.localization)
     s.add_stop(turn, analysis.config.regions.d_thd_m)
-    r = refusal(analysis.regions, s, turn, s.vote(analysis.set_of()))
+    r = refusal(analysis.regions, s, s.vote(analysis.set_of()))
     assert r is not None
     if r.reason == "no_region":
         assert r.d_err_min_m is not None and r.d_err_min_m >= analysis.config.regions.d_thd_m
@@ -68,8 +68,8 @@ def test_the_vote_names_what_held_it_back(d_err: list[float], poses: list[list[f
                                          set_of: np.ndarray | None, reason: str | None,
                                          analysis: EigenspaceAnalysis) -> None:
     s = Session(LocalizationConfig())
-    turn = s.add_stop(hits(d_err, poses), 0.2)
-    r = refusal(analysis.regions, s, turn, s.vote(set_of))
+    s.add_stop(hits(d_err, poses), 0.2)
+    r = refusal(analysis.regions, s, s.vote(set_of))
     assert (None if r is None else r.reason) == reason
     if r is not None:
         assert r.votes is not None and r.votes > 0
@@ -81,8 +81,8 @@ def test_a_session_with_earlier_hits_is_judged_by_its_vote(
     hit is what the vote lacks."""
     s = Session(LocalizationConfig())
     s.add_stop(hits([0.19], [[2.0, 3.0, 0.5]]), 0.2)
-    turn = s.add_stop(no_hits(), 0.2, motion=np.array([1.0, 0.0, 0.0]))
-    r = refusal(analysis.regions, s, turn, s.vote())
+    s.add_stop(no_hits(), 0.2, motion=np.array([1.0, 0.0, 0.0]))
+    r = refusal(analysis.regions, s, s.vote())
     assert r is not None and r.reason == "vote_threshold"
 
 
