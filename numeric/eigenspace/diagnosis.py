@@ -57,15 +57,6 @@ def refusal(regions: RegionModel, session: Session, vote: Vote) -> Refusal | Non
                                            regions.c_a).min())
         reason = "plane_test" if d_err < regions.d_thd_m else "no_region"
         return Refusal(reason, d_err_min_m=float(d_err))
-    win = int(vote.winner if vote.winner is not None else 0)
-    same = session.same(np.array(session.pose0), session.pose0[win])
-    rivals = vote.votes[~same]
-    rival = float(rivals.max()) if len(rivals) else None
-    top = float(vote.votes[win])
-    if top < session.config.min_votes:
-        reason = "vote_threshold"
-    elif rival is not None and top < session.config.vote_margin * rival:
-        reason = "vote_margin"
-    else:
-        reason = "candidate_set"
-    return Refusal(reason, votes=top, rival_votes=rival)
+    assert vote.refused is not None and vote.winner is not None
+    return Refusal(vote.refused, votes=float(vote.votes[vote.winner]),
+                   rival_votes=vote.rival_votes)

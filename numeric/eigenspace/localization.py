@@ -207,6 +207,11 @@ class Vote:
     winner: int | None  # index into the pooled candidates
     votes: np.ndarray
     clusters: list[list[int]]  # pooled candidate indices per identified group
+    #: what kept a vote over candidates from being unique: "vote_threshold",
+    #: "vote_margin" or "candidate_set" (None when unique or without any candidate)
+    refused: str | None = None
+    #: the strongest group that disagrees with the winner (None: no such group)
+    rival_votes: float | None = None
 
 
 @dataclass
@@ -283,11 +288,16 @@ class Session:
         # enough; with no rival the lead is its own votes, which must reach min_votes
         # (room A, 100 single turns: a lone hit with weight 0.05 was 1.2 m off; at 1.0
         # the unique answers fell from 84 to 36, the wrong ones from 9 to 0)
-        unique = votes[win] >= self.config.min_votes and (
-            (not rivals.any()) or votes[win] >= self.config.vote_margin * votes[rivals].max())
-        if set_of is not None and unique:
+        rival = float(votes[rivals].max()) if rivals.any() else None
+        refused = None
+        if votes[win] < self.config.min_votes:
+            refused = "vote_threshold"
+        elif rival is not None and votes[win] < self.config.vote_margin * rival:
+            refused = "vote_margin"
+        elif set_of is not None:
             sets = {int(set_of[t]) for t in self.triplet}
-            unique = not (len(sets) == 1 and min(sets) >= 0)
+            if len(sets) == 1 and min(sets) >= 0:
+                refused = "candidate_set"
         clusters: list[list[int]] = []
         left = np.ones(n, dtype=bool)
         for i in np.argsort(-votes):
@@ -295,7 +305,7 @@ class Session:
                 members = np.flatnonzero(same[i] & left)
                 clusters.append(members.tolist())
                 left[members] = False
-        return Vote(bool(unique), win, votes, clusters)
+        return Vote(refused is None, win, votes, clusters, refused, rival)
 
     def representatives(self, vote: Vote) -> list[int]:
         """The strongest candidate (largest weight) of each identified group."""
