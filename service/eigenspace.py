@@ -28,6 +28,7 @@ from numeric.eigenspace.analysis import (
     Progress,
     analyse_images,
     learning_pixels,
+    raster_axes,
 )
 from numeric.eigenspace.diagnosis import refusal
 from numeric.eigenspace.image_sets import ImageSet
@@ -320,8 +321,8 @@ class EigenspaceService:
         """The eq.-7 coverage map (:meth:`EigenspaceAnalysis.coverage_map`)."""
         a = self.analysis(world)
         w = self.worlds.model(world)
-        lo, hi = w.bounds
-        cells = int(np.ceil((hi[0] - lo[0]) / cell_m) * np.ceil((hi[1] - lo[1]) / cell_m))
+        xs, ys = raster_axes(w, cell_m)
+        cells = len(xs) * len(ys)
         if cells > MAX_COVERAGE_CELLS:
             raise InvalidInput(f"a {cell_m} m raster of this world has {cells} cells, more "
                                f"than {MAX_COVERAGE_CELLS}: choose a larger cell",

@@ -138,15 +138,13 @@ class EigenspaceAnalysis:
     def coverage_map(self, world: World, cell_m: float = 0.2) -> CoverageMap:
         """Eq. 7's 1 - prod_l (1 - P(R^(l)|s)) on a raster of the world's bounds: where
         one turn enters some localizable region, and where the floor is thin."""
-        lo, hi = world.bounds
-        xs = np.arange(lo[0] + cell_m / 2, hi[0], cell_m)
-        ys = np.arange(lo[1] + cell_m / 2, hi[1], cell_m)
+        xs, ys = raster_axes(world, cell_m)
         cells = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
         p = np.full(len(cells), np.nan)
         free = world.is_free(cells) if len(cells) else np.zeros(0, dtype=bool)
         if free.any():
             p[free] = self.layout(world).p_any(cells[free])
-        return CoverageMap(origin=np.asarray(lo, dtype=float), cell_m=cell_m,
+        return CoverageMap(origin=np.asarray(world.bounds[0], dtype=float), cell_m=cell_m,
                            p_enter=p.reshape(len(ys), len(xs)))
 
     def summary(self, world: World) -> dict[str, object]:
@@ -214,11 +212,18 @@ class CoverageMap:
         return float(np.mean(free >= 0.5)) if len(free) else 0.0
 
 
-def free_grid(world: World, cell_m: float) -> np.ndarray:
+def raster_axes(world: World, cell_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """The cell centres along x and along y of a raster of ``cell_m`` over the world's
+    bounds (row by row: y outer, x inner)."""
     lo, hi = world.bounds
-    xs = np.arange(lo[0] + cell_m / 2, hi[0], cell_m)
-    ys = np.arange(lo[1] + cell_m / 2, hi[1], cell_m)
-    g = np.array([(x, y) for y in ys for x in xs]).reshape(-1, 2)
+    return (np.arange(lo[0] + cell_m / 2, hi[0], cell_m),
+            np.arange(lo[1] + cell_m / 2, hi[1], cell_m))
+
+
+def free_grid(world: World, cell_m: float) -> np.ndarray:
+    """The centres ``(n, 2)`` of the raster's cells on free floor."""
+    xs, ys = raster_axes(world, cell_m)
+    g = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
     return g[world.is_free(g)]
 
 
