@@ -7,24 +7,11 @@ import numpy as np
 import pytest
 
 from numeric.camera import Camera
-from numeric.eigenspace.analysis import EigenspaceAnalysis, EigenspaceConfig, analyse
+from numeric.eigenspace.analysis import EigenspaceAnalysis
 from numeric.eigenspace.diagnosis import refusal
 from numeric.eigenspace.localization import LocalizationConfig, Session, TurnCandidates
 from numeric.world import World
-from numeric.worlds import CAMERA_ROOM_SHAPES, random_camera_room, room_a
-
-SMALL = {"camera": {"width_px": 32, "height_px": 16}, "learning": {"k": 12},
-         "entry": {"samples": 30}, "regions": {"calibration_per_triplet": 2}}
-
-
-@pytest.fixture(scope="module")
-def room() -> World:
-    return World(room_a())
-
-
-@pytest.fixture(scope="module")
-def analysis(room: World) -> EigenspaceAnalysis:
-    return analyse(room, EigenspaceConfig.model_validate(SMALL))
+from numeric.worlds import CAMERA_ROOM_SHAPES, random_camera_room
 
 
 def no_hits() -> TurnCandidates:

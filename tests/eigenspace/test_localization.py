@@ -43,19 +43,7 @@ from numeric.eigenspace.triplets import TripletConfig, Triplets
 from numeric.geometry import compose, invert, relative, wrap_angle
 from numeric.world import Wall, World, WorldDescription
 from numeric.worlds import room_a, room_b, room_c, room_d, twin_hexagon
-
-SMALL = {"camera": {"width_px": 32, "height_px": 16}, "learning": {"k": 12},
-         "entry": {"samples": 30}, "regions": {"calibration_per_triplet": 2}}
-
-
-@pytest.fixture(scope="module")
-def room() -> World:
-    return World(room_a())
-
-
-@pytest.fixture(scope="module")
-def analysis(room: World) -> EigenspaceAnalysis:
-    return analyse(room, EigenspaceConfig.model_validate(SMALL))
+from tests.eigenspace.conftest import SMALL
 
 
 @pytest.fixture(scope="module")
