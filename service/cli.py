@@ -166,7 +166,8 @@ def slam(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .bag (or b
          seed: int = typer.Option(0, min=0),
          out: str = typer.Option("slam-out", help="output directory")) -> None:
     """Run SLAM over LOG; write OUT/trajectory.tum (TUM, the log's stamps), map.png
-    (intensity-coloured), map.pgm + map.yaml (ROS map_server)."""
+    (intensity-coloured), map.pgm + map.yaml (ROS map_server) and map.chizu, the saved
+    map later runs localize in (chizu slam-localize)."""
     from pydantic import ValidationError
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -187,14 +188,18 @@ def slam(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .bag (or b
                   console=console, transient=True) as bar:
         task = bar.add_task(f"{opts.method} {data.name}", total=len(data))
         try:
-            _, res = run_log(data, opts, lambda i: bar.update(task, completed=i))
+            slam_, res = run_log(data, opts, lambda i: bar.update(task, completed=i))
         except InvalidInput as e:
             console.print(f"[red]{e}[/red]")
             raise typer.Exit(2) from None
+    from numeric.slam.saved_map import FILE_NAME, save, saved_map
+
     _slam_outputs(Path(out), res.times, res.poses, res.map)
+    save(saved_map(slam_, data, opts.method, opts.map_resolution_m), Path(out) / FILE_NAME)
     console.print(f"{opts.method}: {len(data)} scans ({data.duration_s:.0f} s of log) in "
                   f"{res.seconds:.1f} s = {data.duration_s / max(res.seconds, 1e-9):.1f}x real "
-                  f"time; wrote {out}/trajectory.tum, map.png, map.pgm, map.yaml")
+                  f"time; wrote {out}/trajectory.tum, map.png, map.pgm, map.yaml and "
+                  f"{FILE_NAME} (the saved map)")
 
 
 @app.command("slam-batch")

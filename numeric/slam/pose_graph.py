@@ -116,6 +116,9 @@ class PoseGraph:
         self._values = gtsam.Values()
         self._poses = np.zeros((0, 3))
         self._dirty = False
+        #: every edge as (a, b, delta, covariance, kind), kind 0 odometry, 1 local, 2
+        #: loop (a loop's covariance is its Gaussian core; the Huber loss is not stored)
+        self.edges: list[tuple[int, int, np.ndarray, np.ndarray, int]] = []
 
     def __len__(self) -> int:
         return len(self._poses)
@@ -130,10 +133,13 @@ class PoseGraph:
             self._graph.add(gtsam.PriorFactorPose2(k, as_pose2(initial), noise))
         return k
 
-    def add_between(self, a: int, b: int, delta: np.ndarray, sigmas: np.ndarray) -> None:
+    def add_between(self, a: int, b: int, delta: np.ndarray, sigmas: np.ndarray,
+                    kind: int = 0) -> None:
         """An edge saying node ``b`` is at ``delta`` in node ``a``'s frame."""
-        noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, dtype=float))
+        sig = np.asarray(sigmas, dtype=float)
+        noise = gtsam.noiseModel.Diagonal.Sigmas(sig)
         self._graph.add(gtsam.BetweenFactorPose2(a, b, as_pose2(delta), noise))
+        self.edges.append((a, b, np.array(delta, dtype=float), np.diag(sig**2), kind))
 
     def add_local(self, a: int, b: int, delta: np.ndarray,
                   weak: np.ndarray | None = None) -> None:
@@ -142,7 +148,7 @@ class PoseGraph:
         c = self.config
         s = c.local_sigma_m + c.local_sigma_per_m * float(np.hypot(delta[0], delta[1]))
         if weak is None:
-            self.add_between(a, b, delta, np.array([s, s, c.local_sigma_rad]))
+            self.add_between(a, b, delta, np.array([s, s, c.local_sigma_rad]), kind=1)
             return
         lateral = np.array([-weak[1], weak[0]])
         cov = np.zeros((3, 3))
@@ -151,6 +157,7 @@ class PoseGraph:
         cov[2, 2] = c.local_sigma_rad**2
         noise = gtsam.noiseModel.Gaussian.Covariance(cov)
         self._graph.add(gtsam.BetweenFactorPose2(a, b, as_pose2(delta), noise))
+        self.edges.append((a, b, np.array(delta, dtype=float), cov, 1))
 
     def odometry_sigmas(self, delta: np.ndarray) -> np.ndarray:
         """Sigmas (x, y, theta) of an odometry increment ``delta``."""
@@ -167,6 +174,9 @@ class PoseGraph:
     def add_loop(self, a: int, b: int, delta: np.ndarray, weight: float = 1.0) -> None:
         self._graph.add(gtsam.BetweenFactorPose2(a, b, as_pose2(delta),
                                                  self.config.loop_noise(weight)))
+        c = self.config
+        sig = np.array([c.loop_sigma_m, c.loop_sigma_m, c.loop_sigma_rad]) / weight
+        self.edges.append((a, b, np.array(delta, dtype=float), np.diag(sig**2), 2))
         self.closures += 1
         self._dirty = True
 

@@ -27,6 +27,7 @@ from numeric.slam.graph.loop_closure import LoopClosing, LoopClosure
 from numeric.slam.graph.submaps import LoopMap, Submap, Submaps
 from numeric.slam.keyframes import Keyframes, moved, voxel_downsample
 from numeric.slam.pose_graph import GraphConfig, OdometryCalibration, PoseGraph
+from numeric.slam.saved_map import Constraints
 
 
 @dataclass
@@ -160,6 +161,16 @@ class GraphSlam(Submaps, LocalSlam, LoopClosing, AlignedOutputs):
         score)``, scan indices counted from 0 in the order the scans came."""
         return [(self._node_scan[c.anchor], self._node_scan[c.node], c.score)
                 for c in self.closures]
+
+    def constraints(self) -> Constraints:
+        """The pose graph's edges between nodes (= keyframes), for a saved map."""
+        e = self.graph.edges
+        if not e:
+            return Constraints.empty()
+        return Constraints(np.array([x[0] for x in e], dtype=np.int64),
+                           np.array([x[1] for x in e], dtype=np.int64),
+                           np.array([x[2] for x in e]), np.array([x[3] for x in e]),
+                           np.array([x[4] for x in e], dtype=np.int8))
 
     def _online_pose(self) -> np.ndarray:
         """The latest scan's pose on iSAM2's current estimate of its node."""
