@@ -202,6 +202,51 @@ def slam(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .bag (or b
                   f"{FILE_NAME} (the saved map)")
 
 
+@app.command("slam-localize")
+def slam_localize(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .bag"),
+                  map_: str = typer.Option(..., "--map", help="a saved map: map.chizu, or "
+                                           "the directory `chizu slam --out` wrote"),
+                  max_range: float = typer.Option(40.0, min=0.1, help="usable range (m)"),
+                  limit: int = typer.Option(0, min=0, help="only the first N scans (0: all)"),
+                  out: str = typer.Option("localize-out", help="output directory")) -> None:
+    """Localize LOG on a saved map, which stays as it is: global localization from an
+    unknown start, tracking, and a new global fix when the robot is lost or carried
+    away. Writes OUT/trajectory.tum (the localized scans, with the log's stamps, in the
+    map's frame) and OUT/localization.json (time to the first fix, fixes, losses)."""
+    import json as json_
+
+    from numeric.errors import InvalidInput
+    from numeric.slam.logs import read_log, write_tum
+    from numeric.slam.map_localization import localize_log
+    from numeric.slam.saved_map import load, map_path, write_atomic
+
+    try:
+        saved = load(map_)
+        data = read_log(Path(log), max_range_m=max_range, limit=limit or None)
+        with console.status(f"localizing {data.name} ({len(data)} scans) on {map_}"):
+            run = localize_log(saved, data)
+    except InvalidInput as e:
+        console.print(f"[red]{e}[/red]")
+        raise typer.Exit(2) from None
+    dest = Path(out)
+    dest.mkdir(parents=True, exist_ok=True)
+    ok = run.localized
+    write_tum(dest / "trajectory.tum", run.times[ok], run.poses[ok])
+    t0 = float(run.times[0]) if len(run.times) else 0.0
+    report = {"map": str(map_path(map_)), "log": data.name, "scans": len(data),
+              "localized": int(ok.sum()), "first_fix_s": run.first_fix_s(),
+              "fixes_s": [round(f - t0, 3) for f in run.fixes],
+              "losses_s": [round(f - t0, 3) for f in run.losses],
+              "recoveries": max(0, len(run.fixes) - 1), "seconds": round(run.seconds, 3),
+              "real_time_factor": round(data.duration_s / max(run.seconds, 1e-9), 1)}
+    write_atomic(dest / "localization.json", json_.dumps(report, indent=1).encode())
+    first = "never" if run.first_fix_s() is None else f"after {run.first_fix_s():.1f} s"
+    console.print(f"{int(ok.sum())} of {len(data)} scans localized; first fix {first}, "
+                  f"{len(run.losses)} losses, {report['recoveries']} recoveries; "
+                  f"{report['real_time_factor']}x real time; wrote {out}/trajectory.tum, "
+                  "localization.json")
+
+
 @app.command("slam-batch")
 def slam_batch(logs: Annotated[list[str], typer.Argument(help="CARMEN .clf/.log or ROS .bag "
                                                          "files")],

@@ -272,11 +272,17 @@ def pairwise_matches(points: Sequence[np.ndarray], intensities: Sequence[np.ndar
 
 def align_globally(poses: np.ndarray, odometry: np.ndarray, matches: Sequence[PairwiseMatch],
                    closures: Sequence[tuple[int, int, np.ndarray]],
-                   cfg: AlignmentConfig, noise: GraphConfig | None = None) -> np.ndarray:
+                   cfg: AlignmentConfig, noise: GraphConfig | None = None,
+                   held: int = 0,
+                   priors: Sequence[tuple[int, np.ndarray, np.ndarray]] = ()) -> np.ndarray:
     """Step 3: every scan's pose ``(N, 3)`` after one batch optimisation, from the
     online estimate ``poses``; ``odometry`` ``(N, 3)`` the scans' odometry readings,
     ``closures`` ``(a, b, delta)`` the online run's loop closures between scans, both
-    with the online pose graph's noise (``noise``, :class:`GraphConfig`)."""
+    with the online pose graph's noise (``noise``, :class:`GraphConfig`). The first
+    pose is anchored; with ``held`` > 0 the first ``held`` poses are a saved map's
+    keyframes, each anchored where it is, and the odometry chain starts after them.
+    ``priors`` ``(k, pose, covariance)`` place single scans in the world frame (a
+    scan matched to a saved map), Huber-robust like the matches."""
     noise = GraphConfig() if noise is None else noise
     n = len(poses)
     if n < 2:
@@ -285,11 +291,12 @@ def align_globally(poses: np.ndarray, odometry: np.ndarray, matches: Sequence[Pa
     values = gtsam.Values()
     for k in range(n):
         values.insert(k, as_pose2(poses[k]))
-    graph.add(gtsam.PriorFactorPose2(0, as_pose2(poses[0]),
-                                     gtsam.noiseModel.Diagonal.Sigmas(ANCHOR_SIGMAS)))
+    anchor = gtsam.noiseModel.Diagonal.Sigmas(ANCHOR_SIGMAS)
+    for k in range(max(1, held)):
+        graph.add(gtsam.PriorFactorPose2(k, as_pose2(poses[k]), anchor))
     u = relative(odometry[:-1], odometry[1:])
     sig = noise.odometry_sigmas(u)
-    for k in range(1, n):
+    for k in range(held + 1 if held else 1, n):
         graph.add(gtsam.BetweenFactorPose2(k - 1, k, as_pose2(u[k - 1]),
                                            gtsam.noiseModel.Diagonal.Sigmas(sig[k - 1])))
     huber = gtsam.noiseModel.mEstimator.Huber.Create(cfg.huber_k)
@@ -297,6 +304,9 @@ def align_globally(poses: np.ndarray, odometry: np.ndarray, matches: Sequence[Pa
         robust = gtsam.noiseModel.Robust.Create(
             huber, gtsam.noiseModel.Gaussian.Covariance(m.covariance))
         graph.add(gtsam.BetweenFactorPose2(m.a, m.b, as_pose2(m.delta), robust))
+    for k, pose, cov in priors:
+        robust = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Gaussian.Covariance(cov))
+        graph.add(gtsam.PriorFactorPose2(int(k), as_pose2(pose), robust))
     loop = noise.loop_noise()
     for a, b, delta in closures:
         graph.add(gtsam.BetweenFactorPose2(int(a), int(b), as_pose2(delta), loop))

@@ -1,0 +1,419 @@
+"""Localization only, on a saved map: where the robot is in a map it does not change.
+
+A robot that already has a map (:mod:`numeric.slam.saved_map`) needs its pose in it,
+from an unknown start and again after it was carried away, not a new map. The steps
+are Cartographer's pure localization (Hess et al. 2016, §V) on a likelihood field as
+AMCL reads a map (Thrun, Burgard, Fox, *Probabilistic Robotics*, §6.4):
+
+1. **The map's likelihood field** (:func:`likelihood_grid`): each cell ``exp(-d² /
+   2σ²)`` of its distance d to the nearest occupied cell of the saved map's occupancy
+   grid -- a scan that lies a little off the walls still scores, and the score rises
+   smoothly towards them for the refinement; cells the map never saw score 0.
+2. **Global localization** (:class:`GlobalSearch`): branch and bound (Hess et al.
+   Algorithms 2-3) over the whole map and every heading, on the field coarsened to
+   ``global_resolution_m``. A fix is taken only when it scores at least
+   ``global_min_score`` and no pose farther than ``unique_m`` from it scores within
+   ``unique_ratio`` of it (Olson 2009, §IV): a corridor that fits two places says
+   nothing about which. It is then refined (step 3) and confirmed by the next
+   ``confirm_scans`` scans tracking at a good score.
+3. **Tracking**: each scan is predicted by the odometry since the last one and refined
+   by Gauss-Newton on the field (:func:`~numeric.slam.matching.correlative.refine`);
+   when the refined score is poor, a correlative search of a small window first; then
+   point-to-line ICP against the returns of the nearest keyframes, finer than the
+   grid's cells. The score counts only the points on cells the map observed: a scan
+   reaching into parts of the building the map never saw is neither for nor against
+   a pose, and one mostly off the map is carried by odometry.
+4. **Recovery**: a scan after a gap in the log longer than ``gap_s``, or
+   ``lost_scans`` scans in a row scoring below ``lost_score``, and the robot is lost:
+   global localization again, at most every ``search_every_s`` of log time, until a
+   new fix holds.
+5. **Alignment**, when a whole log is localized (:func:`localize_log`): graph SLAM's
+   global scan alignment (Lu & Milios 1997) of the localized scans with the map's
+   keyframes held (:func:`aligned_to_map`).
+
+The map is never changed; the poses are in the map's frame.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+from scipy import ndimage
+
+from numeric.errors import InvalidInput
+from numeric.geometry import compose, place, relative
+from numeric.occupancy import OCCUPIED, UNKNOWN
+from numeric.probability_grid import GridConfig, ProbabilityGrid, no_stamps
+from numeric.scan import LaserLog, Scan
+from numeric.slam.alignment import (
+    AlignmentConfig,
+    align_globally,
+    match_pair,
+    pairwise_matches,
+)
+from numeric.slam.graph.loop_closure import adaptive_voxel
+from numeric.slam.keyframes import voxel_downsample
+from numeric.slam.matching.correlative import Match, PrecomputedGrid, correlative_search, refine
+from numeric.slam.matching.intensity_icp import IcpConfig, Reference, intensity_icp
+from numeric.slam.saved_map import Laser, SavedMap
+
+State = Literal["searching", "confirming", "tracking"]
+
+
+class MapLocalizationConfig(BaseModel):
+    """The steps' parameters (m, rad, s); one set for every map."""
+
+    model_config = ConfigDict(extra="forbid")
+    resolution_m: float = Field(0.05, gt=0.0, le=0.5, description="tracking field's cells")
+    sigma_m: float = Field(0.1, gt=0.0, le=2.0, description="the field's width (step 1)")
+    global_resolution_m: float = Field(0.1, gt=0.0, le=1.0,
+                                       description="cells of the global search")
+    global_depth: int = Field(7, ge=1, le=10, description="branch-and-bound levels")
+    global_points: int = Field(60, ge=10, le=2000,
+                               description="a scan's points in the global search, at most")
+    global_range_m: float = Field(20.0, gt=0.0,
+                                  description="points of the global search lie this near")
+    global_step_rad: float = Field(float(np.deg2rad(1.0)), gt=0.0, le=0.2,
+                                   description="the global search's angular step")
+    search_every_s: float = Field(1.0, ge=0.0,
+                                  description="while lost, a global search at most this "
+                                              "often (log time)")
+    global_min_score: float = Field(0.55, gt=0.0, lt=1.0)
+    unique_m: float = Field(1.0, gt=0.0, description="a rival fix must lie this far")
+    unique_ratio: float = Field(0.9, gt=0.0, le=1.0,
+                                description="a rival scoring this share of the fix "
+                                            "makes it ambiguous")
+    confirm_scans: int = Field(3, ge=0, le=100)
+    track_points: int = Field(400, ge=10, le=5000)
+    track_min_score: float = Field(0.5, gt=0.0, lt=1.0,
+                                   description="below it the scan is searched in a window")
+    track_window_m: float = Field(0.3, gt=0.0, le=5.0)
+    track_window_rad: float = Field(0.15, gt=0.0, le=np.pi)
+    icp_keyframes: int = Field(4, ge=0, le=50,
+                               description="the scan is finally aligned to this many "
+                                           "nearest keyframes' returns (0: not at all)")
+    icp_radius_m: float = Field(4.0, gt=0.0)
+    icp_max_shift_m: float = Field(0.2, gt=0.0)
+    align: bool = Field(True, description="localize_log ends with step 5")
+    lost_score: float = Field(0.35, gt=0.0, lt=1.0,
+                              description="mean field value of the points on observed "
+                                          "cells below which a scan does not fit")
+    min_on_map: float = Field(0.3, ge=0.0, le=1.0,
+                              description="share of a scan's points on observed cells "
+                                          "below which it is off the map")
+    lost_scans: int = Field(10, ge=1, le=10_000)
+    gap_s: float = Field(2.0, gt=0.0, description="a longer gap in the log: relocalize")
+
+
+def likelihood_grid(saved: SavedMap, resolution_m: float, sigma_m: float
+                    ) -> tuple[ProbabilityGrid, np.ndarray]:
+    """Step 1: the map's likelihood field as a probability grid, and which of its
+    cells the map has observed."""
+    for _ in range(6):  # a map too large at this resolution is read at a coarser one
+        try:
+            occ = saved.occupancy(resolution_m)
+            break
+        except InvalidInput as e:
+            if e.field != "resolution_m":
+                raise
+            resolution_m *= 2
+    else:
+        occ = saved.occupancy(resolution_m)
+    wall = occ.state == OCCUPIED
+    d = ndimage.distance_transform_edt(~wall, sampling=resolution_m) if wall.any() \
+        else np.full(wall.shape, np.inf)
+    prob = np.exp(-0.5 * (d / sigma_m) ** 2).astype(np.float32)
+    prob[(occ.state == UNKNOWN) & ~wall] = 0.0
+    cfg = GridConfig(resolution_m=resolution_m)
+    return (ProbabilityGrid(cfg, np.asarray(occ.origin, dtype=float), prob,
+                            no_stamps(prob.shape), len(saved)),
+            occ.state != UNKNOWN)
+
+
+@dataclass
+class GlobalSearch:
+    """Step 2 over one map's field."""
+
+    grid: ProbabilityGrid
+    config: MapLocalizationConfig
+
+    def __post_init__(self) -> None:
+        factor = max(1, int(round(self.config.global_resolution_m / self.grid.resolution_m)))
+        self.search = PrecomputedGrid(self.grid.coarsened(factor), self.config.global_depth)
+        g = self.search.grid
+        size = np.array(g.shape) * g.resolution_m
+        self.centre = np.array([*(g.origin + size / 2), 0.0])
+        self.window_m = float(np.max(size) / 2)
+
+    def fix(self, xy: np.ndarray) -> Match | None:
+        """The best pose of robot-frame points ``xy`` anywhere in the map, or None when
+        it scores too little or is not unique."""
+        cfg = self.config
+        near = xy[np.hypot(xy[:, 0], xy[:, 1]) <= cfg.global_range_m]
+        pts = adaptive_voxel(near, cfg.global_points, self.search.grid.resolution_m)
+        if len(pts) < 8:
+            return None
+        best = self.search.match(pts, self.centre, self.window_m, np.pi, cfg.global_min_score,
+                                 cfg.global_step_rad)
+        if best is None:
+            return None
+        rival = self.search.second_score(pts, self.centre, self.window_m, np.pi, best,
+                                         cfg.unique_m, cfg.unique_ratio, cfg.global_step_rad)
+        return None if rival > 0.0 else best
+
+
+@dataclass
+class Step:
+    """One scan's outcome: its pose in the map (None while not localized), the state
+    after it and the score of its match."""
+
+    pose: np.ndarray | None
+    state: State
+    score: float
+
+
+@dataclass
+class MapLocalizer:
+    """Feed scans in time order with :meth:`process`."""
+
+    saved: SavedMap
+    config: MapLocalizationConfig = field(default_factory=MapLocalizationConfig)
+
+    def __post_init__(self) -> None:
+        cfg = self.config
+        self.grid, self.known = likelihood_grid(self.saved, cfg.resolution_m, cfg.sigma_m)
+        self.globally = GlobalSearch(self.grid, cfg)
+        self.state: State = "searching"
+        self.pose: np.ndarray | None = None
+        self._odom: np.ndarray | None = None
+        self._t: float | None = None
+        self._low = 0
+        self._confirmed = 0
+        self._searched: float | None = None
+        self._clouds = KeyframeClouds(self.saved, cfg.icp_keyframes, cfg.icp_radius_m)
+        self._icp = IcpConfig(metric="line", max_correspondence_m=0.3)
+        #: stamps of every fix taken, and of each time the robot was lost after one
+        self.fixes: list[float] = []
+        self.losses: list[float] = []
+
+    def check_laser(self, laser: Laser) -> str | None:
+        """What keeps this laser's scans from matching the map (None: nothing)."""
+        return self.saved.laser.compatible(laser)
+
+    def process(self, scan: Scan) -> Step:
+        xy, _ = scan.points()
+        gap = self._t is not None and scan.t - self._t > self.config.gap_s
+        if self.state != "searching" and gap:
+            self._lose(scan.t)
+        prev_odom, self._odom, self._t = self._odom, scan.odom.copy(), scan.t
+        if self.state == "searching":
+            return self._search(scan, xy)
+        assert self.pose is not None and prev_odom is not None
+        predicted = compose(self.pose, relative(prev_odom, scan.odom))
+        pose, score, share = self._track(xy, predicted)
+        if share < self.config.min_on_map:
+            # off the map: odometry carries the pose until the scans see the map again
+            self.pose = predicted
+            return Step(predicted.copy(), self.state, score)
+        if score < self.config.lost_score:
+            self._low += 1
+            if self._low >= self.config.lost_scans or self.state == "confirming":
+                self._lose(scan.t)
+                return Step(None, self.state, score)
+            self.pose = predicted  # a poor match is not trusted: dead reckoning
+            return Step(predicted.copy(), self.state, score)
+        self._low = 0
+        self.pose = pose
+        if self.state == "confirming":
+            self._confirmed += 1
+            if self._confirmed >= self.config.confirm_scans:
+                self.state = "tracking"
+                self.fixes.append(scan.t)
+        return Step(pose.copy(), self.state, score)
+
+    def _search(self, scan: Scan, xy: np.ndarray) -> Step:
+        if (self._searched is not None
+                and scan.t - self._searched < self.config.search_every_s):
+            return Step(None, "searching", 0.0)
+        self._searched = scan.t
+        m = self.globally.fix(xy)
+        if m is None:
+            return Step(None, "searching", 0.0)
+        pose, score, share = self._track(xy, m.pose)
+        if score < self.config.lost_score or share < self.config.min_on_map:
+            return Step(None, "searching", score)
+        self.pose, self._low, self._confirmed = pose, 0, 0
+        self.state = "confirming" if self.config.confirm_scans else "tracking"
+        if self.state == "tracking":
+            self.fixes.append(scan.t)
+        return Step(pose.copy(), self.state, score)
+
+    def _track(self, xy: np.ndarray, predicted: np.ndarray) -> tuple[np.ndarray, float, float]:
+        """The refined pose, its score over the points on observed cells, and the share
+        of the points on observed cells."""
+        cfg = self.config
+        pts = adaptive_voxel(xy, cfg.track_points, cfg.resolution_m) if len(xy) else xy
+        if len(pts) < 8:
+            return predicted, 0.0, 0.0
+        r = refine(self.grid, pts, predicted)
+        pose, score = r.pose, r.score
+        if self._on_map(pts, pose)[0] < cfg.track_min_score:
+            start, _ = correlative_search(self.grid, pts, predicted, cfg.track_window_m,
+                                          cfg.track_window_rad)
+            r2 = refine(self.grid, pts, start, prior=start)
+            if r2.score > r.score:
+                pose, score = r2.pose, r2.score
+        s, share = self._on_map(pts, pose, score)
+        if s >= cfg.lost_score and share >= cfg.min_on_map:
+            pose = self._align_to_keyframes(xy, pose)
+        return pose, s, share
+
+    def _align_to_keyframes(self, xy: np.ndarray, pose: np.ndarray) -> np.ndarray:
+        """Step 3's last part: point-to-line ICP of the scan against the returns of the
+        ``icp_keyframes`` nearest keyframes, as the map placed them -- the grid holds the
+        walls to a cell, the keyframes' own points finer."""
+        ref = self._clouds.around(pose)
+        if ref is None:
+            return pose
+        r = intensity_icp(ref, xy, None, pose, self._icp)
+        shift = np.hypot(*(r.pose[:2] - pose[:2]))
+        if (not r.converged or r.inliers < 0.5 * len(xy)
+                or shift > self.config.icp_max_shift_m):
+            return pose
+        return np.asarray(r.pose)
+
+    def _on_map(self, pts: np.ndarray, pose: np.ndarray,
+                score: float | None = None) -> tuple[float, float]:
+        """The mean field value over the points that fall on cells the map observed, and
+        their share: points in parts of the building the map never saw say nothing
+        about the pose, neither for nor against it."""
+        g = self.grid
+        c = np.floor(g.to_cells(place(pts, pose))).astype(np.int64)
+        nx, ny = g.shape
+        inside = (c[:, 0] >= 0) & (c[:, 0] < nx) & (c[:, 1] >= 0) & (c[:, 1] < ny)
+        seen = np.zeros(len(pts), dtype=bool)
+        seen[inside] = self.known[c[inside, 0], c[inside, 1]]
+        share = float(seen.mean())
+        if not seen.any():
+            return 0.0, 0.0
+        vals = g.prob[c[seen, 0], c[seen, 1]]
+        return float(vals.mean()), share
+
+    def _lose(self, t: float) -> None:
+        if self.state == "tracking":
+            self.losses.append(t)
+        self.state, self.pose, self._low, self._confirmed = "searching", None, 0, 0
+
+
+@dataclass
+class LocalizationRun:
+    """A log localized on a map: per scan its stamp, pose (NaN where not localized)
+    and state; the stamps of the fixes and losses; seconds taken."""
+
+    times: np.ndarray
+    poses: np.ndarray
+    states: list[State]
+    fixes: list[float]
+    losses: list[float]
+    seconds: float
+
+    @property
+    def localized(self) -> np.ndarray:
+        return np.asarray([s == "tracking" for s in self.states])
+
+    def first_fix_s(self) -> float | None:
+        """Log time from the first scan to the first fix (None: never)."""
+        return None if not self.fixes else float(self.fixes[0] - self.times[0])
+
+
+def localize_log(saved: SavedMap, log: LaserLog,
+                 config: MapLocalizationConfig | None = None) -> LocalizationRun:
+    """Localize every scan of ``log`` on ``saved``; raises
+    :class:`~numeric.errors.InvalidInput` (field ``map``) when the log's laser is not
+    the map's."""
+    loc = MapLocalizer(saved, config or MapLocalizationConfig())
+    why = loc.check_laser(Laser.of(log))
+    if why is not None:
+        raise InvalidInput(why, field="map")
+    t0 = time.perf_counter()
+    poses = np.full((len(log), 3), np.nan)
+    states: list[State] = []
+    for i, scan in enumerate(log.scans):
+        step = loc.process(scan)
+        if step.pose is not None and step.state == "tracking":
+            poses[i] = step.pose
+        states.append(step.state)
+    if loc.config.align:
+        c = loc.config
+        poses = aligned_to_map(saved, log, poses, AlignmentConfig(), c.icp_keyframes,
+                               c.icp_radius_m)
+    return LocalizationRun(log.times, poses, states, loc.fixes, loc.losses,
+                           time.perf_counter() - t0)
+
+
+def aligned_to_map(saved: SavedMap, log: LaserLog, poses: np.ndarray,
+                   config: AlignmentConfig, keyframes: int, radius_m: float) -> np.ndarray:
+    """Step 5, once the log is over: graph SLAM's global scan alignment
+    (:mod:`numeric.slam.alignment`, Lu & Milios 1997) of each stretch of localized
+    scans, with the saved map's keyframes among the scans and held where the map has
+    them. Online, a scan is placed by matching it to the map alone; here each is
+    also matched to its neighbours in time and to the keyframes it overlaps as the
+    SLAM run's scans were, and to the returns of its ``keyframes`` nearest keyframes
+    within ``radius_m`` together (a pose in the map's frame, with the match's own
+    covariance: what holds a stretch driven the other way, whose scans overlap no
+    single keyframe), and all are solved for at once."""
+    out = poses.copy()
+    ok = np.all(np.isfinite(poses), axis=1)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(int), [0]])))
+    held = len(saved)
+    odometry = log.odometry
+    clouds = KeyframeClouds(saved, keyframes, radius_m)
+    for lo, hi in zip(edges[::2], edges[1::2], strict=True):
+        if hi - lo < 2:
+            continue
+        pts = [voxel_downsample(log.scans[i].points()[0], None, 0.05)[0]
+               for i in range(lo, hi)]
+        allp = np.vstack([saved.kf_pose, poses[lo:hi]])
+        matches = [m for m in pairwise_matches(saved.kf_xy + pts, [None] * (held + hi - lo),
+                                               allp, config)
+                   if m.b >= held]
+        priors = []
+        for j, xy in enumerate(pts):
+            ref = clouds.around(poses[lo + j])
+            found = None if ref is None or len(xy) < 10 else match_pair(ref, xy, None,
+                                                                        poses[lo + j], config)
+            if found is not None:
+                priors.append((held + j, found[0], found[1]))
+        both = align_globally(allp, np.vstack([saved.kf_odom, odometry[lo:hi]]), matches,
+                              [], config, held=held, priors=priors)
+        out[lo:hi] = both[held:]
+    return out
+
+
+class KeyframeClouds:
+    """The returns of the nearest keyframes around a pose, in the map's frame, as ICP
+    references (the last one kept: consecutive scans share it)."""
+
+    def __init__(self, saved: SavedMap, keyframes: int, radius_m: float) -> None:
+        self.saved, self.keyframes, self.radius_m = saved, keyframes, radius_m
+        self._key: tuple[int, ...] | None = None
+        self._ref: Reference | None = None
+
+    def around(self, pose: np.ndarray) -> Reference | None:
+        s = self.saved
+        if self.keyframes == 0 or len(s) == 0:
+            return None
+        d = np.hypot(*(s.kf_pose[:, :2] - pose[:2]).T)
+        near = tuple(sorted(int(k) for k in np.argsort(d)[:self.keyframes]
+                            if d[k] <= self.radius_m))
+        if not near:
+            return None
+        if near != self._key:
+            pts = np.vstack([place(s.kf_xy[k], s.kf_pose[k]) for k in near])
+            self._key, self._ref = near, Reference(voxel_downsample(pts, None, 0.03)[0],
+                                                   None, 0.0)
+        return self._ref

@@ -1,0 +1,112 @@
+"""Localization only, on a saved map: an unknown start, a robot carried away, a laser
+that is not the map's, and the CLI."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from numeric.errors import InvalidInput
+from numeric.geometry import compose
+from numeric.scan import LaserLog
+from numeric.slam import saved_map as sm
+from numeric.slam.map_localization import LocalizationRun, localize_log
+from numeric.slam.runner import SlamOptions, run_log
+from numeric.slam.simulate import drive, simulated_log
+from numeric.world import World
+from numeric.worlds import room_a
+from service.cli import app as cli
+from tests.slam.drives import MODERATE_ODOMETRY, ROOM_A_TOUR
+
+CLIP = Path(__file__).resolve().parents[2] / "examples" / "aces-clip.clf"
+#: where the second robot's odometry starts, unknown to the method
+HIDDEN = np.array([3.0, -2.0, 2.0])
+
+
+@pytest.fixture(scope="module")
+def room_map() -> sm.SavedMap:
+    """room_a mapped by graph SLAM from the built-in tour."""
+    log = simulated_log("room_a", speed_m_s=1.0)
+    slam, _ = run_log(log, SlamOptions(method="graph"))
+    return sm.saved_map(slam, log, "graph", 0.05)
+
+
+@pytest.fixture(scope="module")
+def other_drive() -> LaserLog:
+    """The tour driven the other way round, its odometry in a frame of its own."""
+    b = drive(World(room_a()), ROOM_A_TOUR[::-1].copy(), MODERATE_ODOMETRY, None, 0.5,
+              np.random.default_rng(3), "reverse")
+    return LaserLog(b.name, [dataclasses.replace(s, odom=compose(HIDDEN, s.odom))
+                             for s in b.scans], b.truth)
+
+
+def _errors(run: LocalizationRun, truth: np.ndarray) -> np.ndarray:
+    ok = run.localized
+    return np.asarray(np.hypot(*(run.poses[ok, :2] - truth[ok, :2]).T))
+
+
+def test_a_robot_finds_itself_from_an_unknown_start(room_map: sm.SavedMap,
+                                                    other_drive: LaserLog) -> None:
+    run = localize_log(room_map, other_drive)
+    assert run.first_fix_s() is not None and run.first_fix_s() < 5.0
+    assert run.localized.mean() > 0.9 and not run.losses
+    e = _errors(run, other_drive.truth)
+    assert np.median(e) < 0.08 and e.max() < 0.4
+
+
+def test_a_robot_carried_away_is_found_again(room_map: sm.SavedMap,
+                                             other_drive: LaserLog) -> None:
+    """A third of the drive's scans dropped: the robot reappears elsewhere; it is lost
+    at the gap and fixed again within two seconds of log, in the right place."""
+    n = len(other_drive)
+    keep = list(range(n // 3)) + list(range(2 * n // 3, n))
+    cut = LaserLog("cut", [other_drive.scans[i] for i in keep], other_drive.truth[keep])
+    run = localize_log(room_map, cut)
+    gap_t = cut.scans[n // 3].t
+    assert len(run.losses) == 1 and run.losses[0] == pytest.approx(gap_t)
+    assert len(run.fixes) == 2 and run.fixes[1] - gap_t < 2.0
+    after = run.times >= run.fixes[1]
+    ok = run.localized & after
+    assert np.median(np.hypot(*(run.poses[ok, :2] - cut.truth[ok, :2]).T)) < 0.08
+
+
+def test_a_log_of_another_laser_is_refused(room_map: sm.SavedMap,
+                                           other_drive: LaserLog) -> None:
+    half = LaserLog("half", [dataclasses.replace(s, ranges=s.ranges[::2], angles=s.angles[::2],
+                                                 intensities=None if s.intensities is None
+                                                 else s.intensities[::2])
+                             for s in other_drive.scans[:20]])
+    with pytest.raises(InvalidInput, match="steps") as e:
+        localize_log(room_map, half)
+    assert e.value.field == "map"
+
+
+def test_the_cli_localizes_a_log_on_a_saved_map(tmp_path: Path) -> None:
+    r = CliRunner()
+    res = r.invoke(cli, ["slam", str(CLIP), "--out", str(tmp_path / "map")])
+    assert res.exit_code == 0, res.output
+    res = r.invoke(cli, ["slam-localize", str(CLIP), "--map", str(tmp_path / "map"),
+                         "--out", str(tmp_path / "loc")])
+    assert res.exit_code == 0, res.output
+    report = json.loads((tmp_path / "loc" / "localization.json").read_text())
+    assert report["scans"] == 350 and report["localized"] > 300
+    assert report["first_fix_s"] is not None and report["first_fix_s"] < 5.0
+    lines = (tmp_path / "loc" / "trajectory.tum").read_text().splitlines()
+    assert len([ln for ln in lines if not ln.startswith("#")]) == report["localized"]
+
+
+@pytest.mark.parametrize("bad", ["missing", "garbage"])
+def test_the_cli_refuses_a_bad_map_and_writes_nothing(tmp_path: Path, bad: str) -> None:
+    m = tmp_path / "m"
+    if bad == "garbage":
+        m.mkdir()
+        (m / sm.FILE_NAME).write_bytes(b"not a map")
+    res = CliRunner().invoke(cli, ["slam-localize", str(CLIP), "--map", str(m),
+                                   "--out", str(tmp_path / "loc")])
+    assert res.exit_code == 2 and "map" in res.output
+    assert not (tmp_path / "loc").exists()
