@@ -192,10 +192,10 @@ def slam(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .bag (or b
         except InvalidInput as e:
             console.print(f"[red]{e}[/red]")
             raise typer.Exit(2) from None
-    from numeric.slam.saved_map import FILE_NAME, save, saved_map
+    from numeric.slam.saved_map import FILE_NAME, save, saved_map_of_log
 
     _slam_outputs(Path(out), res.times, res.poses, res.map)
-    save(saved_map(slam_, data, opts.method, opts.map_resolution_m), Path(out) / FILE_NAME)
+    save(saved_map_of_log(slam_, data, opts.method, opts.map_resolution_m), Path(out) / FILE_NAME)
     console.print(f"{opts.method}: {len(data)} scans ({data.duration_s:.0f} s of log) in "
                   f"{res.seconds:.1f} s = {data.duration_s / max(res.seconds, 1e-9):.1f}x real "
                   f"time; wrote {out}/trajectory.tum, map.png, map.pgm, map.yaml and "

@@ -32,6 +32,7 @@ from numeric.errors import Conflict, InvalidInput, NotFound
 from numeric.occupancy import OccupancyMap, build_occupancy
 from numeric.scan import Scan, beam_angles
 from numeric.slam.runner import Slam, SlamOptions, create, warm_up
+from numeric.slam.saved_map import Laser, saved_map, to_bytes
 from service.compute import BudgetExceeded
 from service.disconnect import thread_to_end
 from service.kb import KnowledgeBase
@@ -42,6 +43,8 @@ from service.worlds import ArtifactKind, WorldService
 
 log = logging.getLogger(__name__)
 MAP_ARTIFACT = "slam_map"
+#: the committed run's saved map (numeric.slam.saved_map), as ``map.chizu`` holds it
+SAVED_MAP_ARTIFACT = "saved_map"
 FACTS_ARTIFACT = "slam_facts"
 MAX_SCANS_PER_RUN = 200_000
 
@@ -75,6 +78,9 @@ class Run:
     last_t: float = -np.inf
     replayed: bool = True
     lock: asyncio.Lock = field(default_factory=asyncio.Lock)
+    #: the laser of the first scan and every scan's odometry, for the saved map
+    laser: Laser | None = None
+    odometry: list[np.ndarray] = field(default_factory=list)
     _map: tuple[tuple[int, bool], OccupancyMap] | None = None
 
     def status(self) -> SlamRunOut:
@@ -209,6 +215,9 @@ class SlamService:
             if i and (time.monotonic() > deadline or (stop is not None and stop.is_set())):
                 return
             run.slam.process(s)
+            if run.laser is None:
+                run.laser = Laser.of_scan(s)
+            run.odometry.append(s.odom)
             run.scans += 1
             run.last_t = s.t
 
@@ -248,11 +257,26 @@ class SlamService:
                 "info": {k: summary[k] for k in ("resolution_m", "free_m2", "occupied_m2",
                                                  "unknown_m2")},
                 "regions": regions, "closures": closures}
-        blob, npz = await asyncio.to_thread(lambda: (json.dumps(call).encode(), g.to_npz()))
+        async with run.lock:
+            assert run.laser is not None
+            saved = saved_map(run.slam, run.laser, np.array(run.odometry),
+                              run.options.method, run.options.map_resolution_m,
+                              {"source": f"SLAM run {rid}", "world": world})
+        blob, npz, chizu = await asyncio.to_thread(
+            lambda: (json.dumps(call).encode(), g.to_npz(), to_bytes(saved)))
         async with self.worlds.write_artifact(world, FACTS_ARTIFACT) as w:
-            reply = await w.commit(blob, {MAP_ARTIFACT: npz}, call)
+            reply = await w.commit(blob, {MAP_ARTIFACT: npz, SAVED_MAP_ARTIFACT: chizu}, call)
         return CommitOut(world=world, run=rid, facts=reply, map=summary,
                          unknown_regions=regions, loop_closures=len(closures))
+
+    def saved_map(self, world: str) -> bytes:
+        """The world's committed map as a ``map.chizu`` file."""
+        self.worlds.require(world)
+        blob = self.store.artifact(world, SAVED_MAP_ARTIFACT)
+        if blob is None:
+            raise NotFound(f"world {world!r} has no committed map: commit a SLAM run "
+                           "first", field="map")
+        return blob
 
     async def summary(self, world: str) -> Any:
         self.worlds.require(world)

@@ -11,11 +11,14 @@ AMCL reads a map (Thrun, Burgard, Fox, *Probabilistic Robotics*, §6.4):
    smoothly towards them for the refinement; cells the map never saw score 0.
 2. **Global localization** (:class:`GlobalSearch`): branch and bound (Hess et al.
    Algorithms 2-3) over the whole map and every heading, on the field coarsened to
-   ``global_resolution_m``. A fix is taken only when it scores at least
+   ``global_resolution_m``, of the returns of the last ``context_m`` of travel placed
+   by the odometry around the current scan (one scan of a corridor fits many
+   corridors; a few metres of it, far fewer). A fix is taken only when it scores at least
    ``global_min_score`` and no pose farther than ``unique_m`` from it scores within
    ``unique_ratio`` of it (Olson 2009, §IV): a corridor that fits two places says
-   nothing about which. It is then refined (step 3) and confirmed by the next
-   ``confirm_scans`` scans tracking at a good score.
+   nothing about which. It is then refined (step 3), tracked ``confirm_scans``
+   scans, and taken only when a second global search, on that later scan, finds the
+   same pose.
 3. **Tracking**: each scan is predicted by the odometry since the last one and refined
    by Gauss-Newton on the field (:func:`~numeric.slam.matching.correlative.refine`);
    when the refined score is poor, a correlative search of a small window first; then
@@ -73,21 +76,27 @@ class MapLocalizationConfig(BaseModel):
     global_resolution_m: float = Field(0.1, gt=0.0, le=1.0,
                                        description="cells of the global search")
     global_depth: int = Field(7, ge=1, le=10, description="branch-and-bound levels")
-    global_points: int = Field(60, ge=10, le=2000,
+    global_points: int = Field(120, ge=10, le=2000,
                                description="a scan's points in the global search, at most")
     global_range_m: float = Field(20.0, gt=0.0,
                                   description="points of the global search lie this near")
     global_step_rad: float = Field(float(np.deg2rad(1.0)), gt=0.0, le=0.2,
                                    description="the global search's angular step")
+    context_m: float = Field(3.0, ge=0.0, le=50.0,
+                             description="a global search matches the scans of this much "
+                                         "recent travel together (odometry)")
     search_every_s: float = Field(1.0, ge=0.0,
                                   description="while lost, a global search at most this "
                                               "often (log time)")
     global_min_score: float = Field(0.55, gt=0.0, lt=1.0)
-    unique_m: float = Field(1.0, gt=0.0, description="a rival fix must lie this far")
+    unique_m: float = Field(3.0, gt=0.0, description="a rival fix must lie this far")
     unique_ratio: float = Field(0.9, gt=0.0, le=1.0,
                                 description="a rival scoring this share of the fix "
                                             "makes it ambiguous")
-    confirm_scans: int = Field(3, ge=0, le=100)
+    confirm_scans: int = Field(5, ge=1, le=100,
+                               description="a fix is tracked this many scans, then a "
+                                           "second global search must find it again")
+    confirm_rad: float = Field(0.1, gt=0.0, le=np.pi)
     track_points: int = Field(400, ge=10, le=5000)
     track_min_score: float = Field(0.5, gt=0.0, lt=1.0,
                                    description="below it the scan is searched in a window")
@@ -102,6 +111,8 @@ class MapLocalizationConfig(BaseModel):
     lost_score: float = Field(0.35, gt=0.0, lt=1.0,
                               description="mean field value of the points on observed "
                                           "cells below which a scan does not fit")
+    off_map_m: float = Field(5.0, gt=0.0, description="travel off the map after which "
+                             "the pose is given up")
     min_on_map: float = Field(0.3, ge=0.0, le=1.0,
                               description="share of a scan's points on observed cells "
                                           "below which it is off the map")
@@ -149,9 +160,9 @@ class GlobalSearch:
         self.centre = np.array([*(g.origin + size / 2), 0.0])
         self.window_m = float(np.max(size) / 2)
 
-    def fix(self, xy: np.ndarray) -> Match | None:
+    def fix(self, xy: np.ndarray, unique: bool = True) -> Match | None:
         """The best pose of robot-frame points ``xy`` anywhere in the map, or None when
-        it scores too little or is not unique."""
+        it scores too little or (with ``unique``) is not unique."""
         cfg = self.config
         near = xy[np.hypot(xy[:, 0], xy[:, 1]) <= cfg.global_range_m]
         pts = adaptive_voxel(near, cfg.global_points, self.search.grid.resolution_m)
@@ -159,8 +170,8 @@ class GlobalSearch:
             return None
         best = self.search.match(pts, self.centre, self.window_m, np.pi, cfg.global_min_score,
                                  cfg.global_step_rad)
-        if best is None:
-            return None
+        if best is None or not unique:
+            return best
         rival = self.search.second_score(pts, self.centre, self.window_m, np.pi, best,
                                          cfg.unique_m, cfg.unique_ratio, cfg.global_step_rad)
         return None if rival > 0.0 else best
@@ -194,6 +205,8 @@ class MapLocalizer:
         self._low = 0
         self._confirmed = 0
         self._searched: float | None = None
+        self._history: list[tuple[np.ndarray, np.ndarray]] = []
+        self._off_m = 0.0
         self._clouds = KeyframeClouds(self.saved, cfg.icp_keyframes, cfg.icp_radius_m)
         self._icp = IcpConfig(metric="line", max_correspondence_m=0.3)
         #: stamps of every fix taken, and of each time the robot was lost after one
@@ -210,15 +223,23 @@ class MapLocalizer:
         if self.state != "searching" and gap:
             self._lose(scan.t)
         prev_odom, self._odom, self._t = self._odom, scan.odom.copy(), scan.t
+        self._remember(scan.odom, xy)
         if self.state == "searching":
             return self._search(scan, xy)
         assert self.pose is not None and prev_odom is not None
         predicted = compose(self.pose, relative(prev_odom, scan.odom))
         pose, score, share = self._track(xy, predicted)
         if share < self.config.min_on_map:
-            # off the map: odometry carries the pose until the scans see the map again
+            # off the map: odometry carries the pose until the scans see the map again,
+            # for ``off_map_m`` of travel; beyond, odometry has drifted too far to pick
+            # up the right walls on the way back, and a global search must find them
+            self._off_m += float(np.hypot(*relative(prev_odom, scan.odom)[:2]))
+            if self._off_m > self.config.off_map_m:
+                self._lose(scan.t)
+                return Step(None, self.state, score)
             self.pose = predicted
             return Step(predicted.copy(), self.state, score)
+        self._off_m = 0.0
         if score < self.config.lost_score:
             self._low += 1
             if self._low >= self.config.lost_scans or self.state == "confirming":
@@ -231,25 +252,39 @@ class MapLocalizer:
         if self.state == "confirming":
             self._confirmed += 1
             if self._confirmed >= self.config.confirm_scans:
+                if not self._agrees(self.globally.fix(self._context(scan.odom)), pose):
+                    self._lose(scan.t)
+                    return Step(None, self.state, score)
                 self.state = "tracking"
                 self.fixes.append(scan.t)
         return Step(pose.copy(), self.state, score)
+
+    def _agrees(self, second: Match | None, tracked: np.ndarray) -> bool:
+        """Whether a second global search, on a later scan, finds the pose the first fix
+        has been tracked to: the best place of two scans, taken apart, agreeing through
+        the odometry between them (the second needs no uniqueness test, as a loop
+        closure's confirming match: the agreement is the test). One scan in a building
+        of look-alike corridors can fit a wrong one uniquely enough when the map of the
+        right one is a little off."""
+        if second is None:
+            return False
+        d = relative(tracked, second.pose)
+        return bool(np.hypot(d[0], d[1]) <= self.config.unique_m
+                    and abs(d[2]) <= self.config.confirm_rad)
 
     def _search(self, scan: Scan, xy: np.ndarray) -> Step:
         if (self._searched is not None
                 and scan.t - self._searched < self.config.search_every_s):
             return Step(None, "searching", 0.0)
         self._searched = scan.t
-        m = self.globally.fix(xy)
+        m = self.globally.fix(self._context(scan.odom))
         if m is None:
             return Step(None, "searching", 0.0)
         pose, score, share = self._track(xy, m.pose)
         if score < self.config.lost_score or share < self.config.min_on_map:
             return Step(None, "searching", score)
         self.pose, self._low, self._confirmed = pose, 0, 0
-        self.state = "confirming" if self.config.confirm_scans else "tracking"
-        if self.state == "tracking":
-            self.fixes.append(scan.t)
+        self.state = "confirming"
         return Step(pose.copy(), self.state, score)
 
     def _track(self, xy: np.ndarray, predicted: np.ndarray) -> tuple[np.ndarray, float, float]:
@@ -303,10 +338,35 @@ class MapLocalizer:
         vals = g.prob[c[seen, 0], c[seen, 1]]
         return float(vals.mean()), share
 
+    def _remember(self, odom: np.ndarray, xy: np.ndarray) -> None:
+        """Keep the scans of the last ``context_m`` of travel (odometry) for the global
+        search."""
+        h = self._history
+        if h and np.hypot(*(odom[:2] - h[-1][0][:2])) < 0.5 * self.config.resolution_m \
+                and abs(relative(h[-1][0], odom)[2]) < 0.01:
+            h[-1] = (odom.copy(), xy)  # standing still: the newest scan says it all
+        else:
+            h.append((odom.copy(), xy))
+        path = 0.0
+        for k in range(len(h) - 1, 0, -1):
+            path += float(np.hypot(*(h[k][0][:2] - h[k - 1][0][:2])))
+            if path > self.config.context_m:
+                del h[:k]
+                break
+
+    def _context(self, odom: np.ndarray) -> np.ndarray:
+        """The remembered scans' returns in the frame of the robot at ``odom``: one scan
+        of a corridor fits many corridors; the last few metres of it, far fewer."""
+        parts = [place(xy, relative(odom, o)) for o, xy in self._history]
+        return np.vstack(parts) if parts else np.zeros((0, 2))
+
     def _lose(self, t: float) -> None:
+        # what was seen before the robot was carried off is not where it is now
+        self._history.clear()
         if self.state == "tracking":
             self.losses.append(t)
         self.state, self.pose, self._low, self._confirmed = "searching", None, 0, 0
+        self._off_m = 0.0
 
 
 @dataclass

@@ -34,7 +34,7 @@ import numpy as np
 
 from numeric.errors import InvalidInput
 from numeric.occupancy import OccupancyMap, build_occupancy
-from numeric.scan import LaserLog
+from numeric.scan import LaserLog, Scan
 
 FORMAT = "chizu-map"
 VERSION = 1
@@ -70,7 +70,11 @@ class Laser:
         """The laser of ``log``'s first scan."""
         if not log.scans:
             raise InvalidInput("the log holds no scans", field="log")
-        s = log.scans[0]
+        return Laser.of_scan(log.scans[0])
+
+    @staticmethod
+    def of_scan(s: Scan) -> Laser:
+        """The laser that took scan ``s``."""
         inc = float(np.median(np.diff(s.angles))) if len(s.angles) > 1 else 0.0
         return Laser(len(s.angles), float(s.angles[0]), inc, float(s.max_range_m))
 
@@ -162,30 +166,39 @@ class SavedMap:
 
 
 # -- building ------------------------------------------------------------------------------
-def saved_map(slam: Any, log: LaserLog, method: str, resolution_m: float,
-              meta: dict[str, Any] | None = None) -> SavedMap:
+def saved_map(slam: Any, laser: Laser, odometry: np.ndarray, method: str,
+              resolution_m: float, meta: dict[str, Any] | None = None) -> SavedMap:
     """The map of a finished run of ``slam`` (any estimator of
-    :func:`numeric.slam.runner.create`) over ``log``; the constraints of estimators
-    that keep a pose graph (graph SLAM's ``constraints()``), none for the others."""
+    :func:`numeric.slam.runner.create`) over scans of ``laser`` with odometry
+    ``odometry (S, 3)``, one row per scan; the constraints of estimators that keep a
+    pose graph (graph SLAM's ``constraints()``), none for the others."""
     edges = getattr(slam, "constraints", None)
     constraints = edges() if callable(edges) else Constraints.empty()
     frames = slam.keyframes.frames
     kf_pose = np.asarray(slam.map_poses(), dtype=float).reshape(-1, 3)
     times, poses = slam.trajectory()
     kf_scan = np.array([f.scan_index for f in frames], dtype=np.int64)
-    odom = log.odometry
+    odom = np.asarray(odometry, dtype=float).reshape(-1, 3)
+    if len(odom) != len(times):
+        raise InvalidInput(f"{len(odom)} odometry readings for {len(times)} scans",
+                           field="odometry")
     inten = ([np.asarray(f.intensity, float) for f in frames]
              if frames and all(f.intensity is not None for f in frames) else None)
     return SavedMap(
-        laser=Laser.of(log), resolution_m=float(resolution_m), kf_scan=kf_scan,
+        laser=laser, resolution_m=float(resolution_m), kf_scan=kf_scan,
         kf_time=np.asarray(times, float)[kf_scan], kf_pose=kf_pose,
         kf_odom=odom[kf_scan] if len(kf_scan) else np.zeros((0, 3)),
         kf_xy=[np.asarray(f.xy, float) for f in frames], kf_intensity=inten,
         kf_misses=[np.zeros((0, 2)) if f.misses is None else np.asarray(f.misses, float)
                    for f in frames],
         times=np.asarray(times, float), poses=np.asarray(poses, float).reshape(-1, 3),
-        constraints=constraints,
-        meta={"source": log.name, "method": method, **(meta or {})})
+        constraints=constraints, meta={"method": method, **(meta or {})})
+
+
+def saved_map_of_log(slam: Any, log: LaserLog, method: str, resolution_m: float) -> SavedMap:
+    """:func:`saved_map` of a run over a whole ``log``."""
+    return saved_map(slam, Laser.of(log), log.odometry, method, resolution_m,
+                     {"source": log.name})
 
 
 # -- writing -------------------------------------------------------------------------------

@@ -12,6 +12,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from numeric.scan import LaserLog
+from numeric.slam import saved_map as sm
 from numeric.slam.simulate import simulated_log
 from service.app import create_app
 from service.kb import KbError
@@ -148,6 +149,9 @@ def test_unknowns(client: TestClient, world: str) -> None:
     assert client.delete(f"/worlds/{world}/slam-runs/{rid}").status_code == 204
     assert client.get(f"/worlds/{world}/slam-runs/{rid}").status_code == 404
     assert client.get("/worlds/demo/map").status_code == 404  # nothing committed
+    r = client.get("/worlds/demo/map.chizu")
+    assert r.status_code == 404 and r.headers["content-type"] == "application/problem+json"
+    assert r.json()["field"] == "map"
 
 
 def test_runs_and_maps_survive_restart(tmp_path: Any) -> None:
@@ -231,9 +235,19 @@ def test_graph_run_commits_loop_closures(tmp_path: Any) -> None:
         stored = json.loads(c.app.state.store.artifact("slam_loop", FACTS_ARTIFACT))
         assert len(stored["closures"]) == n
         committed = c.get("/worlds/slam_loop/map").json()
+        # the committed map, saved: its keyframes, its loop constraints, every scan
+        got = c.get("/worlds/slam_loop/map.chizu")
+        assert got.status_code == 200
+        assert got.headers["content-type"] == "application/octet-stream"
+        saved = sm.from_bytes(got.content)
+        assert len(saved) == st["keyframes"] and len(saved.times) == len(log.scans)
+        assert (saved.constraints.kind == sm.EDGE_KINDS.index("loop")).sum() == n
+        assert saved.laser.beams == len(log.scans[0].angles)
+        assert np.allclose(saved.kf_odom, log.odometry[saved.kf_scan])
     with TestClient(create_app(settings)) as c:  # facts re-asserted from the artifact
         assert c.get("/worlds/slam_loop/map").json() == committed
         assert closure_facts(c, "slam_loop") == facts
+        assert c.get("/worlds/slam_loop/map.chizu").content == got.content
 
 
 def test_commit_without_closures(client: TestClient, world: str, run: str) -> None:

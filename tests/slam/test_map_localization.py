@@ -33,7 +33,7 @@ def room_map() -> sm.SavedMap:
     """room_a mapped by graph SLAM from the built-in tour."""
     log = simulated_log("room_a", speed_m_s=1.0)
     slam, _ = run_log(log, SlamOptions(method="graph"))
-    return sm.saved_map(slam, log, "graph", 0.05)
+    return sm.saved_map_of_log(slam, log, "graph", 0.05)
 
 
 @pytest.fixture(scope="module")

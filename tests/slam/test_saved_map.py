@@ -26,7 +26,7 @@ CLIP = Path(__file__).resolve().parents[2] / "examples" / "aces-clip.clf"
 def graph_map() -> sm.SavedMap:
     log = read_log(CLIP, limit=200)
     slam, _ = run_log(log, SlamOptions(method="graph"))
-    return sm.saved_map(slam, log, "graph", 0.05)
+    return sm.saved_map_of_log(slam, log, "graph", 0.05)
 
 
 def test_a_map_round_trips_bit_for_bit(graph_map: sm.SavedMap) -> None:
@@ -54,7 +54,7 @@ def test_graph_slam_keeps_its_constraints(graph_map: sm.SavedMap) -> None:
 def test_a_method_without_a_pose_graph_saves_keyframes_and_no_constraints() -> None:
     log = simulated_log("room_a", speed_m_s=1.0).head(60)
     slam, _ = run_log(log, SlamOptions(method="icp"))
-    m = sm.from_bytes(sm.to_bytes(sm.saved_map(slam, log, "icp", 0.05)))
+    m = sm.from_bytes(sm.to_bytes(sm.saved_map_of_log(slam, log, "icp", 0.05)))
     assert len(m) > 0 and len(m.constraints) == 0 and len(m.times) == 60
 
 

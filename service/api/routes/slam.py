@@ -108,6 +108,16 @@ async def post_commit(world: WorldDep, rid: RunId, slam: SlamDep) -> CommitOut:
     return await slam.commit(world, rid)
 
 
+@router.get("/map.chizu", response_class=Response, responses={200: {
+    "content": {"application/octet-stream": {}},
+    "description": "the committed map as a saved map (docs/notes/saved-map.md): keyframes, "
+                   "constraints, trajectory; `chizu slam-localize LOG --map FILE` reads it"}})
+async def get_saved_map(world: WorldDep, slam: SlamDep) -> Response:
+    """The world's committed map, saved: what a robot localizes in later."""
+    return Response(slam.saved_map(world), media_type="application/octet-stream",
+                    headers={"Content-Disposition": f'attachment; filename="{world}.chizu"'})
+
+
 @router.get("/map", response_model=WorldMapOut)
 async def get_world_map(world: WorldDep, slam: SlamDep) -> Any:
     """The world's committed map as the knowledge base sees it (Prolog rules)."""
