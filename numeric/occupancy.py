@@ -265,3 +265,18 @@ def build_occupancy(frames: Sequence[ScanFrame], poses: np.ndarray, resolution_m
     with np.errstate(invalid="ignore", divide="ignore"):
         mean_i = np.where(icnt > 0, isum / icnt, np.nan)
     return OccupancyMap(g.origin, resolution_m, state, mean_i.reshape(nx, ny))
+
+
+def build_occupancy_fitting(frames: Sequence[ScanFrame], poses: np.ndarray,
+                            resolution_m: float) -> OccupancyMap:
+    """:func:`build_occupancy` at ``resolution_m``, or at the finest doubling of it that
+    fits the grid size limit (a hospital floor at 5 cm does not): a long run is never
+    lost to its map."""
+    for _ in range(6):
+        try:
+            return build_occupancy(frames, poses, resolution_m)
+        except InvalidInput as e:
+            if e.field != "resolution_m":
+                raise
+            resolution_m *= 2
+    return build_occupancy(frames, poses, resolution_m)

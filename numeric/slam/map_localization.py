@@ -49,7 +49,7 @@ from scipy import ndimage
 
 from numeric.errors import InvalidInput
 from numeric.geometry import compose, place, relative
-from numeric.occupancy import OCCUPIED, UNKNOWN
+from numeric.occupancy import OCCUPIED, UNKNOWN, build_occupancy_fitting
 from numeric.probability_grid import GridConfig, ProbabilityGrid, no_stamps
 from numeric.scan import LaserLog, Scan
 from numeric.slam.alignment import (
@@ -107,7 +107,6 @@ class MapLocalizationConfig(BaseModel):
                                            "nearest keyframes' returns (0: not at all)")
     icp_radius_m: float = Field(4.0, gt=0.0)
     icp_max_shift_m: float = Field(0.2, gt=0.0)
-    align: bool = Field(True, description="localize_log ends with step 5")
     lost_score: float = Field(0.35, gt=0.0, lt=1.0,
                               description="mean field value of the points on observed "
                                           "cells below which a scan does not fit")
@@ -124,16 +123,9 @@ def likelihood_grid(saved: SavedMap, resolution_m: float, sigma_m: float
                     ) -> tuple[ProbabilityGrid, np.ndarray]:
     """Step 1: the map's likelihood field as a probability grid, and which of its
     cells the map has observed."""
-    for _ in range(6):  # a map too large at this resolution is read at a coarser one
-        try:
-            occ = saved.occupancy(resolution_m)
-            break
-        except InvalidInput as e:
-            if e.field != "resolution_m":
-                raise
-            resolution_m *= 2
-    else:
-        occ = saved.occupancy(resolution_m)
+    # a map too large at this resolution is read at a coarser one
+    occ = build_occupancy_fitting(saved.frames(), saved.kf_pose, resolution_m)
+    resolution_m = occ.resolution_m
     wall = occ.state == OCCUPIED
     d = ndimage.distance_transform_edt(~wall, sampling=resolution_m) if wall.any() \
         else np.full(wall.shape, np.inf)
@@ -160,9 +152,9 @@ class GlobalSearch:
         self.centre = np.array([*(g.origin + size / 2), 0.0])
         self.window_m = float(np.max(size) / 2)
 
-    def fix(self, xy: np.ndarray, unique: bool = True) -> Match | None:
+    def fix(self, xy: np.ndarray) -> Match | None:
         """The best pose of robot-frame points ``xy`` anywhere in the map, or None when
-        it scores too little or (with ``unique``) is not unique."""
+        it scores too little or is not unique."""
         cfg = self.config
         near = xy[np.hypot(xy[:, 0], xy[:, 1]) <= cfg.global_range_m]
         pts = adaptive_voxel(near, cfg.global_points, self.search.grid.resolution_m)
@@ -170,8 +162,8 @@ class GlobalSearch:
             return None
         best = self.search.match(pts, self.centre, self.window_m, np.pi, cfg.global_min_score,
                                  cfg.global_step_rad)
-        if best is None or not unique:
-            return best
+        if best is None:
+            return None
         rival = self.search.second_score(pts, self.centre, self.window_m, np.pi, best,
                                          cfg.unique_m, cfg.unique_ratio, cfg.global_step_rad)
         return None if rival > 0.0 else best
@@ -261,11 +253,9 @@ class MapLocalizer:
 
     def _agrees(self, second: Match | None, tracked: np.ndarray) -> bool:
         """Whether a second global search, on a later scan, finds the pose the first fix
-        has been tracked to: the best place of two scans, taken apart, agreeing through
-        the odometry between them (the second needs no uniqueness test, as a loop
-        closure's confirming match: the agreement is the test). One scan in a building
-        of look-alike corridors can fit a wrong one uniquely enough when the map of the
-        right one is a little off."""
+        has been tracked to: two unique fixes, taken apart, agreeing through the
+        odometry between them. One scan in a building of look-alike corridors can fit a
+        wrong one uniquely enough when the map of the right one is a little off."""
         if second is None:
             return False
         d = relative(tracked, second.pose)
@@ -407,10 +397,9 @@ def localize_log(saved: SavedMap, log: LaserLog,
         if step.pose is not None and step.state == "tracking":
             poses[i] = step.pose
         states.append(step.state)
-    if loc.config.align:
-        c = loc.config
-        poses = aligned_to_map(saved, log, poses, AlignmentConfig(), c.icp_keyframes,
-                               c.icp_radius_m)
+    c = loc.config
+    poses = aligned_to_map(saved, log, poses, AlignmentConfig(), c.icp_keyframes,
+                           c.icp_radius_m)
     return LocalizationRun(log.times, poses, states, loc.fixes, loc.losses,
                            time.perf_counter() - t0)
 

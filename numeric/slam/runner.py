@@ -14,8 +14,7 @@ from typing import Any, Literal, Protocol
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from numeric.errors import InvalidInput
-from numeric.occupancy import OccupancyMap, build_occupancy
+from numeric.occupancy import OccupancyMap, build_occupancy_fitting
 from numeric.scan import LaserLog, Scan
 from numeric.slam.gated import SingleHypothesisSlam
 from numeric.slam.graph import GraphSlam, GraphSlamConfig
@@ -154,15 +153,6 @@ def run_log(log: LaserLog, options: SlamOptions,
 
 
 def whole_map(slam: Slam, resolution_m: float) -> OccupancyMap:
-    """The run's map at ``resolution_m``, or at the finest doubling of it that fits the
-    grid size limit (a hospital floor at 5 cm does not): a long run is never lost to
-    its map."""
-    poses = slam.map_poses()
-    for _ in range(6):
-        try:
-            return build_occupancy(slam.keyframes.frames, poses, resolution_m)
-        except InvalidInput as e:
-            if e.field != "resolution_m":
-                raise
-            resolution_m *= 2
-    return build_occupancy(slam.keyframes.frames, poses, resolution_m)
+    """The run's map at ``resolution_m``, or coarser where it would not fit
+    (:func:`~numeric.occupancy.build_occupancy_fitting`)."""
+    return build_occupancy_fitting(slam.keyframes.frames, slam.map_poses(), resolution_m)

@@ -157,13 +157,6 @@ class SavedMap:
         """The occupancy grid of the keyframes at their poses."""
         return build_occupancy(self.frames(), self.kf_pose, resolution_m or self.resolution_m)
 
-    def points(self) -> np.ndarray:
-        """Every keyframe's returns in the map frame ``(M, 2)``."""
-        from numeric.geometry import place
-        return (np.vstack([place(xy, p) for xy, p in zip(self.kf_xy, self.kf_pose,
-                                                           strict=True)])
-                if len(self) else np.zeros((0, 2)))
-
 
 # -- building ------------------------------------------------------------------------------
 def saved_map(slam: Any, laser: Laser, odometry: np.ndarray, method: str,
