@@ -19,19 +19,39 @@
 
     P(reachable) = P(rule) * prod P(body_i) (paper, §5); the DRM keeps, for
     each ordered pair, the derivation with the highest probability.
+
+    Experience both ways: every arc the robot drove (record_reached/3) or
+    failed to drive (record_failed/3) is counted in arc_outcomes(From, To,
+    Succeeded, Failed).  The edge's probability is the posterior mean of a
+    Beta prior whose mean is the derivation's P and whose weight is
+    experience_weight pseudo-trials:
+
+        P' = (w * P + Succeeded) / (w + Succeeded + Failed)
+
+    so an arc that failed once weighs about 2/3 of what it did (w = 2), one
+    that keeps failing tends to 0, and successes raise it towards 1.
 */
 :- module(drm,
           [ reachable/5,            % +World, ?From, ?To, -P, -Method
             reachable/6,            % +World, ?From, ?To, -P, -Method, -Via
             drm_edge/6,             % +World, ?From, ?To, -P, -Method, -Via
             drm_edges/2,            % +World, -Edges
-            record_reached/3        % +World, +From, +To
+            record_reached/3,       % +World, +From, +To
+            record_failed/3,        % +World, +From, +To
+            arc_outcomes/5          % +World, ?From, ?To, -Succeeded, -Failed
           ]).
 :- use_module(world).
 :- use_module(params).
 :- use_module(qualitative).
 :- use_module(json_args).
 :- multifile api:run/3.
+
+:- multifile world:domain_fact/2.
+world:domain_fact(qualitative, arc_outcomes/4).  % arcs driven and failed, counted
+
+%   How many trials the rules' probability weighs against the robot's own
+%   outcomes of an arc (the Beta prior's weight, above).
+params:default_parameter(experience_weight, 2.0).
 
 params:default_rule_probability(reach_rea, 0.99).
 params:default_rule_probability(reach_rec, 0.95).
@@ -97,34 +117,78 @@ drm_edges(W, Edges) :-
     findall((A-B)-(P-Method-Via), reachable(W, A, B, P, Method, Via), Pairs),
     keysort(Pairs, Sorted),                 % stable: rule order kept per pair
     group_pairs_by_key(Sorted, Groups),
-    maplist(best_edge, Groups, Edges).
+    world_module(W, M),
+    maplist(best_edge(M), Groups, Edges).
 
-best_edge((A-B)-[D|Ds], edge(A, B, P, Method, Via)) :-
-    foldl(better, Ds, D, P-Method-Via).
+%   The derivation's P0 weighed with the arc's outcomes (the Beta posterior
+%   mean of the header).
+experienced(M, A, B, P0, P) :-
+    (   M:arc_outcomes(A, B, S, F)
+    ->  parameter(M, experience_weight, Wt),
+        P is (Wt*P0 + S) / (Wt + S + F)
+    ;   P = P0
+    ).
+
+best_edge(M, (A-B)-[D|Ds], edge(A, B, P, Method, Via)) :-
+    foldl(better, Ds, D, P0-Method-Via),
+    experienced(M, A, B, P0, P).
 
 better(P-M-V, P0-_-_, P-M-V) :- P > P0, !.
 better(_, Best, Best).
 
 %!  record_reached(+World, +From, +To) is det.
 %
-%   Bookkeeping of the paper's rea/2: the robot drove From -> To.
+%   Bookkeeping of the paper's rea/2: the robot drove From -> To (and one
+%   more success of the arc).
 record_reached(W, A, B) :-
     world_module(W, M),
     (   M:rea(A, B)
     ->  true
     ;   assertz(M:rea(A, B))
-    ).
+    ),
+    count_outcome(M, A, B, 1, 0).
+
+%!  record_failed(+World, +From, +To) is det.
+%
+%   The robot set out on the DRM's arc From -> To and did not arrive: one
+%   more failure of the arc, which lowers the edge's probability.
+record_failed(W, A, B) :-
+    world_module(W, M),
+    count_outcome(M, A, B, 0, 1).
+
+count_outcome(M, A, B, DS, DF) :-
+    (   retract(M:arc_outcomes(A, B, S0, F0))
+    ->  true
+    ;   S0 = 0, F0 = 0
+    ),
+    S is S0 + DS, F is F0 + DF,
+    assertz(M:arc_outcomes(A, B, S, F)).
+
+%!  arc_outcomes(+World, ?From, ?To, -Succeeded, -Failed) is nondet.
+%
+%   How often the robot drove the arc From -> To, and how often it failed.
+arc_outcomes(W, A, B, S, F) :-
+    world_module(W, M),
+    M:arc_outcomes(A, B, S, F).
 
 
 		 /*******************************
 		 *   OPERATIONS (api.pl)        *
 		 *******************************/
 
-api:run(reached, Args, _{world:W, from:A, to:B}) :-
+api:run(reached, Args, _{world:W, from:A, to:B, succeeded:S, failed:F}) :-
     existing_world(Args, W),
     arg_(from, Args, AT), known_landmark(W, AT, from, A),
     arg_(to, Args, BT), known_landmark(W, BT, to, B),
-    transaction(record_reached(W, A, B)).
+    transaction(record_reached(W, A, B)),
+    arc_outcomes(W, A, B, S, F).
+
+api:run(failed, Args, _{world:W, from:A, to:B, succeeded:S, failed:F}) :-
+    existing_world(Args, W),
+    arg_(from, Args, AT), known_landmark(W, AT, from, A),
+    arg_(to, Args, BT), known_landmark(W, BT, to, B),
+    transaction(record_failed(W, A, B)),
+    arc_outcomes(W, A, B, S, F).
 
 api:run(relations, Args, Rs) :-
     existing_world(Args, W),
@@ -136,7 +200,11 @@ api:run(drm, Args, _{nodes:Ns, edges:Es}) :-
     existing_world(Args, W), world_module(W, M),
     findall(L, M:landmark(L), Ns),
     drm_edges(W, Edges),
-    maplist([edge(A, B, P, Me, V), _{from:A, to:B, p:P, method:Me, via:V}]>>true, Edges, Es).
+    maplist(edge_dict(M), Edges, Es).
+
+edge_dict(M, edge(A, B, P, Me, V),
+          _{from:A, to:B, p:P, method:Me, via:V, succeeded:S, failed:F}) :-
+    (   M:arc_outcomes(A, B, S, F) -> true ; S = 0, F = 0 ).
 
 relation_kind(rec).
 relation_kind(frec).

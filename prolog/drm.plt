@@ -46,4 +46,40 @@ test(record_reached_idempotent, [nondet, cleanup(drop_world(d9))]) :-
     w(d9, []), record_reached(d9, a, b), record_reached(d9, a, b),
     world_module(d9, M), aggregate_all(count, M:rea(a, b), 1).
 
+test(failure_lowers_edge, [nondet, cleanup(drop_world(d10))]) :-
+    %  the rule's 0.95 weighs as two trials: one failure gives 2*0.95/3
+    w(d10, [rec(a, b)]),
+    record_failed(d10, a, b),
+    drm_edge(d10, a, b, P1, move1, []),
+    close_to(P1, 2*0.95/3),
+    record_failed(d10, a, b),
+    drm_edge(d10, a, b, P2, move1, []),
+    close_to(P2, 2*0.95/4),
+    arc_outcomes(d10, a, b, 0, 2).
+test(success_raises_edge, [nondet, cleanup(drop_world(d11))]) :-
+    %  reached once: rea's 0.99, weighed with one success
+    w(d11, [rec(a, b)]),
+    record_reached(d11, a, b), record_reached(d11, a, b),
+    arc_outcomes(d11, a, b, 2, 0),
+    drm_edge(d11, a, b, P, move1, []),
+    close_to(P, (2*0.99 + 2)/4).
+test(failure_only_that_arc, [nondet, cleanup(drop_world(d12))]) :-
+    %  the way back keeps its probability
+    w(d12, [rec(a, b), rec(b, a)]),
+    record_failed(d12, a, b),
+    drm_edge(d12, b, a, P, move1, []),
+    close_to(P, 0.95).
+test(experience_weight_per_world, [nondet, cleanup(drop_world(d13))]) :-
+    w(d13, [rec(a, b), parameter(experience_weight, 8.0)]),
+    record_failed(d13, a, b),
+    drm_edge(d13, a, b, P, move1, []),
+    close_to(P, 8*0.95/9).
+test(failure_reroutes_path, [nondet, cleanup(drop_world(d14))]) :-
+    %  a -> c directly (0.95) or through b (0.95 * 0.95): after two failures of
+    %  a -> c the path through b is the better one
+    w(d14, [rec(a, c), rec(a, b), rec(b, c)]),
+    drm_edge(d14, a, c, P0, _, _), P0 > 0.95*0.95,
+    record_failed(d14, a, c), record_failed(d14, a, c),
+    drm_edge(d14, a, c, P1, _, _), P1 < 0.95*0.95.
+
 :- end_tests(drm).

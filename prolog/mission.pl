@@ -54,6 +54,7 @@ mission_kind(nearest_landmark).
 mission_kind(reach_landmark).
 mission_kind(landmark_fix).
 mission_kind(drm_path).
+mission_kind(arc_failed).
 mission_kind(navigate).
 mission_kind(slam_map).
 mission_kind(enter_room).
@@ -88,10 +89,12 @@ mission_pose(World, X, Y, Th) :-
 
 %!  mission_path(+World, -Landmarks, -P) is semidet.
 %
-%   The DRM path the mission took and its probability.
+%   The DRM path the mission took last (after a failed arc it plans again)
+%   and its probability.
 mission_path(World, Ls, P) :-
     world_module(World, M),
-    M:mission_step(_, drm_path, R), !,
+    findall(R, M:mission_step(_, drm_path, R), Rs),
+    last(Rs, R),
     memberchk(landmarks = Ls, R), memberchk(probability = P, R).
 
 %!  mission_outcome(+World, -Outcome) is semidet.

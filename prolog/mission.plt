@@ -51,6 +51,21 @@ test(failed_step, [nondet, cleanup(drop_world(m3))]) :-
     R.ok == true,
     mission_outcome(m3, O), O == failed(localize),
     \+ mission_pose(m3, _, _, _).
+test(replanned_path_is_the_last, [nondet, cleanup(drop_world(m6))]) :-
+    %  an arc failed, the robot reached c0 and planned again: the path taken is
+    %  the second, and the failed arc is no failed mission
+    call_api(create_world, _{world:m6, landmarks:[]}, _),
+    call_api(mission_steps, _{world:m6, steps:[
+        _{step:0, what:"drm_path", result:_{landmarks:["c_w", "c2"], probability:0.9,
+                                            replan:0, ok:true}},
+        _{step:1, what:"arc_failed", result:_{from:"c_w", to:"c2", reason:"move1 failed"}},
+        _{step:2, what:"reach_landmark", result:_{landmark:"c0", how:"replan", ok:true}},
+        _{step:3, what:"drm_path", result:_{landmarks:["c0", "c1", "c2"],
+                                            probability:0.8, replan:1, ok:true}},
+        _{step:4, what:"evaluation", result:_{success:true}}]}, R),
+    R.ok == true,
+    mission_path(m6, Ls, P), Ls == [c0, c1, c2], P == 0.8,
+    mission_outcome(m6, O), O == succeeded.
 test(replaces, [nondet, cleanup(drop_world(m4))]) :-
     fixture(m4),
     call_api(mission_steps, _{world:m4, steps:[]}, R), R.ok == true,

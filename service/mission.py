@@ -12,7 +12,9 @@ service calls a client makes, so every result lands in the world's knowledge bas
    a landmark and takes its pose there (``reach_landmark`` with ``how = wander``);
 3. **drm_path / navigate** -- the DRM's most probable path to the goal landmark (eq. 4)
    is followed by the qualitative navigation methods (move1-3, §6); each arc the robot
-   completes is reported as a ``reached`` event, as a robot teaching the DRM would;
+   completes is reported as a ``reached`` event, each it fails as a ``failed`` one (the
+   DRM weighs its edges with both), and after a failure the robot recognises a landmark
+   and re-plans from there;
 4. **slam_map** -- the laser scans taken on the way (odometry in the frame of the
    localized pose) go to a SLAM run (graph SLAM by default) whose map is committed: its
    unknown regions become facts;
@@ -264,7 +266,7 @@ class MissionService:
             # a full turn where the map starts: its first scans see all round (and a goal
             # that is the landmark already reached still gets a map)
             await thread_to_end(robot.turn, 2 * np.pi)
-            await self._navigate(run, robot, observer, nav, start, report)
+            await self._navigate(run, robot, observer, nav, start, rng, report)
             await self._map(run, w, robot, rng, report)
             await self._summarise(run, w, robot, report)
         except MissionFailed as e:
@@ -414,28 +416,61 @@ class MissionService:
 
     async def _navigate(self, run: MissionRun, robot: TracedRobot,
                         observer: LandmarkObserver, nav: NavConfig, start: str,
+                        rng: np.random.Generator,
                         report: Callable[[str, float], None]) -> None:
-        """The DRM's most probable path from ``start`` to the goal, executed arc by arc
-        (each completed arc is a ``reached`` event of the world)."""
-        path = await self.worlds.path(run.world, start, run.config.goal)
-        if path is None:
-            await self._fail(run, "drm_path", "the DRM has no path", **{"from": start},
-                             to=run.config.goal)
-        assert path is not None
-        run.trace.landmarks = path.nodes
-        await self._record(run, "drm_path", **{"from": start}, to=run.config.goal,
-                           landmarks=path.nodes, methods=[s.method for s in path.steps],
-                           probability=path.probability, ok=True)
+        """The DRM's most probable path from ``start`` to the goal, executed arc by arc.
+
+        Experience goes into the world both ways: each arc driven is a ``reached`` event,
+        each arc the robot set out on and did not finish a ``failed`` one, which lowers
+        that edge's probability (prolog/drm.pl). After a failure the robot re-plans from
+        where it stands, as it began (the DRM paper's §6): it recognises the nearest
+        landmark, homes on it, and takes the most probable path from there with what it
+        just learned -- at most ``max_replans`` times."""
+        goal = run.config.goal
         report("following the DRM path", 0.45)
         t0 = robot.travelled_m
-        for k, s in enumerate(path.steps):
-            if not await thread_to_end(execute_step, robot, observer, s, nav):
-                reason = "collision" if robot.collided else f"{s.method} to {s.target} failed"
-                await self._fail(run, "navigate", reason, arcs_done=k, arcs=len(path.steps),
-                                 travelled_m=robot.travelled_m - t0)
-            await self.worlds.reached(run.world, path.nodes[k], s.target)
-        await self._record(run, "navigate", arcs=len(path.steps),
-                           travelled_m=robot.travelled_m - t0, at=run.config.goal, ok=True)
+        at = start
+        for replan in range(run.config.max_replans + 1):
+            path = await self.worlds.path(run.world, at, goal)
+            if path is None:
+                await self._fail(run, "drm_path", "the DRM has no path", **{"from": at},
+                                 to=goal)
+            assert path is not None
+            run.trace.landmarks = path.nodes
+            await self._record(run, "drm_path", **{"from": at}, to=goal,
+                               landmarks=path.nodes, methods=[s.method for s in path.steps],
+                               probability=path.probability, replan=replan, ok=True)
+            failed = None
+            for k, s in enumerate(path.steps):
+                if not await thread_to_end(execute_step, robot, observer, s, nav):
+                    failed = k
+                    break
+                await self.worlds.reached(run.world, path.nodes[k], s.target)
+            if failed is None:
+                await self._record(run, "navigate", arcs=len(path.steps),
+                                   travelled_m=robot.travelled_m - t0, at=goal,
+                                   replans=replan, ok=True)
+                return
+            s = path.steps[failed]
+            reason = "collision" if robot.collided else f"{s.method} to {s.target} failed"
+            robot.collided = False
+            arc = await self.worlds.failed(run.world, path.nodes[failed], s.target)
+            if replan == run.config.max_replans:
+                await self._fail(run, "navigate", reason, arcs_done=failed,
+                                 arcs=len(path.steps), travelled_m=robot.travelled_m - t0,
+                                 replans=replan)
+            await self._record(run, "arc_failed", **{"from": path.nodes[failed]},
+                               to=s.target, method=s.method, reason=reason,
+                               succeeded=arc["succeeded"], failed=arc["failed"])
+            report("re-planning: reaching a landmark", 0.45)
+            lm = await thread_to_end(reach_any_landmark, robot, observer, nav, rng)
+            if lm is None:
+                await self._fail(run, "reach_landmark", "wandered without recognising a "
+                                 "landmark", how="replan")
+            assert lm is not None
+            await self._record(run, "reach_landmark", landmark=lm, how="replan",
+                               travelled_m=robot.travelled_m, ok=True)
+            at = lm
 
     # -- 4: the map ---------------------------------------------------------------------
     async def _map(self, run: MissionRun, w: World, robot: TracedRobot,

@@ -242,8 +242,8 @@ class WorldService:
                                 "seen": [{"landmark": s.landmark, "features": s.features}
                                          for s in obs.seen],
                                 "angles": angles, "distances": distances})
-        if kind == "reached":
-            return ("reached", {"world": world, "from": payload["from"], "to": payload["to"]})
+        if kind in ("reached", "failed"):
+            return (kind, {"world": world, "from": payload["from"], "to": payload["to"]})
         raise ValueError(f"unknown event kind {kind!r}")
 
     async def _kb(self, op: str, args: dict[str, Any]) -> Any:
@@ -348,6 +348,10 @@ class WorldService:
 
     async def reached(self, world: str, source: str, target: str) -> Any:
         return await self._append(world, "reached", {"from": source, "to": target})
+
+    async def failed(self, world: str, source: str, target: str) -> Any:
+        """The robot set out on the DRM arc ``source`` -> ``target`` and did not arrive."""
+        return await self._append(world, "failed", {"from": source, "to": target})
 
     async def relations(self, world: str, kind: str) -> list[dict[str, Any]]:
         self.require(world)

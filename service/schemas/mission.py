@@ -36,6 +36,8 @@ class MissionConfig(BaseModel):
                           "anywhere in the free space")
     seed: int = Field(0, ge=0, le=2**31 - 1)
     max_stops: int = Field(10, ge=1, le=50, description="localization stops at most")
+    max_replans: int = Field(3, ge=0, le=20, description="after a DRM arc fails, how many "
+                             "times the robot reaches a landmark and plans again")
     camera_noise: float = Field(0.02, ge=0.0, le=1.0, description="pixel noise sigma")
     slam_method: Literal["graph", "gated", "rbpf"] = "graph"
     time_limit_s: float = Field(90.0, gt=0.0, le=3600.0, allow_inf_nan=False,

@@ -25,17 +25,25 @@ class ObservationOut(BaseModel):
 
 
 class ReachedOut(BaseModel):
+    """The arc's outcomes so far, this one counted."""
+
     world: str
     from_: str = Field(serialization_alias="from")
     to: str
+    succeeded: int = Field(ge=0, description="times the robot drove the arc")
+    failed: int = Field(ge=0, description="times it set out on the arc and did not arrive")
 
 
 class DrmEdgeOut(BaseModel):
     from_: str = Field(serialization_alias="from")
     to: str
-    p: float
+    p: float = Field(description="the best derivation's probability weighed with the "
+                     "arc's outcomes (prolog/drm.pl)")
     method: str
     via: list[str]
+    succeeded: int = Field(0, ge=0, description="times the robot drove the arc")
+    failed: int = Field(0, ge=0, description="times it set out on the arc and did not "
+                        "arrive")
 
 
 class DrmOut(BaseModel):

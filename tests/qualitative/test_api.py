@@ -59,13 +59,38 @@ def test_reached_updates_drm(client: TestClient) -> None:
     make_fig1_world(client, "fig1r")
     before = client.get("/worlds/fig1r/path", params={"from": "a", "to": "c"}).json()
     r = client.post("/worlds/fig1r/reached", json={"from": "a", "to": "c"})
-    assert r.status_code == 201 and r.json() == {"world": "fig1r", "from": "a", "to": "c"}
+    assert r.status_code == 201 and r.json() == {"world": "fig1r", "from": "a", "to": "c",
+                                                 "succeeded": 1, "failed": 0}
     after = client.get("/worlds/fig1r/path", params={"from": "a", "to": "c"}).json()
     assert after["steps"][0]["method"] == "move1"
-    assert after["probability"] == pytest.approx(0.99)
+    # rea's 0.99 weighed with the one success (prior worth two trials)
+    assert after["probability"] == pytest.approx((2 * 0.99 + 1) / 3)
     assert after["probability"] > before["probability"]
     back = client.get("/worlds/fig1r/path", params={"from": "c", "to": "a"}).json()
     assert back["probability"] >= 0.9
+
+
+def test_failed_arc_lowers_drm_and_reroutes(client: TestClient) -> None:
+    """A failed arc weighs less (Beta posterior mean, prior worth two trials); after a
+    failure of a -> c the planner goes round through b or d; the counts show in the DRM
+    and survive a replay of the world's events."""
+    make_fig1_world(client, "fig1f")
+    url = "/worlds/fig1f/failed"
+    r = client.post(url, json={"from": "a", "to": "c"})
+    assert r.status_code == 201
+    assert r.json() == {"world": "fig1f", "from": "a", "to": "c", "succeeded": 0, "failed": 1}
+    # move2's 0.95 weighs as two trials: 2 * 0.95 / 3 = 0.63 < a -> b -> c (0.95 * 0.95)
+    via = client.get("/worlds/fig1f/path", params={"from": "a", "to": "c"}).json()
+    assert len(via["path"]) == 3 and via["path"][1] in ("b", "d"), via
+    assert via["probability"] == pytest.approx(0.95 * 0.95)
+    assert client.post(url, json={"from": "a", "to": "c"}).json()["failed"] == 2
+    edge = next(e for e in client.get("/worlds/fig1f/drm").json()["edges"]
+                if (e["from"], e["to"]) == ("a", "c"))
+    assert (edge["succeeded"], edge["failed"]) == (0, 2)
+    assert edge["p"] == pytest.approx(2 * 0.95 / 4)
+    assert_problem(client.post(url, json={"from": "a", "to": "zz"}), 422, "to")
+    assert_problem(client.post(url, json={"from": "a"}), 422, "to")
+    assert_problem(client.post("/worlds/nosuch/failed", json={"from": "a", "to": "c"}), 404)
 
 
 def test_no_path_is_a_clear_answer(client: TestClient) -> None:

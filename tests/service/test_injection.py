@@ -52,6 +52,8 @@ def test_http_string_fields(client: TestClient, world: str, payload: str) -> Non
                     json={**o, "seen": [{**o["seen"][0], "features": [payload]}]}),
         client.post(f"/worlds/{world}/reached", json={"from": payload, "to": "c"}),
         client.post(f"/worlds/{world}/reached", json={"from": "a", "to": payload}),
+        client.post(f"/worlds/{world}/failed", json={"from": payload, "to": "c"}),
+        client.post(f"/worlds/{world}/failed", json={"from": "a", "to": payload}),
         client.get(f"/worlds/{world}/path", params={"from": payload, "to": "c"}),
         client.get(f"/worlds/{world}/path", params={"from": "a", "to": payload}),
         client.get(f"/worlds/{world}/relations", params={"kind": payload}),
@@ -78,6 +80,7 @@ def test_bridge_below_validation(client: TestClient, world: str, payload: str) -
         ("observe", {"world": world, "at": "a", "seen": [], "angles": [[payload, "b", 1.0]],
                      "distances": []}),
         ("reached", {"world": world, "from": payload, "to": "b"}),
+        ("failed", {"world": world, "from": "a", "to": payload}),
         ("relations", {"world": world, "kind": payload}),
         ("drm", {"world": payload}),
     ]

@@ -30,13 +30,17 @@ def test_start_up_loads_a_snapshot_instead_of_replaying(tmp_path: Path) -> None:
             r = c.post("/worlds/snap/observations", json=observation(at, seen, heading=0.01 * i))
             assert r.status_code == 201, r.text
         assert c.post("/worlds/snap/reached", json={"from": "c", "to": "b"}).status_code == 201
+        assert c.post("/worlds/snap/failed", json={"from": "a", "to": "c"}).status_code == 201
         before = {k: c.get("/worlds/snap/relations", params={"kind": k}).json() for k in kinds}
+        before["drm"] = c.get("/worlds/snap/drm").json()
+        assert any(e["failed"] for e in before["drm"]["edges"])
     db = sqlite3.connect(settings.db_path)
     (snapped,) = db.execute("SELECT event_id FROM snapshots WHERE world = 'snap'").fetchone()
     (last,) = db.execute("SELECT max(id) FROM events WHERE world = 'snap'").fetchone()
     assert 0 < snapped < last  # a snapshot, and events after it to replay
     with TestClient(create_app(settings)) as c:
         after = {k: c.get("/worlds/snap/relations", params={"kind": k}).json() for k in kinds}
+        after["drm"] = c.get("/worlds/snap/drm").json()
     assert after == before
     (blob,) = db.execute("SELECT facts FROM snapshots WHERE world = 'snap'").fetchone()
     for tampered in ({**json.loads(blob), "rules": "other rules"},  # made by other rules
@@ -46,6 +50,7 @@ def test_start_up_loads_a_snapshot_instead_of_replaying(tmp_path: Path) -> None:
         with TestClient(create_app(settings)) as c:  # the events alone give the same
             replayed = {k: c.get("/worlds/snap/relations", params={"kind": k}).json()
                         for k in kinds}
+            replayed["drm"] = c.get("/worlds/snap/drm").json()
         assert replayed == before
         assert db.execute("SELECT count(*) FROM snapshots").fetchone() == (0,)  # dropped
         db.execute("INSERT INTO snapshots SELECT 'snap', ?, ?, 0", (snapped, blob))

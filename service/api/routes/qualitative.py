@@ -41,9 +41,21 @@ async def post_observation(world: WorldDep, body: Observation, worlds: WorldsDep
 @router.post("/reached", response_model=ReachedOut, status_code=status.HTTP_201_CREATED,
              response_model_by_alias=True)
 async def post_reached(world: WorldDep, body: ReachedIn, worlds: WorldsDep) -> Any:
-    """Record that the robot drove from ``from`` to ``to`` (the paper's rea/2)."""
+    """Record that the robot drove from ``from`` to ``to`` (the paper's rea/2; one more
+    success of the arc, which raises its DRM probability)."""
     r = await worlds.reached(world, body.from_, body.to)
-    return ReachedOut(world=r["world"], from_=r["from"], to=r["to"])
+    return ReachedOut(world=r["world"], from_=r["from"], to=r["to"],
+                      succeeded=r["succeeded"], failed=r["failed"])
+
+
+@router.post("/failed", response_model=ReachedOut, status_code=status.HTTP_201_CREATED,
+             response_model_by_alias=True)
+async def post_failed(world: WorldDep, body: ReachedIn, worlds: WorldsDep) -> Any:
+    """Record that the robot set out on the DRM arc ``from`` -> ``to`` and did not
+    arrive: one more failure, which lowers the arc's DRM probability."""
+    r = await worlds.failed(world, body.from_, body.to)
+    return ReachedOut(world=r["world"], from_=r["from"], to=r["to"],
+                      succeeded=r["succeeded"], failed=r["failed"])
 
 
 @router.get("/relations", response_model=list[RelationOut],
@@ -59,7 +71,8 @@ async def get_drm(world: WorldDep, worlds: WorldsDep) -> Any:
     """The Direct Reachability Map: best derivation per ordered pair."""
     d = await worlds.drm(world)
     return DrmOut(nodes=d["nodes"], edges=[
-        DrmEdgeOut(from_=e["from"], to=e["to"], p=e["p"], method=e["method"], via=e["via"])
+        DrmEdgeOut(from_=e["from"], to=e["to"], p=e["p"], method=e["method"], via=e["via"],
+                   succeeded=e["succeeded"], failed=e["failed"])
         for e in d["edges"]])
 
 
