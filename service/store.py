@@ -18,7 +18,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS worlds (
@@ -53,6 +53,18 @@ CREATE TABLE IF NOT EXISTS slam_scans (
     scan        TEXT NOT NULL,
     PRIMARY KEY (run, seq)
 );
+CREATE TABLE IF NOT EXISTS localization_runs (
+    id          TEXT PRIMARY KEY,
+    world       TEXT NOT NULL REFERENCES worlds(name) ON DELETE CASCADE,
+    options     TEXT NOT NULL,
+    created_at  REAL NOT NULL
+);
+CREATE TABLE IF NOT EXISTS localization_scans (
+    run         TEXT NOT NULL REFERENCES localization_runs(id) ON DELETE CASCADE,
+    seq         INTEGER NOT NULL,
+    scan        TEXT NOT NULL,
+    PRIMARY KEY (run, seq)
+);
 CREATE TABLE IF NOT EXISTS snapshots (
     world       TEXT PRIMARY KEY REFERENCES worlds(name) ON DELETE CASCADE,
     event_id    INTEGER NOT NULL,
@@ -79,6 +91,11 @@ CREATE TABLE IF NOT EXISTS sessions (
     created_at  REAL NOT NULL
 );
 """
+
+
+#: the runs that stream scans, each with its two tables (``{kind}_runs``, ``{kind}_scans``);
+#: only these literals are ever put into the SQL
+RunKind = Literal["slam", "localization"]
 
 
 @dataclass(frozen=True)
@@ -224,39 +241,43 @@ class Store:
                                      (sid,)).fetchone()
         return None if row is None else (row[0], json.loads(row[1]))
 
+    # -- runs that stream scans: SLAM runs, localization runs ---------------------------
     @staticmethod
-    def put_slam_run(conn: sqlite3.Connection, rid: str, world: str,
-                     options: dict[str, Any]) -> None:
-        conn.execute("INSERT INTO slam_runs (id, world, options, created_at) VALUES (?, ?, ?, ?)",
+    def put_run(conn: sqlite3.Connection, kind: RunKind, rid: str, world: str,
+                options: dict[str, Any]) -> None:
+        conn.execute(f"INSERT INTO {kind}_runs (id, world, options, created_at) "  # noqa: S608
+                     "VALUES (?, ?, ?, ?)",
                      (rid, world, json.dumps(options, allow_nan=False), time.time()))
 
     @staticmethod
-    def delete_slam_run(conn: sqlite3.Connection, rid: str) -> None:
-        conn.execute("DELETE FROM slam_scans WHERE run = ?", (rid,))
-        conn.execute("DELETE FROM slam_runs WHERE id = ?", (rid,))
+    def delete_run(conn: sqlite3.Connection, kind: RunKind, rid: str) -> None:
+        conn.execute(f"DELETE FROM {kind}_scans WHERE run = ?", (rid,))  # noqa: S608
+        conn.execute(f"DELETE FROM {kind}_runs WHERE id = ?", (rid,))  # noqa: S608
 
     @staticmethod
-    def append_slam_scans(conn: sqlite3.Connection, rid: str, first_seq: int,
-                          scans: list[dict[str, Any]]) -> None:
-        conn.executemany("INSERT INTO slam_scans (run, seq, scan) VALUES (?, ?, ?)",
+    def append_scans(conn: sqlite3.Connection, kind: RunKind, rid: str, first_seq: int,
+                     scans: list[dict[str, Any]]) -> None:
+        conn.executemany(f"INSERT INTO {kind}_scans (run, seq, scan) VALUES (?, ?, ?)",  # noqa: S608
                          [(rid, first_seq + i, json.dumps(s, allow_nan=False))
                           for i, s in enumerate(scans)])
 
     @staticmethod
-    def drop_slam_scans_from(conn: sqlite3.Connection, rid: str, first_seq: int) -> None:
+    def drop_scans_from(conn: sqlite3.Connection, kind: RunKind, rid: str,
+                        first_seq: int) -> None:
         """Forget run ``rid``'s scans from ``first_seq`` on (a batch stopped midway)."""
-        conn.execute("DELETE FROM slam_scans WHERE run = ? AND seq >= ?", (rid, first_seq))
+        conn.execute(f"DELETE FROM {kind}_scans WHERE run = ? AND seq >= ?",  # noqa: S608
+                     (rid, first_seq))
 
-    def slam_runs(self) -> list[tuple[str, str, dict[str, Any]]]:
+    def runs(self, kind: RunKind) -> list[tuple[str, str, dict[str, Any]]]:
         with self._lock:
-            rows = self._conn.execute(
-                "SELECT id, world, options FROM slam_runs ORDER BY created_at").fetchall()
+            rows = self._conn.execute(f"SELECT id, world, options FROM {kind}_runs "  # noqa: S608
+                                      "ORDER BY created_at").fetchall()
         return [(r[0], r[1], json.loads(r[2])) for r in rows]
 
-    def slam_scans(self, rid: str) -> list[dict[str, Any]]:
+    def scans(self, kind: RunKind, rid: str) -> list[dict[str, Any]]:
         with self._lock:
-            rows = self._conn.execute("SELECT scan FROM slam_scans WHERE run = ? ORDER BY seq",
-                                      (rid,)).fetchall()
+            rows = self._conn.execute(f"SELECT scan FROM {kind}_scans WHERE run = ? "  # noqa: S608
+                                      "ORDER BY seq", (rid,)).fetchall()
         return [json.loads(r[0]) for r in rows]
 
     # -- jobs ------------------------------------------------------------------------------

@@ -367,10 +367,10 @@ def test_a_batch_past_its_budget_keeps_what_it_processed(client: TestClient, wor
     assert r.headers["content-type"] == "application/problem+json"
     assert r.json()["field"] == "scans" and "first 1 of 5" in r.json()["detail"]
     assert client.get(base).json()["scans"] == 1
-    assert len(store.slam_scans(rid)) == 1
+    assert len(store.scans("slam", rid)) == 1
     r = client.post(base + "/scans", json={"scans": [scan_json(i) for i in range(1, 5)]})
     assert r.status_code == 200 and r.json()["scans"] == 5, r.text
-    assert len(store.slam_scans(rid)) == 5
+    assert len(store.scans("slam", rid)) == 5
 
 
 def test_a_cancelled_batch_keeps_store_and_memory_in_step(tmp_path: Any) -> None:
@@ -401,9 +401,9 @@ def test_a_cancelled_batch_keeps_store_and_memory_in_step(tmp_path: Any) -> None
             await task
         n = svc.slam.runs[rid].scans
         assert 0 < n < len(items)
-        assert len(svc.store.slam_scans(rid)) == n
+        assert len(svc.store.scans("slam", rid)) == n
         st = await svc.slam.add_scans("w", rid, items[n:n + 5])
-        assert st.scans == n + 5 == len(svc.store.slam_scans(rid))
+        assert st.scans == n + 5 == len(svc.store.scans("slam", rid))
 
     try:
         asyncio.run(go())
