@@ -14,6 +14,7 @@ from service.api.routes import (
     eigenspace,
     health,
     jobs,
+    localization,
     mission,
     qualitative,
     slam,
@@ -60,6 +61,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(qualitative.router)
     app.include_router(eigenspace.router)
     app.include_router(slam.router)
+    app.include_router(localization.router)
     app.include_router(viewpoint.router)
     app.include_router(mission.router)
     app.include_router(jobs.router)
@@ -67,5 +69,5 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     errors.document_problems(app)
     app.add_middleware(errors.BodySizeLimit, max_bytes=settings.max_body_bytes,
                        upload_bytes=settings.max_upload_bytes,
-                       upload_suffixes=("/eigenspace/images",))
+                       upload_suffixes=("/eigenspace/images", "/map.chizu"))
     return app

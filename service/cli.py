@@ -164,10 +164,14 @@ def slam(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .bag (or b
          resolution: float = typer.Option(0.05, min=0.01, help="map cell size (m)"),
          limit: int = typer.Option(0, min=0, help="only the first N scans (0: all)"),
          seed: int = typer.Option(0, min=0),
-         out: str = typer.Option("slam-out", help="output directory")) -> None:
+         out: str = typer.Option("slam-out", help="output directory"),
+         world: str | None = typer.Option(None, help="also commit the map into this world "
+                                          "(the data directory's): its facts, the planners' "
+                                          "grid, localization runs")) -> None:
     """Run SLAM over LOG; write OUT/trajectory.tum (TUM, the log's stamps), map.png
     (intensity-coloured), map.pgm + map.yaml (ROS map_server) and map.chizu, the saved
-    map later runs localize in (chizu slam-localize)."""
+    map later runs localize in (chizu slam-localize); with --world, commit it into a
+    world as a REST commit does."""
     from pydantic import ValidationError
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -180,6 +184,8 @@ def slam(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .bag (or b
                            proposal=proposal, map_resolution_m=resolution,  # type: ignore[arg-type]
                            seed=seed)
         data = read_log(Path(log), max_range_m=max_range, limit=limit or None)
+        if world is not None:
+            _require_world(world)
     except (ValidationError, InvalidInput) as e:
         console.print(f"[red]{e}[/red]")
         raise typer.Exit(2) from None
@@ -195,11 +201,35 @@ def slam(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .bag (or b
     from numeric.slam.saved_map import FILE_NAME, save, saved_map_of_log
 
     _slam_outputs(Path(out), res.times, res.poses, res.map)
-    save(saved_map_of_log(slam_, data, opts.method, opts.map_resolution_m), Path(out) / FILE_NAME)
+    saved = save(saved_map_of_log(slam_, data, opts.method, opts.map_resolution_m),
+                 Path(out) / FILE_NAME)
     console.print(f"{opts.method}: {len(data)} scans ({data.duration_s:.0f} s of log) in "
                   f"{res.seconds:.1f} s = {data.duration_s / max(res.seconds, 1e-9):.1f}x real "
                   f"time; wrote {out}/trajectory.tum, map.png, map.pgm, map.yaml and "
                   f"{FILE_NAME} (the saved map)")
+    if world is not None:
+        services = _open_services()
+        try:
+            c = asyncio.run(services.slam.upload(world, saved.read_bytes()))
+        finally:
+            services.close()
+        console.print(f"committed into world {world}: {c.facts.poses} keyframe poses, "
+                      f"{len(c.unknown_regions)} unknown regions, "
+                      f"{c.map.free_m2:.0f} m2 free")
+
+
+def _require_world(world: str) -> None:
+    """Raise :class:`numeric.errors.InvalidInput` (field ``world``) unless the data
+    directory has ``world``."""
+    from numeric.errors import InvalidInput, NotFound
+
+    services = _open_services()
+    try:
+        services.worlds.require(world)
+    except NotFound as e:
+        raise InvalidInput(str(e), field="world") from None
+    finally:
+        services.close()
 
 
 @app.command("slam-localize")

@@ -22,6 +22,7 @@ from service.compute import ComputePool
 from service.eigenspace import EigenspaceService
 from service.jobs import Jobs
 from service.kb import KnowledgeBase
+from service.localization import LocalizationService
 from service.mission import MissionService
 from service.settings import Settings, get_settings
 from service.slam import SlamService
@@ -46,6 +47,7 @@ class Services:
     slam: SlamService
     viewpoint: ViewpointService
     mission: MissionService
+    localization: LocalizationService
 
     def close(self) -> None:
         self.compute.close()
@@ -93,11 +95,14 @@ def open_services(settings: Settings | None = None,
         viewpoint = ViewpointService(store, kb, worlds, compute)
         services = Services(settings, store, kb, worlds, jobs, compute, eigenspace, slam,
                             viewpoint,
-                            MissionService(kb, worlds, jobs, eigenspace, slam, viewpoint))
+                            MissionService(kb, worlds, jobs, eigenspace, slam, viewpoint),
+                            LocalizationService(store, worlds, settings.request_budget_s))
         counts = worlds.restore_all()
         runs = services.slam.restore_runs()
-        log.info("restored from %s: %s, %d SLAM run(s)", settings.db_path,
-                 ", ".join(f"{n} {k}" for k, n in counts.items()), runs)
+        located = services.localization.restore_runs()
+        log.info("restored from %s: %s, %d SLAM run(s), %d localization run(s)",
+                 settings.db_path, ", ".join(f"{n} {k}" for k, n in counts.items()), runs,
+                 located)
         if demo:
             asyncio.run(ensure_demo(services))
     except BaseException:

@@ -13,6 +13,7 @@ from service.compute import ComputePool
 from service.eigenspace import EigenspaceService
 from service.jobs import Jobs
 from service.kb import KnowledgeBase
+from service.localization import LocalizationService
 from service.mission import MissionService
 from service.settings import Settings, get_settings
 from service.slam import SlamService
@@ -30,6 +31,10 @@ async def _eigenspace(request: Request) -> EigenspaceService:
 
 async def _slam(request: Request) -> SlamService:
     return request.app.state.slam  # type: ignore[no-any-return]
+
+
+async def _localization(request: Request) -> LocalizationService:
+    return request.app.state.services.localization  # type: ignore[no-any-return]
 
 
 async def _viewpoint(request: Request) -> ViewpointService:
@@ -57,6 +62,7 @@ WorldsDep = Annotated[WorldService, Depends(_worlds)]
 KbDep = Annotated[KnowledgeBase, Depends(_kb)]
 EigenspaceDep = Annotated[EigenspaceService, Depends(_eigenspace)]
 SlamDep = Annotated[SlamService, Depends(_slam)]
+LocalizationDep = Annotated[LocalizationService, Depends(_localization)]
 ViewpointDep = Annotated[ViewpointService, Depends(_viewpoint)]
 JobsDep = Annotated[Jobs, Depends(_jobs)]
 MissionDep = Annotated[MissionService, Depends(_mission)]

@@ -231,7 +231,12 @@ CONFLICTS = {("post", "/worlds"), ("post", "/worlds/{world}/eigenspace"),
                for ext in ("png", "pgm", "yaml")),
              ("post", "/worlds/{world}/slam-runs/{rid}/commit"),
              # one mission job per world at a time
-             ("post", "/worlds/{world}/missions")}
+             ("post", "/worlds/{world}/missions"),
+             # a world without a map to localize on; a run whose map was replaced
+             ("post", "/worlds/{world}/localization-runs"),
+             *((m, f"/worlds/{{world}}/localization-runs/{{rid}}{tail}")
+               for m, tail in (("get", ""), ("delete", ""), ("post", "/scans"),
+                               ("get", "/trajectory")))}
 _REASONS = {400: "Bad request", 404: "Not found (the field names what)",
             409: "Conflict with the current state", 413: "Payload too large",
             422: "Invalid input (the field names it)",

@@ -14,6 +14,7 @@ as a batch, stored before the estimator sees them, replayed after a restart).
 from __future__ import annotations
 
 import asyncio
+import hashlib
 import json
 import logging
 import uuid
@@ -22,11 +23,11 @@ from typing import Any
 
 import numpy as np
 
-from numeric.errors import Conflict, NotFound
+from numeric.errors import Conflict, InvalidInput, NotFound
 from numeric.occupancy import OccupancyMap, build_occupancy
 from numeric.scan import Scan
 from numeric.slam.runner import Slam, SlamOptions, create, warm_up
-from numeric.slam.saved_map import saved_map, to_bytes
+from numeric.slam.saved_map import from_bytes, saved_map, to_bytes
 from service.kb import KnowledgeBase
 from service.scan_runs import ScanRun, ScanRuns
 from service.schemas.common import PoseOut
@@ -143,25 +144,47 @@ class SlamService(ScanRuns[Run]):
             async with run.lock:
                 await asyncio.to_thread(run.estimator.finish)
         g = await self.grid(world, rid)
-        poses = run.estimator.map_poses()
+        async with run.lock:
+            assert run.laser is not None
+            poses = run.estimator.map_poses()
+            closures = loop_closures(run.estimator)
+            saved = saved_map(run.estimator, run.laser, np.array(run.odometry),
+                              run.options.method, run.options.map_resolution_m,
+                              {"source": f"SLAM run {rid}", "world": world})
+        chizu = await asyncio.to_thread(to_bytes, saved)
+        return await self._commit_map(world, rid, g, poses, closures, chizu)
+
+    async def upload(self, world: str, blob: bytes) -> CommitOut:
+        """Make a saved map (a ``map.chizu`` file: ``chizu slam --out``, another world's
+        ``GET .../map.chizu``) the world's map, as a commit does: its keyframe poses and
+        grid become facts and the stored map. A map saved from another world is refused
+        (field ``map``): its frame is that world's."""
+        self.worlds.require(world)
+        saved = await asyncio.to_thread(from_bytes, blob, "map")
+        made_in = saved.meta.get("world")
+        if made_in not in (None, world):
+            raise InvalidInput(f"the map was made in world {made_in!r}, not {world!r}",
+                               field="map")
+        if len(saved) == 0:
+            raise InvalidInput("the map has no keyframes", field="map")
+        g = await asyncio.to_thread(saved.occupancy)
+        rid = "r" + hashlib.sha256(blob).hexdigest()[:16]
+        return await self._commit_map(world, rid, g, saved.kf_pose, [], blob)
+
+    async def _commit_map(self, world: str, rid: str, g: OccupancyMap, poses: np.ndarray,
+                          closures: list[list[int | float]], chizu: bytes) -> CommitOut:
+        """One transaction: the map's facts (keyframe poses, occupancy summary, unknown
+        regions, loop closures) into the knowledge base, its grid and saved map stored."""
         summary = g.summary()
         params = await self.kb.acall("params", world=world)
         regions = await asyncio.to_thread(
             g.unknown_regions, float(params["parameters"]["unknown_region_min_area_m2"]))
-        async with run.lock:
-            closures = loop_closures(run.estimator)
         call = {"world": world, "run": rid,
                 "poses": [[round(float(v), 6) for v in p] for p in poses],
                 "info": {k: summary[k] for k in ("resolution_m", "free_m2", "occupied_m2",
                                                  "unknown_m2")},
                 "regions": regions, "closures": closures}
-        async with run.lock:
-            assert run.laser is not None
-            saved = saved_map(run.estimator, run.laser, np.array(run.odometry),
-                              run.options.method, run.options.map_resolution_m,
-                              {"source": f"SLAM run {rid}", "world": world})
-        blob, npz, chizu = await asyncio.to_thread(
-            lambda: (json.dumps(call).encode(), g.to_npz(), to_bytes(saved)))
+        blob, npz = await asyncio.to_thread(lambda: (json.dumps(call).encode(), g.to_npz()))
         async with self.worlds.write_artifact(world, FACTS_ARTIFACT) as w:
             reply = await w.commit(blob, {MAP_ARTIFACT: npz, SAVED_MAP_ARTIFACT: chizu}, call)
         return CommitOut(world=world, run=rid, facts=reply, map=summary,
@@ -173,7 +196,7 @@ class SlamService(ScanRuns[Run]):
         blob = self.store.artifact(world, SAVED_MAP_ARTIFACT)
         if blob is None:
             raise NotFound(f"world {world!r} has no committed map: commit a SLAM run "
-                           "first", field="map")
+                           "or upload a map first", field="map")
         return blob
 
     async def summary(self, world: str) -> Any:

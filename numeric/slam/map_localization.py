@@ -39,6 +39,7 @@ The map is never changed; the poses are in the map's frame.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from typing import Literal
@@ -54,6 +55,7 @@ from numeric.probability_grid import GridConfig, ProbabilityGrid, no_stamps
 from numeric.scan import LaserLog, Scan
 from numeric.slam.alignment import (
     AlignmentConfig,
+    PairwiseMatch,
     align_globally,
     match_pair,
     pairwise_matches,
@@ -180,16 +182,37 @@ class Step:
 
 
 @dataclass
+class PreparedMap:
+    """What steps 1-2 precompute from a map (the field, its observed cells, the global
+    search's pyramid): built once, read by every robot localizing on the map."""
+
+    saved: SavedMap
+    config: MapLocalizationConfig
+    grid: ProbabilityGrid
+    known: np.ndarray
+    globally: GlobalSearch
+
+    @staticmethod
+    def of(saved: SavedMap, config: MapLocalizationConfig) -> PreparedMap:
+        grid, known = likelihood_grid(saved, config.resolution_m, config.sigma_m)
+        return PreparedMap(saved, config, grid, known, GlobalSearch(grid, config))
+
+
+@dataclass
 class MapLocalizer:
-    """Feed scans in time order with :meth:`process`."""
+    """Feed scans in time order with :meth:`process`. Several localizers may share one
+    :class:`PreparedMap` (``prepared``; built here if not given)."""
 
     saved: SavedMap
     config: MapLocalizationConfig = field(default_factory=MapLocalizationConfig)
+    prepared: PreparedMap | None = None
 
     def __post_init__(self) -> None:
         cfg = self.config
-        self.grid, self.known = likelihood_grid(self.saved, cfg.resolution_m, cfg.sigma_m)
-        self.globally = GlobalSearch(self.grid, cfg)
+        if self.prepared is None or self.prepared.config != cfg:
+            self.prepared = PreparedMap.of(self.saved, cfg)
+        self.grid, self.known = self.prepared.grid, self.prepared.known
+        self.globally = self.prepared.globally
         self.state: State = "searching"
         self.pose: np.ndarray | None = None
         self._odom: np.ndarray | None = None
@@ -406,30 +429,39 @@ def localize_log(saved: SavedMap, log: LaserLog,
 
 def aligned_to_map(saved: SavedMap, log: LaserLog, poses: np.ndarray,
                    config: AlignmentConfig, keyframes: int, radius_m: float) -> np.ndarray:
-    """Step 5, once the log is over: graph SLAM's global scan alignment
-    (:mod:`numeric.slam.alignment`, Lu & Milios 1997) of each stretch of localized
-    scans, with the saved map's keyframes among the scans and held where the map has
-    them. Online, a scan is placed by matching it to the map alone; here each is
-    also matched to its neighbours in time and to the keyframes it overlaps as the
-    SLAM run's scans were, and to the returns of its ``keyframes`` nearest keyframes
-    within ``radius_m`` together (a pose in the map's frame, with the match's own
-    covariance: what holds a stretch driven the other way, whose scans overlap no
-    single keyframe), and all are solved for at once."""
+    """Step 5, once the log is over: :func:`align_on_map` of the log's scans."""
+    pts = [voxel_downsample(s.points()[0], None, 0.05)[0] for s in log.scans]
+    return align_on_map(saved, pts, log.odometry, poses, config, keyframes, radius_m)[0]
+
+
+def align_on_map(saved: SavedMap, points: list[np.ndarray], odometry: np.ndarray,
+                 poses: np.ndarray, config: AlignmentConfig, keyframes: int,
+                 radius_m: float) -> tuple[np.ndarray, list[PairwiseMatch]]:
+    """Graph SLAM's global scan alignment (:mod:`numeric.slam.alignment`, Lu & Milios
+    1997) of each stretch of placed scans (rows of ``poses`` that are finite; robot-frame
+    ``points``, ``odometry`` per scan), with the saved map's keyframes among the scans
+    and held where the map has them. Online, a scan is placed by matching it to the map
+    alone; here each is also matched to its neighbours in time and to the keyframes it
+    overlaps as the SLAM run's scans were, and to the returns of its ``keyframes``
+    nearest keyframes within ``radius_m`` together (a pose in the map's frame, with the
+    match's own covariance: what holds a stretch driven the other way, whose scans
+    overlap no single keyframe), and all are solved for at once. Returns the poses and
+    the matches between a keyframe and a scan (``a`` the keyframe, ``b`` the scan)."""
     out = poses.copy()
     ok = np.all(np.isfinite(poses), axis=1)
     edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(int), [0]])))
     held = len(saved)
-    odometry = log.odometry
     clouds = KeyframeClouds(saved, keyframes, radius_m)
+    to_map: list[PairwiseMatch] = []
     for lo, hi in zip(edges[::2], edges[1::2], strict=True):
         if hi - lo < 2:
             continue
-        pts = [voxel_downsample(log.scans[i].points()[0], None, 0.05)[0]
-               for i in range(lo, hi)]
+        pts = points[lo:hi]
         allp = np.vstack([saved.kf_pose, poses[lo:hi]])
         matches = [m for m in pairwise_matches(saved.kf_xy + pts, [None] * (held + hi - lo),
                                                allp, config)
                    if m.b >= held]
+        to_map += [dataclasses.replace(m, b=m.b - held + lo) for m in matches if m.a < held]
         priors = []
         for j, xy in enumerate(pts):
             ref = clouds.around(poses[lo + j])
@@ -440,7 +472,7 @@ def aligned_to_map(saved: SavedMap, log: LaserLog, poses: np.ndarray,
         both = align_globally(allp, np.vstack([saved.kf_odom, odometry[lo:hi]]), matches,
                               [], config, held=held, priors=priors)
         out[lo:hi] = both[held:]
-    return out
+    return out, to_map
 
 
 class KeyframeClouds:

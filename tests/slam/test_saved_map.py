@@ -176,3 +176,35 @@ def test_another_laser_is_named() -> None:
     assert a.compatible(a) is None
     assert "steps" in (a.compatible(sm.Laser(361, -np.pi / 2, np.deg2rad(0.5), 40.0)) or "")
     assert "field of view" in (a.compatible(sm.Laser(240, -2.1, np.deg2rad(1.0), 40.0)) or "")
+
+
+def test_the_cli_commits_its_map_into_a_world(tmp_path: Path) -> None:
+    """``chizu slam LOG --world W`` (a subprocess: the CLI opens its own Prolog engine)
+    commits the map into W as an upload does; an unknown world is refused before the
+    log is mapped, and nothing is written."""
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "CHIZU_DATA_DIR": str(tmp_path / "var"), "CHIZU_DEMO_WORLD": "demo"}
+
+    def run(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-m", "service.cli", "slam", str(CLIP),
+                               "--limit", "120", *args], env=env, capture_output=True,
+                              text=True, timeout=600)
+
+    r = run("--out", str(tmp_path / "no"), "--world", "nosuch")
+    assert r.returncode == 2 and "nosuch" in r.stdout, r.stdout + r.stderr
+    assert not (tmp_path / "no").exists()
+    r = run("--out", str(tmp_path / "run"), "--world", "demo")
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "committed into world demo" in r.stdout
+    from service.container import open_services
+    from service.settings import Settings
+
+    svc = open_services(Settings(data_dir=tmp_path / "var", demo_world="", workers=0),
+                        demo=False)
+    try:
+        assert svc.slam.saved_map("demo") == (tmp_path / "run" / sm.FILE_NAME).read_bytes()
+    finally:
+        svc.close()

@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Annotated, Any
 
 import numpy as np
-from fastapi import APIRouter, Path, Query, Response, status
+from fastapi import APIRouter, Path, Query, Request, Response, status
 
 from numeric.slam.logs import format_tum
 from service.api.strict import StrictJsonRoute
@@ -116,6 +116,18 @@ async def get_saved_map(world: WorldDep, slam: SlamDep) -> Response:
     """The world's committed map, saved: what a robot localizes in later."""
     return Response(slam.saved_map(world), media_type="application/octet-stream",
                     headers={"Content-Disposition": f'attachment; filename="{world}.chizu"'})
+
+
+@router.put("/map.chizu", response_model=CommitOut, openapi_extra={"requestBody": {
+    "required": True, "content": {"application/octet-stream": {"schema": {
+        "type": "string", "format": "binary"}}}}})
+async def put_saved_map(world: WorldDep, request: Request, slam: SlamDep) -> CommitOut:
+    """Commit a saved map (``chizu slam LOG --out DIR`` wrote DIR/map.chizu; or this
+    world's own ``GET .../map.chizu``) as the world's map, as a SLAM run's commit does:
+    its poses, occupancy and unknown regions become facts, its grid reaches the planners
+    and the mission, localization runs localize on it. A corrupt, truncated or newer map,
+    or one saved from another world, is a 422 naming ``map``; nothing is changed then."""
+    return await slam.upload(world, await request.body())
 
 
 @router.get("/map", response_model=WorldMapOut)
