@@ -167,11 +167,16 @@ def slam(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .bag (or b
          out: str = typer.Option("slam-out", help="output directory"),
          world: str | None = typer.Option(None, help="also commit the map into this world "
                                           "(the data directory's): its facts, the planners' "
-                                          "grid, localization runs")) -> None:
+                                          "grid, localization runs"),
+         resume: str | None = typer.Option(None, help="a saved map (map.chizu or the "
+                                           "directory holding it) to continue: LOG's "
+                                           "scans join it, in its frame")) -> None:
     """Run SLAM over LOG; write OUT/trajectory.tum (TUM, the log's stamps), map.png
     (intensity-coloured), map.pgm + map.yaml (ROS map_server) and map.chizu, the saved
     map later runs localize in (chizu slam-localize); with --world, commit it into a
-    world as a REST commit does."""
+    world as a REST commit does. With --resume, LOG continues a saved map: found in it
+    from an unknown start, its loops closed against the map's keyframes, and
+    trajectory.tum holds LOG's poses in the map's frame, map.chizu both runs."""
     from pydantic import ValidationError
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -186,6 +191,14 @@ def slam(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .bag (or b
         data = read_log(Path(log), max_range_m=max_range, limit=limit or None)
         if world is not None:
             _require_world(world)
+        old = None
+        if resume is not None:
+            from numeric.slam.saved_map import load
+
+            if opts.method != "graph":
+                raise InvalidInput("--resume continues a map with graph SLAM: --method graph",
+                                   field="method")
+            old = load(resume)
     except (ValidationError, InvalidInput) as e:
         console.print(f"[red]{e}[/red]")
         raise typer.Exit(2) from None
@@ -200,9 +213,20 @@ def slam(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .bag (or b
             raise typer.Exit(2) from None
     from numeric.slam.saved_map import FILE_NAME, save, saved_map_of_log
 
-    _slam_outputs(Path(out), res.times, res.poses, res.map)
-    saved = save(saved_map_of_log(slam_, data, opts.method, opts.map_resolution_m),
-                 Path(out) / FILE_NAME)
+    new = saved_map_of_log(slam_, data, opts.method, opts.map_resolution_m)
+    times, poses, grid = res.times, res.poses, res.map
+    if old is not None:
+        from numeric.slam.merge import resume as resume_map
+
+        try:
+            with console.status(f"placing {data.name} in {resume} and aligning"):
+                new, poses = resume_map(old, new, data)
+        except InvalidInput as e:
+            console.print(f"[red]{e}[/red]")
+            raise typer.Exit(2) from None
+        grid = new.occupancy(opts.map_resolution_m)
+    _slam_outputs(Path(out), times, poses, grid)
+    saved = save(new, Path(out) / FILE_NAME)
     console.print(f"{opts.method}: {len(data)} scans ({data.duration_s:.0f} s of log) in "
                   f"{res.seconds:.1f} s = {data.duration_s / max(res.seconds, 1e-9):.1f}x real "
                   f"time; wrote {out}/trajectory.tum, map.png, map.pgm, map.yaml and "
@@ -230,6 +254,40 @@ def _require_world(world: str) -> None:
         raise InvalidInput(str(e), field="world") from None
     finally:
         services.close()
+
+
+@app.command("slam-merge")
+def slam_merge(map_a: str = typer.Argument(..., metavar="MAP_A", help="a saved map (map.chizu "
+                                           "or its directory): the frame of the result"),
+               map_b: str = typer.Argument(..., metavar="MAP_B", help="a saved map of the "
+                                           "same building, in any frame"),
+               out: str = typer.Option("merge-out", help="output directory")) -> None:
+    """Merge two saved maps of one building made in unrelated frames: MAP_B is found in
+    MAP_A, fitted to it and aligned with it, its loops closed against MAP_A's keyframes.
+    Writes OUT/map.chizu (both), OUT/trajectory.tum (both runs' scans in MAP_A's frame,
+    stamps unchanged, in time order) and the map images. Maps that share no place, or
+    of two lasers, are refused and nothing is written."""
+    import numpy as np
+
+    from numeric.errors import InvalidInput
+    from numeric.slam.merge import merge
+    from numeric.slam.saved_map import FILE_NAME, load, save
+
+    try:
+        a, b = load(map_a), load(map_b)
+        with console.status(f"merging {map_b} into {map_a}"):
+            m, placed = merge(a, b)
+    except InvalidInput as e:
+        console.print(f"[red]{e}[/red]")
+        raise typer.Exit(2) from None
+    order = np.argsort(m.times, kind="stable")
+    _slam_outputs(Path(out), m.times[order], m.poses[order], m.occupancy())
+    save(m, Path(out) / FILE_NAME)
+    t = placed.transform
+    console.print(f"MAP_B lies at x {t[0]:.2f} m, y {t[1]:.2f} m, {np.rad2deg(t[2]):.1f} deg "
+                  f"in MAP_A ({placed.agree} of {placed.searched} places agree); {len(m)} "
+                  f"keyframes; wrote {out}/map.chizu, trajectory.tum, map.png, map.pgm, "
+                  "map.yaml")
 
 
 @app.command("slam-localize")

@@ -274,7 +274,9 @@ def align_globally(poses: np.ndarray, odometry: np.ndarray, matches: Sequence[Pa
                    closures: Sequence[tuple[int, int, np.ndarray]],
                    cfg: AlignmentConfig, noise: GraphConfig | None = None,
                    held: int = 0,
-                   priors: Sequence[tuple[int, np.ndarray, np.ndarray]] = ()) -> np.ndarray:
+                   priors: Sequence[tuple[int, np.ndarray, np.ndarray]] = (),
+                   held_edges: Sequence[tuple[int, int, np.ndarray, np.ndarray, bool]] | None
+                   = None) -> np.ndarray:
     """Step 3: every scan's pose ``(N, 3)`` after one batch optimisation, from the
     online estimate ``poses``; ``odometry`` ``(N, 3)`` the scans' odometry readings,
     ``closures`` ``(a, b, delta)`` the online run's loop closures between scans, both
@@ -282,7 +284,10 @@ def align_globally(poses: np.ndarray, odometry: np.ndarray, matches: Sequence[Pa
     pose is anchored; with ``held`` > 0 the first ``held`` poses are a saved map's
     keyframes, each anchored where it is, and the odometry chain starts after them.
     ``priors`` ``(k, pose, covariance)`` place single scans in the world frame (a
-    scan matched to a saved map), Huber-robust like the matches."""
+    scan matched to a saved map), Huber-robust like the matches. With ``held_edges``
+    ``(a, b, delta, covariance, robust)`` the first ``held`` poses are not anchored but
+    bound by these edges (a saved map's pose graph; only the first pose is anchored),
+    so the map moves with what is aligned to it."""
     noise = GraphConfig() if noise is None else noise
     n = len(poses)
     if n < 2:
@@ -292,14 +297,20 @@ def align_globally(poses: np.ndarray, odometry: np.ndarray, matches: Sequence[Pa
     for k in range(n):
         values.insert(k, as_pose2(poses[k]))
     anchor = gtsam.noiseModel.Diagonal.Sigmas(ANCHOR_SIGMAS)
-    for k in range(max(1, held)):
+    for k in range(1 if held_edges is not None else max(1, held)):
         graph.add(gtsam.PriorFactorPose2(k, as_pose2(poses[k]), anchor))
+    huber = gtsam.noiseModel.mEstimator.Huber.Create(cfg.huber_k)
+    loop_huber = gtsam.noiseModel.mEstimator.Huber.Create(noise.huber_k)
+    for a, b, delta, cov, is_loop in held_edges or ():
+        base = gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov, dtype=float))
+        graph.add(gtsam.BetweenFactorPose2(int(a), int(b), as_pose2(delta),
+                                           gtsam.noiseModel.Robust.Create(loop_huber, base)
+                                           if is_loop else base))
     u = relative(odometry[:-1], odometry[1:])
     sig = noise.odometry_sigmas(u)
     for k in range(held + 1 if held else 1, n):
         graph.add(gtsam.BetweenFactorPose2(k - 1, k, as_pose2(u[k - 1]),
                                            gtsam.noiseModel.Diagonal.Sigmas(sig[k - 1])))
-    huber = gtsam.noiseModel.mEstimator.Huber.Create(cfg.huber_k)
     for m in matches:
         robust = gtsam.noiseModel.Robust.Create(
             huber, gtsam.noiseModel.Gaussian.Covariance(m.covariance))

@@ -64,7 +64,7 @@ from numeric.slam.graph.loop_closure import adaptive_voxel
 from numeric.slam.keyframes import voxel_downsample
 from numeric.slam.matching.correlative import Match, PrecomputedGrid, correlative_search, refine
 from numeric.slam.matching.intensity_icp import IcpConfig, Reference, intensity_icp
-from numeric.slam.saved_map import Laser, SavedMap
+from numeric.slam.saved_map import EDGE_KINDS, Laser, SavedMap
 
 State = Literal["searching", "confirming", "tracking"]
 
@@ -243,7 +243,7 @@ class MapLocalizer:
             return self._search(scan, xy)
         assert self.pose is not None and prev_odom is not None
         predicted = compose(self.pose, relative(prev_odom, scan.odom))
-        pose, score, share = self._track(xy, predicted)
+        pose, score, share = self.fit(xy, predicted)
         if share < self.config.min_on_map:
             # off the map: odometry carries the pose until the scans see the map again,
             # for ``off_map_m`` of travel; beyond, odometry has drifted too far to pick
@@ -293,14 +293,14 @@ class MapLocalizer:
         m = self.globally.fix(self._context(scan.odom))
         if m is None:
             return Step(None, "searching", 0.0)
-        pose, score, share = self._track(xy, m.pose)
+        pose, score, share = self.fit(xy, m.pose)
         if score < self.config.lost_score or share < self.config.min_on_map:
             return Step(None, "searching", score)
         self.pose, self._low, self._confirmed = pose, 0, 0
         self.state = "confirming"
         return Step(pose.copy(), self.state, score)
 
-    def _track(self, xy: np.ndarray, predicted: np.ndarray) -> tuple[np.ndarray, float, float]:
+    def fit(self, xy: np.ndarray, predicted: np.ndarray) -> tuple[np.ndarray, float, float]:
         """The refined pose, its score over the points on observed cells, and the share
         of the points on observed cells."""
         cfg = self.config
@@ -436,7 +436,8 @@ def aligned_to_map(saved: SavedMap, log: LaserLog, poses: np.ndarray,
 
 def align_on_map(saved: SavedMap, points: list[np.ndarray], odometry: np.ndarray,
                  poses: np.ndarray, config: AlignmentConfig, keyframes: int,
-                 radius_m: float) -> tuple[np.ndarray, list[PairwiseMatch]]:
+                 radius_m: float, move_map: bool = False
+                 ) -> tuple[np.ndarray, list[PairwiseMatch], np.ndarray]:
     """Graph SLAM's global scan alignment (:mod:`numeric.slam.alignment`, Lu & Milios
     1997) of each stretch of placed scans (rows of ``poses`` that are finite; robot-frame
     ``points``, ``odometry`` per scan), with the saved map's keyframes among the scans
@@ -445,14 +446,27 @@ def align_on_map(saved: SavedMap, points: list[np.ndarray], odometry: np.ndarray
     overlaps as the SLAM run's scans were, and to the returns of its ``keyframes``
     nearest keyframes within ``radius_m`` together (a pose in the map's frame, with the
     match's own covariance: what holds a stretch driven the other way, whose scans
-    overlap no single keyframe), and all are solved for at once. Returns the poses and
-    the matches between a keyframe and a scan (``a`` the keyframe, ``b`` the scan)."""
+    overlap no single keyframe), and all are solved for at once. With ``move_map`` the
+    keyframes are not held but bound by the map's own constraints, so a map that was
+    off where the scans show it moves (a map being extended; localization leaves it as
+    it is). Returns the poses, the matches between the map and a scan (``a`` a
+    keyframe, ``b`` the scan: the pairwise ones, and each match to the nearest
+    keyframes' returns as one to the nearest keyframe), and the keyframes' poses."""
     out = poses.copy()
     ok = np.all(np.isfinite(poses), axis=1)
     edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(int), [0]])))
     held = len(saved)
     clouds = KeyframeClouds(saved, keyframes, radius_m)
     to_map: list[PairwiseMatch] = []
+    kf_pose = saved.kf_pose.copy()
+    c = saved.constraints
+    loop = EDGE_KINDS.index("loop")
+    # the map's constraints at rest where the map's keyframes are: their covariances say
+    # how stiff the map is, its (aligned) poses what shape it keeps without new evidence
+    rest = relative(kf_pose[c.a], kf_pose[c.b]) if len(c) else np.zeros((0, 3))
+    map_edges = ([(int(a), int(b), d, cov, bool(k == loop))
+                  for a, b, d, cov, k in zip(c.a, c.b, rest, c.cov, c.kind, strict=True)]
+                 if move_map else None)
     for lo, hi in zip(edges[::2], edges[1::2], strict=True):
         if hi - lo < 2:
             continue
@@ -468,11 +482,21 @@ def align_on_map(saved: SavedMap, points: list[np.ndarray], odometry: np.ndarray
             found = None if ref is None or len(xy) < 10 else match_pair(ref, xy, None,
                                                                         poses[lo + j], config)
             if found is not None:
-                priors.append((held + j, found[0], found[1]))
+                # also as a match to the map's nearest keyframe (a saved map keeps those;
+                # a map that moves carries the scan with it)
+                k = int(np.argmin(np.hypot(*(kf_pose[:, :2] - found[0][:2]).T)))
+                m = PairwiseMatch(k, lo + j, relative(kf_pose[k], found[0]), found[1])
+                to_map.append(m)
+                if move_map:
+                    matches.append(dataclasses.replace(m, b=held + j))
+                else:
+                    priors.append((held + j, found[0], found[1]))
+        allp[:held] = kf_pose  # as earlier stretches moved them
         both = align_globally(allp, np.vstack([saved.kf_odom, odometry[lo:hi]]), matches,
-                              [], config, held=held, priors=priors)
+                              [], config, held=held, priors=priors, held_edges=map_edges)
         out[lo:hi] = both[held:]
-    return out, to_map
+        kf_pose = both[:held]
+    return out, to_map, kf_pose
 
 
 class KeyframeClouds:
