@@ -67,7 +67,6 @@ from numeric.qualitative.navigation import (
 from numeric.qualitative.survey import survey
 from numeric.scan import Scan
 from numeric.simulator import LandmarkObserver, ObserverConfig
-from numeric.slam.runner import SlamOptions
 from numeric.viewpoint import planner
 from numeric.viewpoint.online import Summariser, SummaryConfig
 from numeric.viewpoint.planner import BUILTIN_OBJECT_TYPES, GroupSpec
@@ -78,7 +77,7 @@ from service.jobs import JobProgress, Jobs
 from service.kb import KnowledgeBase
 from service.schemas.jobs import JobOut
 from service.schemas.mission import MissionConfig, MissionRecordOut
-from service.schemas.slam import ScanIn
+from service.schemas.slam import ScanIn, SlamRunIn
 from service.schemas.viewpoint import CandidateIn, ObjectType, PlanRequest
 from service.slam import SlamService
 from service.viewpoint import SCENE_ARTIFACT, ViewpointService
@@ -487,7 +486,7 @@ class MissionService:
         scans = await asyncio.to_thread(take)
         if len(scans) < 2:
             await self._fail(run, "slam_map", "the robot did not move", scans=len(scans))
-        rid = (await self.slam.create(run.world, SlamOptions(method=run.config.slam_method))).id
+        rid = (await self.slam.create(run.world, SlamRunIn(method=run.config.slam_method))).id
         for i in range(0, len(scans), 200):
             await self.slam.add_scans(run.world, rid, scans[i:i + 200])
         c = await self.slam.commit(run.world, rid)

@@ -25,13 +25,14 @@ import numpy as np
 
 from numeric.errors import Conflict, InvalidInput, NotFound
 from numeric.occupancy import OccupancyMap, build_occupancy
-from numeric.scan import Scan
-from numeric.slam.runner import Slam, SlamOptions, create, warm_up
-from numeric.slam.saved_map import from_bytes, saved_map, to_bytes
+from numeric.scan import LaserLog, Scan
+from numeric.slam.merge import resume
+from numeric.slam.runner import Slam, create, warm_up
+from numeric.slam.saved_map import SavedMap, from_bytes, saved_map, to_bytes
 from service.kb import KnowledgeBase
-from service.scan_runs import ScanRun, ScanRuns
+from service.scan_runs import ScanRun, ScanRuns, to_scan
 from service.schemas.common import PoseOut
-from service.schemas.slam import CommitOut, ScanIn, SlamRunListed, SlamRunOut
+from service.schemas.slam import CommitOut, ScanIn, SlamRunIn, SlamRunListed, SlamRunOut
 from service.store import Store
 from service.worlds import ArtifactKind, WorldService
 
@@ -57,8 +58,10 @@ def loop_closures(slam: Slam) -> list[list[int | float]]:
 class Run(ScanRun):
     """A SLAM run: its options and estimator beside what every streamed run keeps."""
 
-    options: SlamOptions = field(default_factory=SlamOptions)
+    options: SlamRunIn = field(default_factory=SlamRunIn)
     slam: Slam | None = None
+    #: a resumed run's poses in the world's map, once committed
+    resumed: np.ndarray | None = None
     _map: tuple[tuple[int, bool], OccupancyMap] | None = None
 
     @property
@@ -92,15 +95,19 @@ class SlamService(ScanRuns[Run]):
         """Reload the stored runs (each replayed lazily, on first use); the committed
         maps' facts come back with the worlds (:meth:`WorldService.restore_all`)."""
         for rid, world, opts in self.store.runs(self.kind):
-            o = SlamOptions.model_validate(opts)
+            o = SlamRunIn.model_validate(opts)
             self.runs[rid] = Run(rid, world, options=o, slam=create(o), replayed=False)
         return len(self.runs)
 
     def _step(self, run: Run, scan: Scan) -> None:
         run.estimator.process(scan)
 
-    async def create(self, world: str, options: SlamOptions) -> SlamRunOut:
+    async def create(self, world: str, options: SlamRunIn) -> SlamRunOut:
         self.worlds.require(world)
+        if options.resume and self.store.artifact(world, SAVED_MAP_ARTIFACT) is None:
+            raise Conflict(f"world {world!r} has no committed map to resume: commit a run "
+                           "or upload a map first, or start a run without resume",
+                           field="resume")
         rid = "r" + uuid.uuid4().hex[:16]
         # the method's kernels loaded before the first scan, not during it (once)
         await asyncio.to_thread(warm_up, options)
@@ -121,9 +128,14 @@ class SlamService(ScanRuns[Run]):
         return (await self._add_scans(world, rid, items)).status()
 
     async def trajectory(self, world: str, rid: str) -> tuple[np.ndarray, np.ndarray]:
+        """Every scan's stamp and pose; a resumed run's, once committed, in the world's
+        map."""
         run = await self._run(world, rid)
         async with run.lock:
-            return run.estimator.trajectory()
+            t, p = run.estimator.trajectory()
+            if run.resumed is not None and len(run.resumed) == len(t):
+                p = run.resumed
+            return t, p
 
     async def grid(self, world: str, rid: str) -> OccupancyMap:
         run = await self._run(world, rid)
@@ -138,7 +150,9 @@ class SlamService(ScanRuns[Run]):
             return run._map[1]
 
     async def commit(self, world: str, rid: str) -> CommitOut:
-        """Make the run's map the world's map: facts into the knowledge base, grid stored."""
+        """Make the run's map the world's map: facts into the knowledge base, grid stored.
+        A resumed run is first joined to the world's map (:func:`numeric.slam.merge.resume`):
+        the world's map then holds both, in its frame."""
         run = await self._run(world, rid)
         if run.scans:  # global scan alignment first (graph SLAM, the improved RBPF)
             async with run.lock:
@@ -151,6 +165,22 @@ class SlamService(ScanRuns[Run]):
             saved = saved_map(run.estimator, run.laser, np.array(run.odometry),
                               run.options.method, run.options.map_resolution_m,
                               {"source": f"SLAM run {rid}", "world": world})
+        if run.options.resume:
+            old = self.store.artifact(world, SAVED_MAP_ARTIFACT)
+            if old is None:
+                raise Conflict(f"world {world!r} has no committed map to resume",
+                               field="resume")
+            rows = self.store.scans(self.kind, rid)
+
+            def join() -> tuple[SavedMap, np.ndarray, OccupancyMap]:
+                log = LaserLog(f"SLAM run {rid}",
+                               [to_scan(ScanIn.model_validate(r)) for r in rows])
+                both, mine = resume(from_bytes(old, "map"), saved, log)
+                return both, mine, both.occupancy(run.options.map_resolution_m)
+
+            saved, mine, g = await asyncio.to_thread(join)
+            run.resumed = mine
+            poses, closures = saved.kf_pose, []
         chizu = await asyncio.to_thread(to_bytes, saved)
         return await self._commit_map(world, rid, g, poses, closures, chizu)
 

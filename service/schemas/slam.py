@@ -5,15 +5,35 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    FiniteFloat,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 from numeric.slam.runner import SlamOptions
 from service.schemas.common import PoseOut
 
-#: the body of POST /slam-runs: the run's options (the CLI's too), whose estimator
-#: parameters carry the estimator configs' own bounds; ``SlamRunIn.to_config()`` gives
-#: the estimator's config
-SlamRunIn = SlamOptions
+
+class SlamRunIn(SlamOptions):
+    """The body of POST /slam-runs: the run's options (the CLI's too), whose estimator
+    parameters carry the estimator configs' own bounds (``to_config()`` gives the
+    estimator's config), and whether the run continues the world's map."""
+
+    resume: bool = Field(False, description="continue the world's committed map: at the "
+                         "commit the run is found in it and joined to it (graph SLAM only; "
+                         "numeric.slam.merge), and its trajectory is in the map's frame")
+
+    @field_validator("resume")
+    @classmethod
+    def _resume_needs_graph(cls, v: bool, info: ValidationInfo) -> bool:
+        if v and info.data.get("method", "graph") != "graph":
+            raise ValueError("resume continues a map with graph SLAM: method graph")
+        return v
 
 NonNegFinite = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 MAX_BEAMS = 4096
@@ -55,7 +75,7 @@ class SlamRunOut(BaseModel):
 
     id: str
     world: str
-    options: SlamOptions
+    options: SlamRunIn
     scans: int
     keyframes: int
     last_t: float | None

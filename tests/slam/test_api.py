@@ -379,7 +379,7 @@ def test_a_cancelled_batch_keeps_store_and_memory_in_step(tmp_path: Any) -> None
     goes on from there (the filter never ran in two threads at once)."""
     import asyncio
 
-    from numeric.slam.runner import SlamOptions
+    from service.schemas.slam import SlamRunIn
     from numeric.world import WorldDescription
     from service.container import open_services
     from service.schemas.slam import ScanIn
@@ -390,7 +390,7 @@ def test_a_cancelled_batch_keeps_store_and_memory_in_step(tmp_path: Any) -> None
 
     async def go() -> None:
         await svc.worlds.create(WorldDescription(name="w", template="loop"))
-        rid = (await svc.slam.create("w", SlamOptions(method="graph"))).id
+        rid = (await svc.slam.create("w", SlamRunIn(method="graph"))).id
         task = asyncio.ensure_future(svc.slam.add_scans("w", rid, items))
         for _ in range(1200):  # cancel once some scans are in (a loaded machine is slow)
             await asyncio.sleep(0.05)

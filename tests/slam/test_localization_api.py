@@ -176,3 +176,30 @@ def test_a_bad_map_upload_changes_nothing(c: TestClient, map_file: bytes,
     assert_problem(c.put("/worlds/nosuch/map.chizu", content=map_file), 404)
     assert c.get("/worlds/loc/map.chizu").content == before
     assert c.get("/worlds/loc/facts").json() == facts
+
+
+def test_a_run_resumes_the_worlds_map(c: TestClient, map_file: bytes,
+                                      robot: LaserLog) -> None:
+    """``{"resume": true}``: at the commit the run is found in the world's map and joined
+    to it; the world's map holds both runs, the run's trajectory is in the map's frame."""
+    c.post("/worlds", json={"name": "resumed", "template": "room_a"})
+    assert c.put("/worlds/resumed/map.chizu", content=map_file).status_code == 200
+    before = sm.from_bytes(c.get("/worlds/resumed/map.chizu").content)
+    r = c.post("/worlds/resumed/slam-runs", json={"method": "graph", "resume": True})
+    assert r.status_code == 201 and r.json()["options"]["resume"] is True
+    rid = r.json()["id"]
+    for k in range(0, len(robot.scans), 250):
+        assert c.post(f"/worlds/resumed/slam-runs/{rid}/scans", json={"scans": [
+            scan_json(i, robot) for i in range(k, min(k + 250, len(robot.scans)))]}
+        ).status_code == 200
+    assert c.post(f"/worlds/resumed/slam-runs/{rid}/commit").status_code == 200
+    after = sm.from_bytes(c.get("/worlds/resumed/map.chizu").content)
+    assert len(after) > len(before) and len(after.times) == len(before.times) + len(robot)
+    tr = c.get(f"/worlds/resumed/slam-runs/{rid}/trajectory").json()
+    e = np.hypot(*(np.array(tr["poses"])[:, :2] - robot.truth[:, :2]).T)
+    assert np.median(e) < 0.08  # in the map's (here the world's) frame
+    # bad input: resume needs graph SLAM, and a map to resume
+    assert_problem(c.post("/worlds/resumed/slam-runs", json={"method": "icp", "resume": True}),
+                   422, "resume")
+    c.post("/worlds", json={"name": "bare", "template": "room_a"})
+    assert_problem(c.post("/worlds/bare/slam-runs", json={"resume": True}), 409, "resume")
