@@ -26,7 +26,7 @@ import numpy as np
 from numeric.errors import Conflict, InvalidInput, NotFound
 from numeric.occupancy import OccupancyMap, build_occupancy
 from numeric.scan import LaserLog, Scan
-from numeric.slam.merge import resume
+from numeric.slam.merge import resume, runs_of
 from numeric.slam.runner import Slam, create, warm_up
 from numeric.slam.saved_map import SavedMap, from_bytes, saved_map, to_bytes
 from service.kb import KnowledgeBase
@@ -170,6 +170,9 @@ class SlamService(ScanRuns[Run]):
             if old is None:
                 raise Conflict(f"world {world!r} has no committed map to resume",
                                field="resume")
+            if f"SLAM run {rid}" in runs_of(from_bytes(old, "map")):
+                raise Conflict(f"SLAM run {rid!r} is already part of the world's map: a "
+                               "resumed run joins it once", field="run")
             rows = self.store.scans(self.kind, rid)
 
             def join() -> tuple[SavedMap, np.ndarray, OccupancyMap]:

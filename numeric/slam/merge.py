@@ -241,6 +241,14 @@ def _follow(b: SavedMap, kf_poses: np.ndarray) -> np.ndarray:
     return np.asarray(compose(kf_poses[k], relative(b.kf_pose[k], b.poses)))
 
 
+def runs_of(m: SavedMap) -> list[str]:
+    """The runs a map holds, by their sources (a map of one run: its own)."""
+    runs = m.meta.get("runs")
+    if isinstance(runs, list) and all(isinstance(r, str) for r in runs):
+        return list(runs)
+    return [str(m.meta.get("source", "a map"))]
+
+
 def merged(a: SavedMap, a_kf: np.ndarray, b: SavedMap, b_poses: np.ndarray,
            matches: list[PairwiseMatch], placement: Placement) -> SavedMap:
     """Step 4: ``a``'s keyframes at ``a_kf`` (its scans moved with them) and ``b``'s at
@@ -262,7 +270,7 @@ def merged(a: SavedMap, a_kf: np.ndarray, b: SavedMap, b_poses: np.ndarray,
     n_a = len(a.times)
     inten = (a.kf_intensity + b.kf_intensity
              if a.kf_intensity is not None and b.kf_intensity is not None else None)
-    meta = {**a.meta, "merged": [a.meta.get("source", "map A"), b.meta.get("source", "map B")],
+    meta = {**a.meta, "runs": runs_of(a) + runs_of(b),
             "placement": {"transform": [round(float(v), 6) for v in placement.transform],
                           "agree": placement.agree, "fixes": placement.fixes,
                           "searched": placement.searched}}

@@ -379,10 +379,9 @@ def test_a_cancelled_batch_keeps_store_and_memory_in_step(tmp_path: Any) -> None
     goes on from there (the filter never ran in two threads at once)."""
     import asyncio
 
-    from service.schemas.slam import SlamRunIn
     from numeric.world import WorldDescription
     from service.container import open_services
-    from service.schemas.slam import ScanIn
+    from service.schemas.slam import ScanIn, SlamRunIn
 
     svc = open_services(Settings(data_dir=tmp_path, demo_world=None, workers=0), demo=False)
     log = loop_log()

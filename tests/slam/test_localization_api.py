@@ -195,6 +195,11 @@ def test_a_run_resumes_the_worlds_map(c: TestClient, map_file: bytes,
     assert c.post(f"/worlds/resumed/slam-runs/{rid}/commit").status_code == 200
     after = sm.from_bytes(c.get("/worlds/resumed/map.chizu").content)
     assert len(after) > len(before) and len(after.times) == len(before.times) + len(robot)
+    assert after.meta["runs"] == [before.meta["source"], f"SLAM run {rid}"]
+    # joined once: a second commit would put the run in the map twice
+    raw = c.get("/worlds/resumed/map.chizu").content
+    assert_problem(c.post(f"/worlds/resumed/slam-runs/{rid}/commit"), 409, "run")
+    assert c.get("/worlds/resumed/map.chizu").content == raw
     tr = c.get(f"/worlds/resumed/slam-runs/{rid}/trajectory").json()
     e = np.hypot(*(np.array(tr["poses"])[:, :2] - robot.truth[:, :2]).T)
     assert np.median(e) < 0.08  # in the map's (here the world's) frame
