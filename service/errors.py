@@ -230,8 +230,6 @@ CONFLICTS = {("post", "/worlds"), ("post", "/worlds/{world}/eigenspace"),
              *(("get", f"/worlds/{{world}}/slam-runs/{{rid}}/map.{ext}")
                for ext in ("png", "pgm", "yaml")),
              ("post", "/worlds/{world}/slam-runs/{rid}/commit"),
-             # a run that resumes a world without a map
-             ("post", "/worlds/{world}/slam-runs"),
              # one mission job per world at a time
              ("post", "/worlds/{world}/missions"),
              # a world without a map to localize on; a run whose map was replaced

@@ -104,10 +104,6 @@ class SlamService(ScanRuns[Run]):
 
     async def create(self, world: str, options: SlamRunIn) -> SlamRunOut:
         self.worlds.require(world)
-        if options.resume and self.store.artifact(world, SAVED_MAP_ARTIFACT) is None:
-            raise Conflict(f"world {world!r} has no committed map to resume: commit a run "
-                           "or upload a map first, or start a run without resume",
-                           field="resume")
         rid = "r" + uuid.uuid4().hex[:16]
         # the method's kernels loaded before the first scan, not during it (once)
         await asyncio.to_thread(warm_up, options)
@@ -152,7 +148,9 @@ class SlamService(ScanRuns[Run]):
     async def commit(self, world: str, rid: str) -> CommitOut:
         """Make the run's map the world's map: facts into the knowledge base, grid stored.
         A resumed run is first joined to the world's map (:func:`numeric.slam.merge.resume`):
-        the world's map then holds both, in its frame."""
+        the world's map then holds both, in its frame; in a world without a map yet it
+        commits as any run does (several robots mapping one building: the first to commit
+        founds the map, the others join it)."""
         run = await self._run(world, rid)
         if run.scans:  # global scan alignment first (graph SLAM, the improved RBPF)
             async with run.lock:
@@ -165,11 +163,8 @@ class SlamService(ScanRuns[Run]):
             saved = saved_map(run.estimator, run.laser, np.array(run.odometry),
                               run.options.method, run.options.map_resolution_m,
                               {"source": f"SLAM run {rid}", "world": world})
-        if run.options.resume:
-            old = self.store.artifact(world, SAVED_MAP_ARTIFACT)
-            if old is None:
-                raise Conflict(f"world {world!r} has no committed map to resume",
-                               field="resume")
+        old = self.store.artifact(world, SAVED_MAP_ARTIFACT) if run.options.resume else None
+        if old is not None:  # a world without a map yet: this run's map founds it
             if f"SLAM run {rid}" in runs_of(from_bytes(old, "map")):
                 raise Conflict(f"SLAM run {rid!r} is already part of the world's map: a "
                                "resumed run joins it once", field="run")

@@ -24,9 +24,10 @@ class SlamRunIn(SlamOptions):
     parameters carry the estimator configs' own bounds (``to_config()`` gives the
     estimator's config), and whether the run continues the world's map."""
 
-    resume: bool = Field(False, description="continue the world's committed map: at the "
+    resume: bool = Field(False, description="join the world's committed map: at the "
                          "commit the run is found in it and joined to it (graph SLAM only; "
-                         "numeric.slam.merge), and its trajectory is in the map's frame")
+                         "numeric.slam.merge), and its trajectory is in the map's frame; "
+                         "a world without a map yet gets this run's")
 
     @field_validator("resume")
     @classmethod

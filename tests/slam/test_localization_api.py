@@ -206,5 +206,13 @@ def test_a_run_resumes_the_worlds_map(c: TestClient, map_file: bytes,
     # bad input: resume needs graph SLAM, and a map to resume
     assert_problem(c.post("/worlds/resumed/slam-runs", json={"method": "icp", "resume": True}),
                    422, "resume")
+    # in a world without a map, the first run to commit founds it
     c.post("/worlds", json={"name": "bare", "template": "room_a"})
-    assert_problem(c.post("/worlds/bare/slam-runs", json={"resume": True}), 409, "resume")
+    r = c.post("/worlds/bare/slam-runs", json={"resume": True})
+    assert r.status_code == 201
+    first = r.json()["id"]
+    c.post(f"/worlds/bare/slam-runs/{first}/scans",
+           json={"scans": [scan_json(i, robot) for i in range(60)]})
+    assert c.post(f"/worlds/bare/slam-runs/{first}/commit").status_code == 200
+    assert sm.from_bytes(c.get("/worlds/bare/map.chizu").content).meta["source"] == \
+        f"SLAM run {first}"
