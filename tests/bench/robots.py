@@ -13,8 +13,8 @@ Then they commit one after the other: the first founds the world's map, each lat
 found in it and joined (numeric.slam.merge). Measured: the scans per second the service
 took from all robots together, each request's latency, how far behind its schedule a robot
 fell; each commit's time and outcome; and the relation error (Kümmerle et al. 2009) of all
-robots' trajectories as the world's map has them, beside graph SLAM run over the same
-scans as one log in this process. Writes docs/results/robots.md.
+robots' scans as the world's saved map has them (``GET .../map.chizu``), beside graph
+SLAM run over the same scans as one log in this process. Writes docs/results/robots.md.
 """
 
 from __future__ import annotations
@@ -40,6 +40,7 @@ from numeric.scan import LaserLog  # noqa: E402
 from numeric.slam.evaluation import relation_errors  # noqa: E402
 from numeric.slam.logs import read_log, read_relations  # noqa: E402
 from numeric.slam.runner import SlamOptions, run_log  # noqa: E402
+from numeric.slam.saved_map import from_bytes  # noqa: E402
 from tests.bench.map_localization import DATA, LOGS  # noqa: E402
 from tests.bench.results import mode, write_page  # noqa: E402
 from tests.bench.slam_stream import Server, pct, scan_dict  # noqa: E402
@@ -108,7 +109,6 @@ def one_count(n: int, log: LaserLog, rate: float,
             for t in threads:
                 t.join()
             wall = time.perf_counter() - t0
-            times, poses = [], []
             with httpx.Client(base_url=url, timeout=3600) as c:
                 for r in robots:
                     s = time.perf_counter()
@@ -118,17 +118,15 @@ def one_count(n: int, log: LaserLog, rate: float,
                     if a.status_code != 200:
                         r.commit = f"{a.status_code}: {a.json().get('detail', '')[:80]}"
                         continue
-                for r in robots:  # every trajectory as the world's map now has it
-                    tr = c.get(f"/worlds/{WORLD}/slam-runs/{r.run}/trajectory").json()
-                    times.append(np.array(tr["t"]))
-                    poses.append(np.array(tr["poses"]))
+                # every robot's scans as the world's map now has them
+                m = from_bytes(c.get(f"/worlds/{WORLD}/map.chizu").content)
         finally:
             server.stop()
     lat = [x for r in robots for x in r.latencies_ms]
-    t, p = np.concatenate(times), np.vstack(poses)
-    order = np.argsort(t, kind="stable")
+    order = np.argsort(m.times, kind="stable")
+    t, p = m.times[order], m.poses[order]
     within = (rel[0][:, 0] >= t.min()) & (rel[0][:, 1] <= t.max())
-    e = relation_errors(t[order], p[order], rel[0][within], rel[1][within])
+    e = relation_errors(t, p, rel[0][within], rel[1][within])
     return {"robots": n, "scans": sum(len(r.log) for r in robots), "wall_s": wall,
             "rate": sum(len(r.latencies_ms) for r in robots) / wall,
             "p50": pct(lat, 50), "p95": pct(lat, 95), "max": max(lat),
