@@ -176,18 +176,18 @@ arc_outcomes(W, A, B, S, F) :-
 		 *   OPERATIONS (api.pl)        *
 		 *******************************/
 
-api:run(reached, Args, _{world:W, from:A, to:B, succeeded:S, failed:F}) :-
-    existing_world(Args, W),
-    arg_(from, Args, AT), known_landmark(W, AT, from, A),
-    arg_(to, Args, BT), known_landmark(W, BT, to, B),
-    transaction(record_reached(W, A, B)),
-    arc_outcomes(W, A, B, S, F).
+api:run(reached, Args, Out) :-
+    arc_outcome(record_reached, Args, Out).
+api:run(failed, Args, Out) :-
+    arc_outcome(record_failed, Args, Out).
 
-api:run(failed, Args, _{world:W, from:A, to:B, succeeded:S, failed:F}) :-
+%   {world, from, to}: Record(World, From, To) in a transaction; the arc's
+%   outcomes so far.
+arc_outcome(Record, Args, _{world:W, from:A, to:B, succeeded:S, failed:F}) :-
     existing_world(Args, W),
     arg_(from, Args, AT), known_landmark(W, AT, from, A),
     arg_(to, Args, BT), known_landmark(W, BT, to, B),
-    transaction(record_failed(W, A, B)),
+    transaction(call(Record, W, A, B)),
     arc_outcomes(W, A, B, S, F).
 
 api:run(relations, Args, Rs) :-

@@ -370,11 +370,7 @@ class MissionService:
         the landmark's position and the heading the one the bearings of the other
         landmarks in view give on the world's landmark map (:func:`map_heading`)."""
         report("lost: reaching any landmark", 0.3)
-        lm = await thread_to_end(reach_any_landmark, robot, observer, nav, rng)
-        if lm is None:
-            await self._fail(run, "reach_landmark", "wandered without recognising a "
-                             "landmark", how="wander")
-        assert lm is not None
+        lm = await self._reach_any(run, robot, observer, nav, rng, "wander")
         est = landmark_pose(w, robot, observer, lm)
         if est is None:
             await self._fail(run, "reach_landmark", "no other landmark in view to take the "
@@ -384,6 +380,18 @@ class MissionService:
                            travelled_m=robot.travelled_m, x=est[0], y=est[1],
                            theta=est[2], ok=True)
         return lm, est
+
+    async def _reach_any(self, run: MissionRun, robot: TracedRobot,
+                         observer: LandmarkObserver, nav: NavConfig,
+                         rng: np.random.Generator, how: str) -> str:
+        """The landmark :func:`reach_any_landmark` reaches; the mission fails at
+        ``reach_landmark`` if it wandered without recognising one."""
+        lm = await thread_to_end(reach_any_landmark, robot, observer, nav, rng)
+        if lm is None:
+            await self._fail(run, "reach_landmark", "wandered without recognising a "
+                             "landmark", how=how)
+        assert lm is not None
+        return lm
 
     # -- 2-3: the nearest landmark, the DRM path, navigation ---------------------------
     async def _reach_nearest(self, run: MissionRun, w: World, robot: TracedRobot,
@@ -462,11 +470,7 @@ class MissionService:
                                to=s.target, method=s.method, reason=reason,
                                succeeded=arc["succeeded"], failed=arc["failed"])
             report("re-planning: reaching a landmark", 0.45)
-            lm = await thread_to_end(reach_any_landmark, robot, observer, nav, rng)
-            if lm is None:
-                await self._fail(run, "reach_landmark", "wandered without recognising a "
-                                 "landmark", how="replan")
-            assert lm is not None
+            lm = await self._reach_any(run, robot, observer, nav, rng, "replan")
             await self._record(run, "reach_landmark", landmark=lm, how="replan",
                                travelled_m=robot.travelled_m, ok=True)
             at = lm

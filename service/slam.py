@@ -165,7 +165,8 @@ class SlamService(ScanRuns[Run]):
                               {"source": f"SLAM run {rid}", "world": world})
         old = self.store.artifact(world, SAVED_MAP_ARTIFACT) if run.options.resume else None
         if old is not None:  # a world without a map yet: this run's map founds it
-            if f"SLAM run {rid}" in runs_of(from_bytes(old, "map")):
+            base = await asyncio.to_thread(from_bytes, old, "map")
+            if f"SLAM run {rid}" in runs_of(base):
                 raise Conflict(f"SLAM run {rid!r} is already part of the world's map: a "
                                "resumed run joins it once", field="run")
             rows = self.store.scans(self.kind, rid)
@@ -173,7 +174,7 @@ class SlamService(ScanRuns[Run]):
             def join() -> tuple[SavedMap, np.ndarray, OccupancyMap]:
                 log = LaserLog(f"SLAM run {rid}",
                                [to_scan(ScanIn.model_validate(r)) for r in rows])
-                both, mine = resume(from_bytes(old, "map"), saved, log)
+                both, mine = resume(base, saved, log)
                 return both, mine, both.occupancy(run.options.map_resolution_m)
 
             saved, mine, g = await asyncio.to_thread(join)

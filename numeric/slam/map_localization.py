@@ -471,7 +471,7 @@ def align_on_map(saved: SavedMap, points: list[np.ndarray], odometry: np.ndarray
         if hi - lo < 2:
             continue
         pts = points[lo:hi]
-        allp = np.vstack([saved.kf_pose, poses[lo:hi]])
+        allp = np.vstack([kf_pose, poses[lo:hi]])
         matches = [m for m in pairwise_matches(saved.kf_xy + pts, [None] * (held + hi - lo),
                                                allp, config)
                    if m.b >= held]
@@ -491,11 +491,11 @@ def align_on_map(saved: SavedMap, points: list[np.ndarray], odometry: np.ndarray
                     matches.append(dataclasses.replace(m, b=held + j))
                 else:
                     priors.append((held + j, found[0], found[1]))
-        allp[:held] = kf_pose  # as earlier stretches moved them
         both = align_globally(allp, np.vstack([saved.kf_odom, odometry[lo:hi]]), matches,
                               [], config, held=held, priors=priors, held_edges=map_edges)
         out[lo:hi] = both[held:]
-        kf_pose = both[:held]
+        if move_map:  # the next stretch starts from the map as this one moved it
+            kf_pose = both[:held]
     return out, to_map, kf_pose
 
 

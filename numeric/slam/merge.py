@@ -39,7 +39,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from numeric.errors import InvalidInput
-from numeric.geometry import compose, place, relative, wrap_angle
+from numeric.geometry import compose, invert, place, relative, wrap_angle
 from numeric.scan import LaserLog
 from numeric.slam.alignment import AlignmentConfig, PairwiseMatch, match_pair
 from numeric.slam.keyframes import voxel_downsample
@@ -51,7 +51,7 @@ from numeric.slam.map_localization import (
     align_on_map,
 )
 from numeric.slam.pose_graph import as_pose2
-from numeric.slam.saved_map import EDGE_KINDS, Constraints, SavedMap
+from numeric.slam.saved_map import EDGE_KINDS, Constraints, Laser, SavedMap
 
 
 class MergeConfig(BaseModel):
@@ -101,14 +101,14 @@ def frame_transform(a: PreparedMap, kf_xy: list[np.ndarray], kf_pose: np.ndarray
     n = len(kf_pose)
     picks = np.unique(np.linspace(0, n - 1, min(n, config.searches)).round().astype(int)) \
         if n else np.zeros(0, dtype=int)
-    found: list[tuple[np.ndarray, float]] = []
+    found: list[np.ndarray] = []
     for k in picks:
         m = a.globally.fix(_context(kf_xy, kf_pose, int(k), config.context_m))
         if m is not None:
-            found.append((compose(np.asarray(m.pose), _inverse(kf_pose[k])), float(m.score)))
+            found.append(compose(np.asarray(m.pose), invert(kf_pose[k])))
     best, support = None, 0
-    for t, _ in found:
-        agree = sum(_agrees(t, u, kf_pose, config) for u, _ in found)
+    for t in found:
+        agree = sum(_agrees(t, u, kf_pose, config) for u in found)
         if agree > support:
             best, support = t, agree
     if best is None or support < config.min_agree:
@@ -117,14 +117,10 @@ def frame_transform(a: PreparedMap, kf_xy: list[np.ndarray], kf_pose: np.ndarray
             f"{len(picks)} places searched for, {len(found)} were found uniquely and at most "
             f"{support} agree ({config.min_agree} needed)", field="map")
     # the agreeing fixes' mean transform (headings averaged on the circle)
-    ts = np.array([t for t, _ in found if _agrees(best, t, kf_pose, config)])
+    ts = np.array([t for t in found if _agrees(best, t, kf_pose, config)])
     mean = np.array([ts[:, 0].mean(), ts[:, 1].mean(),
                      math.atan2(np.sin(ts[:, 2]).mean(), np.cos(ts[:, 2]).mean())])
     return Placement(mean, support, len(found), len(picks))
-
-
-def _inverse(p: np.ndarray) -> np.ndarray:
-    return relative(p, np.zeros(3))
 
 
 def _agrees(t: np.ndarray, u: np.ndarray, kf_pose: np.ndarray, cfg: MergeConfig) -> bool:
@@ -188,13 +184,17 @@ def _solve(poses: np.ndarray, c: Constraints, priors: list[tuple[int, np.ndarray
                                                          for k in range(len(poses)))])
 
 
-def _check_lasers(a: SavedMap, b: SavedMap | None, log: LaserLog | None) -> None:
-    from numeric.slam.saved_map import Laser
-
-    other = b.laser if b is not None else Laser.of(log) if log is not None else None
-    why = None if other is None else a.laser.compatible(other)
+def _placed(a: SavedMap, b: SavedMap, laser: Laser, cfg: MergeConfig,
+            localization: MapLocalizationConfig | None) -> tuple[Placement, np.ndarray]:
+    """Steps 1-2 for B (whose scans a ``laser`` took): where it lies in A, and its
+    keyframes' poses fitted to A. Another laser than A's is refused (field ``map``)."""
+    why = a.laser.compatible(laser)
     if why is not None:
         raise InvalidInput(why, field="map")
+    prepared = PreparedMap.of(a, localization or MapLocalizationConfig())
+    placed = frame_transform(prepared, b.kf_xy, b.kf_pose, cfg)
+    return placed, fitted_to_map(prepared, b.kf_xy, compose(placed.transform, b.kf_pose),
+                                 b.constraints, cfg)
 
 
 def resume(a: SavedMap, b: SavedMap, log: LaserLog,
@@ -204,11 +204,7 @@ def resume(a: SavedMap, b: SavedMap, log: LaserLog,
     ``b`` (its scans' poses in the log's frame): the merged map, and the log's scans'
     poses in ``a``'s frame."""
     cfg = config or MergeConfig()
-    _check_lasers(a, None, log)
-    prepared = PreparedMap.of(a, localization or MapLocalizationConfig())
-    place_b = frame_transform(prepared, b.kf_xy, b.kf_pose, cfg)
-    kf = fitted_to_map(prepared, b.kf_xy, compose(place_b.transform, b.kf_pose),
-                       b.constraints, cfg)
+    place_b, kf = _placed(a, b, Laser.of(log), cfg, localization)
     pts = [voxel_downsample(s.points()[0], None, 0.05)[0] for s in log.scans]
     poses, matches, a_kf = align_on_map(a, pts, log.odometry, _follow(b, kf),
                                         AlignmentConfig(), cfg.icp_keyframes,
@@ -220,11 +216,7 @@ def merge(a: SavedMap, b: SavedMap, config: MergeConfig | None = None,
           localization: MapLocalizationConfig | None = None) -> tuple[SavedMap, Placement]:
     """Two saved maps of one building in unrelated frames as one, in ``a``'s frame."""
     cfg = config or MergeConfig()
-    _check_lasers(a, b, None)
-    prepared = PreparedMap.of(a, localization or MapLocalizationConfig())
-    place_b = frame_transform(prepared, b.kf_xy, b.kf_pose, cfg)
-    kf = fitted_to_map(prepared, b.kf_xy, compose(place_b.transform, b.kf_pose),
-                       b.constraints, cfg)
+    place_b, kf = _placed(a, b, b.laser, cfg, localization)
     kf_poses, matches, a_kf = align_on_map(a, b.kf_xy, b.kf_odom, kf, AlignmentConfig(),
                                            cfg.icp_keyframes, cfg.icp_radius_m,
                                            move_map=True)
