@@ -155,6 +155,10 @@ class MissionTrace:
     anchor_odom: np.ndarray | None = None
     #: the viewpoint plan's poses (x, y, theta), in its order
     plan_poses: list[tuple[float, float, float]] = field(default_factory=list)
+    #: what gave :attr:`fix`: ``eigenspace`` (its pose named a landmark the robot
+    #: reached), ``laser`` (a localization run on the world's committed map) or
+    #: ``wander`` (the fallback: the landmark the robot wandered to)
+    fixed_by: str = "eigenspace"
 
     def follow(self, robot: TracedRobot) -> None:
         """Move the robot's traced true poses onto the true path (and empty its trace)."""
@@ -172,8 +176,8 @@ class MissionTrace:
 @dataclass(frozen=True)
 class Evaluation:
     """A run against the simulator's truth: the error of the pose the map is anchored at
-    (None if no pose was fixed) and how it was found (``eigenspace``: its pose named a
-    landmark the robot reached; ``wander``: the fallback), the eigenspace's own error,
+    (None if no pose was fixed) and how it was found (:attr:`MissionTrace.fixed_by`),
+    the eigenspace's own error,
     and the objects -- real ones verified, false ones verified."""
 
     localization_error_m: float | None
@@ -213,10 +217,10 @@ class Evaluation:
         return out
 
 
-def evaluate(trace: MissionTrace, world: World, wandered: bool) -> Evaluation:
+def evaluate(trace: MissionTrace, world: World) -> Evaluation:
     """Compare the run with the simulator's truth: the anchored pose's position and
-    heading errors, the eigenspace pose's error, the world's objects among those the
-    summary verified. ``wandered``: the pose came from the wander fallback."""
+    heading errors and what gave it, the eigenspace pose's error, the world's objects
+    among those the summary verified."""
     err = herr = eig_err = None
     if trace.fix is not None:
         est, truth = trace.fix
@@ -227,6 +231,5 @@ def evaluate(trace: MissionTrace, world: World, wandered: bool) -> Evaluation:
         eig_err = float(np.hypot(*(e[:2] - t[:2])))
     objects = {o.id for o in world.description.objects}
     verified = set(trace.summary.verified) if trace.summary is not None else set()
-    return Evaluation(err, herr, None if err is None else
-                      ("wander" if wandered else "eigenspace"), eig_err, len(objects),
+    return Evaluation(err, herr, None if err is None else trace.fixed_by, eig_err, len(objects),
                       len(objects & verified), len(verified - objects))

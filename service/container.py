@@ -93,10 +93,11 @@ def open_services(settings: Settings | None = None,
                                        settings.max_learning_pixels)
         slam = SlamService(store, kb, worlds, settings.request_budget_s)
         viewpoint = ViewpointService(store, kb, worlds, compute)
+        localization = LocalizationService(store, worlds, settings.request_budget_s)
         services = Services(settings, store, kb, worlds, jobs, compute, eigenspace, slam,
-                            viewpoint,
-                            MissionService(kb, worlds, jobs, eigenspace, slam, viewpoint),
-                            LocalizationService(store, worlds, settings.request_budget_s))
+                            viewpoint, MissionService(kb, worlds, jobs, eigenspace, slam,
+                                                      viewpoint, localization),
+                            localization)
         counts = worlds.restore_all()
         runs = services.slam.restore_runs()
         located = services.localization.restore_runs()

@@ -46,8 +46,9 @@ import numpy as np
 
 from numeric.camera import Camera
 from numeric.eigenspace.analysis import learning_pixels
-from numeric.errors import InvalidInput, NotFound
-from numeric.geometry import line_of_sight, relative
+from numeric.errors import Conflict, InvalidInput, NotFound
+from numeric.geometry import line_of_sight, relative, wrap_angle
+from numeric.laser import Laser
 from numeric.mission import (
     MissionTrace,
     TracedRobot,
@@ -75,11 +76,12 @@ from service.disconnect import thread_to_end
 from service.eigenspace import EigenspaceService
 from service.jobs import JobProgress, Jobs
 from service.kb import KnowledgeBase
+from service.localization import LocalizationService
 from service.schemas.jobs import JobOut
 from service.schemas.mission import MissionConfig, MissionRecordOut
-from service.schemas.slam import ScanIn, SlamRunIn
+from service.schemas.slam import CommitOut, ScanIn, SlamRunIn
 from service.schemas.viewpoint import CandidateIn, ObjectType, PlanRequest
-from service.slam import SlamService
+from service.slam import SAVED_MAP_ARTIFACT, SlamService
 from service.viewpoint import SCENE_ARTIFACT, ViewpointService
 from service.worlds import ArtifactKind, WorldService
 
@@ -105,6 +107,8 @@ class MissionRun:
     trace: MissionTrace = field(default_factory=MissionTrace)
     success: bool = False
     elapsed_s: float = 0.0
+    #: the robot's clock for the laser scans it takes (s, 10 Hz)
+    clock_s: float = 0.0
 
     def result(self) -> dict[str, Any]:
         """The mission job's result: the outcome and the record."""
@@ -179,9 +183,10 @@ class MissionService:
 
     def __init__(self, kb: KnowledgeBase, worlds: WorldService, jobs: Jobs,
                  eigenspace: EigenspaceService, slam: SlamService,
-                 viewpoint: ViewpointService) -> None:
+                 viewpoint: ViewpointService, localization: LocalizationService) -> None:
         self.kb, self.worlds, self.jobs = kb, worlds, jobs
         self.eigenspace, self.slam, self.viewpoint = eigenspace, slam, viewpoint
+        self.localization = localization
         worlds.register(ArtifactKind(
             MISSION_ARTIFACT, "mission_steps", "mission",
             lambda world, blob: {"world": world, "steps": json.loads(blob)["steps"]}))
@@ -248,19 +253,23 @@ class MissionService:
             run.trace.truth_path.append(robot.pose.copy())
             observer = LandmarkObserver(w, config.observer, rng)
             nav = NavConfig()
-            est = await self._localize(run, w, robot, rng, report)
-            if est is not None:
-                run.trace.eigenspace_fix = (est.copy(), robot.pose.copy())
+            fixed = await self._localize(run, w, robot, rng, report)
+            if fixed is not None:
+                est, by = fixed
+                run.trace.fixed_by = by
                 run.trace.anchor(robot, est)
                 start = await self._reach_nearest(run, w, robot, observer, nav, est, report)
-                fix = None if start is None else landmark_pose(w, robot, observer, start)
-                if fix is not None:  # at the landmark the pose is known better: re-anchor
+                fix = (None if start is None or by == "laser"
+                       else landmark_pose(w, robot, observer, start))
+                if fix is not None:  # at the landmark the pose is known better than the
+                    # eigenspace's: re-anchor (a laser fix on the map is better still)
                     run.trace.anchor(robot, fix)
                     await self._record(run, "landmark_fix", landmark=start, x=fix[0],
                                        y=fix[1], theta=fix[2], ok=True)
             if start is None:  # still lost, or the pose named a landmark that is not
                 # there (a wrong pose): the DRM paper's way, reach some landmark first
                 start, est = await self._recover(run, w, robot, observer, nav, rng, report)
+                run.trace.fixed_by = "wander"
                 run.trace.anchor(robot, est)
             # a full turn where the map starts: its first scans see all round (and a goal
             # that is the landmark already reached still gets a map)
@@ -329,38 +338,100 @@ class MissionService:
 
     # -- 1: wake up lost and localize -------------------------------------------------
     async def _localize(self, run: MissionRun, w: World, robot: TracedRobot,
-                        rng: np.random.Generator,
-                        report: Callable[[str, float], None]) -> np.ndarray | None:
-        """Eigenspace stops with the movement strategy's moves in between: the pose once
-        the Fig. 4 rules reach state Z, None if they do not within ``max_stops``."""
+                        rng: np.random.Generator, report: Callable[[str, float], None],
+                        ) -> tuple[np.ndarray, str] | None:
+        """Eigenspace stops with the movement strategy's moves in between, until the
+        Fig. 4 rules reach state Z (at most ``max_stops``). Where the world has a
+        committed map, the robot also turns once round with its laser at every stop,
+        the scans streamed to a localization run on that map
+        (:class:`~service.localization.LocalizationService`): the laser's pose is then
+        the one the mission goes on from, and the eigenspace's answer is reported
+        against it -- the reference a real robot has (the simulator's truth is only
+        for the evaluation). Returns the pose and what gave it (``laser`` or
+        ``eigenspace``), None when neither did."""
         a = self.eigenspace.analysis(run.world)
         cam = Camera(w, a.config.camera.model_copy(update={"noise_sigma":
                                                            run.config.camera_noise}), rng=rng)
         n = len(a.model.directions)
         sid = (await self.eigenspace.create_session(run.world)).id
+        rid = await self._laser_run(run.world)
         prev: np.ndarray | None = None
-        for k in range(run.config.max_stops):
-            report(f"localizing: stop {k + 1}", 0.05 + 0.25 * k / run.config.max_stops)
-            imgs = await asyncio.to_thread(cam.render_turn, robot.pose[:2], robot.pose[2], n)
-            motion = None if prev is None else relative(prev, robot.odom_pose)
-            ans = await self.eigenspace.add_stop(run.world, sid, imgs, motion)
-            run.trace.stops.append(robot.pose.copy())
-            state = ans.state.state
-            if state == "z" and ans.pose is not None:
-                p = ans.pose
-                est = np.array([p.x, p.y, p.theta], dtype=float)
-                await self._record(run, "localize", session=sid, stops=k + 1, state="z",
-                                   x=est[0], y=est[1], theta=est[2], ok=True)
-                return est
-            act = (await self.eigenspace.next_move(run.world, sid)).action
-            prev = robot.odom_pose.copy()
-            if act is not None:
-                await thread_to_end(drive, robot, act.alpha_rad, act.l_m, act.beta_rad)
-            run.trace.truth_path.append(robot.pose.copy())
-        await self._record(run, "localize", session=sid, stops=run.config.max_stops,
-                           state=state, localized=False,
-                           reason=f"no unique pose after {run.config.max_stops} stops")
-        return None
+        laser: np.ndarray | None = None
+        try:
+            for k in range(run.config.max_stops):
+                report(f"localizing: stop {k + 1}", 0.05 + 0.25 * k / run.config.max_stops)
+                imgs = await asyncio.to_thread(cam.render_turn, robot.pose[:2], robot.pose[2],
+                                               n)
+                motion = None if prev is None else relative(prev, robot.odom_pose)
+                ans = await self.eigenspace.add_stop(run.world, sid, imgs, motion)
+                run.trace.stops.append(robot.pose.copy())
+                truth = robot.pose.copy()
+                if rid is not None:
+                    laser = await self._laser_turn(run, w, robot, rng, rid)
+                state = ans.state.state
+                if state == "z" and ans.pose is not None:
+                    p = ans.pose
+                    est = np.array([p.x, p.y, p.theta], dtype=float)
+                    run.trace.eigenspace_fix = (est.copy(), truth)
+                    versus = {} if laser is None else {
+                        "laser_x": laser[0], "laser_y": laser[1], "laser_theta": laser[2],
+                        "eigenspace_vs_laser_m": float(np.hypot(*(est[:2] - laser[:2]))),
+                        "eigenspace_vs_laser_rad": abs(float(wrap_angle(est[2] - laser[2])))}
+                    await self._record(run, "localize", session=sid, stops=k + 1, state="z",
+                                       x=est[0], y=est[1], theta=est[2],
+                                       by="eigenspace" if laser is None else "laser",
+                                       **versus, ok=True)
+                    return (est, "eigenspace") if laser is None else (laser, "laser")
+                if k == run.config.max_stops - 1:
+                    break  # no move after the last stop: the laser's pose is where it stands
+                act = (await self.eigenspace.next_move(run.world, sid)).action
+                prev = robot.odom_pose.copy()
+                if act is not None:
+                    await thread_to_end(drive, robot, act.alpha_rad, act.l_m, act.beta_rad)
+                run.trace.truth_path.append(robot.pose.copy())
+            if laser is not None:  # the eigenspace gave no pose; the laser on the map did
+                await self._record(run, "localize", session=sid, stops=run.config.max_stops,
+                                   state=state, by="laser", x=laser[0], y=laser[1],
+                                   theta=laser[2], eigenspace="no unique pose", ok=True)
+                return laser, "laser"
+            await self._record(run, "localize", session=sid, stops=run.config.max_stops,
+                               state=state, localized=False,
+                               reason=f"no unique pose after {run.config.max_stops} stops")
+            return None
+        finally:
+            if rid is not None:
+                with contextlib.suppress(Exception):
+                    await self.localization.delete(run.world, rid)
+
+    async def _laser_run(self, world: str) -> str | None:
+        """A localization run on the world's committed map; None when it has none."""
+        try:
+            return (await self.localization.create(world)).id
+        except Conflict:
+            return None
+
+    async def _laser_turn(self, run: MissionRun, w: World, robot: TracedRobot,
+                          rng: np.random.Generator, rid: str) -> np.ndarray | None:
+        """The robot turns once round on the spot, a laser scan at each step of the turn
+        (10 Hz on the robot's clock, its own odometry), streamed to localization run
+        ``rid``; the pose it gives at the end of the turn, None while it has no fix."""
+
+        def turn() -> list[ScanIn]:
+            robot.tracing = True
+            robot.turn(2 * np.pi)
+            taken = list(robot.trace)
+            run.trace.follow(robot)
+            robot.tracing = False
+            sensor, out = Laser(w), []
+            for truth, odom in taken:
+                run.clock_s += 0.1
+                out.append(scan_in(sensor.scan(run.clock_s, truth, odom, rng)))
+            return out
+
+        st = await self.localization.add_scans(run.world, rid, await thread_to_end(turn))
+        if st.state != "tracking" or st.pose is None:
+            return None
+        return np.array([st.pose.x, st.pose.y, st.pose.theta])
 
     async def _recover(self, run: MissionRun, w: World, robot: TracedRobot,
                        observer: LandmarkObserver, nav: NavConfig, rng: np.random.Generator,
@@ -490,18 +561,40 @@ class MissionService:
         scans = await asyncio.to_thread(take)
         if len(scans) < 2:
             await self._fail(run, "slam_map", "the robot did not move", scans=len(scans))
-        rid = (await self.slam.create(run.world, SlamRunIn(method=run.config.slam_method))).id
-        for i in range(0, len(scans), 200):
-            await self.slam.add_scans(run.world, rid, scans[i:i + 200])
-        c = await self.slam.commit(run.world, rid)
+        # the way extends the world's map (its poses are in the world's frame however
+        # they were fixed); one that shares no place with it makes a map of its own
+        resume = (run.config.slam_method == "graph"
+                  and self.slam.store.artifact(run.world, SAVED_MAP_ARTIFACT) is not None)
+        rid, c = await self._slam_commit(run, scans, resume)
+        if c is None:
+            resume = False
+            rid, c = await self._slam_commit(run, scans, False)
+        assert c is not None
         times, poses = await self.slam.trajectory(run.world, rid)
         run.trace.slam_path = np.asarray(poses)
         run.trace.map = await self.slam.grid(run.world, rid)
         await self.slam.delete(run.world, rid)  # the committed map and facts stay
         await self._record(run, "slam_map", slam_run=rid, method=run.config.slam_method,
-                           scans=len(scans), loop_closures=c.loop_closures,
+                           resumed=resume, scans=len(scans), loop_closures=c.loop_closures,
                            unknown_regions=len(c.unknown_regions), free_m2=c.map.free_m2,
                            ok=True)
+
+    async def _slam_commit(self, run: MissionRun, scans: list[ScanIn], resume: bool,
+                           ) -> tuple[str, CommitOut | None]:
+        """A SLAM run of ``scans`` committed into the world (``resume``: joined to its
+        map); None for the commit when the run shares no place with that map (the run
+        is deleted then)."""
+        rid = (await self.slam.create(run.world, SlamRunIn(method=run.config.slam_method,
+                                                          resume=resume))).id
+        for i in range(0, len(scans), 200):
+            await self.slam.add_scans(run.world, rid, scans[i:i + 200])
+        try:
+            return rid, await self.slam.commit(run.world, rid)
+        except InvalidInput:
+            if not resume:
+                raise
+            await self.slam.delete(run.world, rid)
+            return rid, None
 
     # -- 5: the goal room ---------------------------------------------------------------
     async def _summarise(self, run: MissionRun, w: World, robot: TracedRobot,
@@ -575,9 +668,7 @@ class MissionService:
         localization error at the stop that gave the pose, how it was found, the objects
         verified; a success needs every step done up to the verification too."""
         done = {s["what"] for s in run.steps if s["result"].get("ok") is not False}
-        wandered = any(s["what"] == "reach_landmark" and s["result"].get("how") == "wander"
-                       for s in run.steps)
-        ev = evaluate(run.trace, w, wandered)
+        ev = evaluate(run.trace, w)
         run.success = ev.success("verify" in done)
         await self._record(run, "evaluation", steps_done=len(run.steps), **ev.record(),
                            wall_time_s=run.elapsed_s, success=run.success)

@@ -91,7 +91,9 @@ class MapLocalizationConfig(BaseModel):
                                   description="while lost, a global search at most this "
                                               "often (log time)")
     global_min_score: float = Field(0.55, gt=0.0, lt=1.0)
-    unique_m: float = Field(3.0, gt=0.0, description="a rival fix must lie this far")
+    unique_m: float = Field(3.0, gt=0.0, description="a rival fix must lie this far ...")
+    unique_rad: float = Field(0.5, gt=0.0, le=np.pi, description="... or be turned this "
+                              "far (a symmetric room or corridor seen the other way round)")
     unique_ratio: float = Field(0.9, gt=0.0, le=1.0,
                                 description="a rival scoring this share of the fix "
                                             "makes it ambiguous")
@@ -167,7 +169,8 @@ class GlobalSearch:
         if best is None:
             return None
         rival = self.search.second_score(pts, self.centre, self.window_m, np.pi, best,
-                                         cfg.unique_m, cfg.unique_ratio, cfg.global_step_rad)
+                                         cfg.unique_m, cfg.unique_ratio, cfg.global_step_rad,
+                                         cfg.unique_rad)
         return None if rival > 0.0 else best
 
 

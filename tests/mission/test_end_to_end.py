@@ -222,7 +222,7 @@ def test_the_evaluation_judges_a_trace_against_the_truth(tmp_path: Any) -> None:
     trace = MissionTrace(truth_path=[np.array([1.0, 1.0, 0.0]), np.array([3.0, 1.0, 0.0])],
                          fix=(np.array([1.0, 1.0, 0.1]), np.array([1.18, 1.24, 0.0])),
                          landmarks=["rn0a", "rn0b"])
-    ev = evaluate(trace, w, wandered=False)
+    ev = evaluate(trace, w)
     assert ev.localization_error_m == pytest.approx(0.3) and ev.localized_by == "eigenspace"
     assert ev.pose_ok and (ev.objects, ev.objects_verified, ev.false_verified) == (3, 0, 0)
     assert not ev.success(verified=True)  # the world has objects and none was verified
@@ -231,13 +231,14 @@ def test_the_evaluation_judges_a_trace_against_the_truth(tmp_path: Any) -> None:
     trace.summary = SummaryRun(path=[np.array([6.0, 5.0]), np.array([7.0, 6.0])], log=[],
                                verified={"mug": np.array([7.2, 6.6])}, rejected={},
                                unverified={}, grid=None, elapsed_s=10.0)  # type: ignore[arg-type]
-    ev = evaluate(trace, w, wandered=True)
+    trace.fixed_by = "wander"
+    ev = evaluate(trace, w)
     assert ev.localized_by == "wander" and ev.success(verified=True)
     assert not ev.success(verified=False)
     trace.summary.verified["ghost"] = np.array([8.0, 6.0])
-    assert evaluate(trace, w, wandered=True).false_verified == 1
-    assert not evaluate(trace, w, wandered=True).success(verified=True)
+    assert evaluate(trace, w).false_verified == 1
+    assert not evaluate(trace, w).success(verified=True)
     trace.fix = (np.array([1.0, 1.0, 0.6]), np.array([1.0, 1.0, 0.0]))  # 34 degrees off
-    assert not evaluate(trace, w, wandered=False).pose_ok
+    assert not evaluate(trace, w).pose_ok
     mission_figure(trace, w, str(tmp_path / "m.png"), "a trace")
     assert (tmp_path / "m.png").read_bytes()[:4] == b"\x89PNG"

@@ -12,10 +12,13 @@ from typing import Any
 import pytest
 
 import service.mission as mission_module
+from numeric.slam.merge import runs_of
+from numeric.slam.saved_map import from_bytes
 from numeric.world import WorldDescription
 from service.container import Services, open_services
 from service.mission import MissionConfig, MissionRun
 from service.settings import Settings
+from service.slam import SAVED_MAP_ARTIFACT
 from tests.mission.test_end_to_end import SMALL
 
 
@@ -96,11 +99,28 @@ def test_out_of_replans_the_mission_ends_at_navigate(
 def test_missions_in_a_row_do_as_well_as_on_a_fresh_world(services: Services) -> None:
     """Three seeds one after another on one world, each beside the same seed on a fresh
     world: the history (reached and failed arcs, earlier maps) breaks none that succeeds
-    fresh, and every arc driven or failed is counted in the DRM."""
+    fresh, every arc driven or failed is counted in the DRM, and the world's map serves
+    the next mission's laser localization and grows with its way."""
     rows = {seed: mission(services, "row", seed) for seed in range(3)}
     for seed, run in rows.items():
         fresh = mission(services, f"fresh{seed}", seed)
         assert run.success or not fresh.success, (seed, run.steps, fresh.steps)
+    # from the second mission on the world has a map: where the robot wakes on it, the
+    # laser localizes it there, the eigenspace's answer is reported against the laser's
+    # pose, and the mission's map extends the world's
+    by = {seed: steps(run, "localize")[-1].get("by") for seed, run in rows.items()}
+    assert by[0] == "eigenspace" and "laser" in list(by.values())[1:], by
+    for seed, run in rows.items():
+        if by[seed] != "laser":
+            continue
+        ev, loc = steps(run, "evaluation")[-1], steps(run, "localize")[-1]
+        assert ev["localized_by"] == "laser" and ev["localization_error_m"] < 0.2, ev
+        assert "landmark_fix" not in [s["what"] for s in run.steps]
+        if loc["state"] == "z":  # against the laser as against the truth, within its error
+            assert abs(loc["eigenspace_vs_laser_m"] - ev["eigenspace_error_m"]) < 0.2, loc
+        assert steps(run, "slam_map")[-1]["resumed"] is True
+    saved = from_bytes(services.worlds.store.artifact("row", SAVED_MAP_ARTIFACT) or b"")
+    assert len(runs_of(saved)) >= 2  # the map holds more than one mission's way
     events = [e.kind for e in services.worlds.store.events("row")]
     drm = asyncio.run(services.worlds.drm("row"))["edges"]
     assert sum(e["succeeded"] for e in drm) == events.count("reached") > 0

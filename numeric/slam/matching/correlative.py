@@ -27,6 +27,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from numeric.geometry import wrap_angle
 from numeric.probability_grid import ProbabilityGrid, bilinear
 
 
@@ -462,17 +463,26 @@ class PrecomputedGrid:
 
     def second_score(self, points: np.ndarray, pose: np.ndarray, linear_window_m: float,
                      angular_window_rad: float, best: Match, exclusion_m: float,
-                     ratio: float, min_step_rad: float = 0.0) -> float:
+                     ratio: float, min_step_rad: float = 0.0,
+                     exclusion_rad: float = np.pi) -> float:
         """A score in :meth:`match`'s window (centred at ``pose``) at least
-        ``exclusion_m`` from ``best`` and above ``ratio`` times its score, else 0: a
-        peak as good elsewhere in the window means the scan fits the submap in two
-        places (a corridor's repeated doors) -- a test of the match's uniqueness after
-        Olson, "Real-Time Correlative Scan Matching" (ICRA 2009, §IV: a match is only
-        as good as the response's spread)."""
+        ``exclusion_m`` from ``best`` -- or, at a heading more than ``exclusion_rad``
+        from best's, anywhere -- and above ``ratio`` times its score, else 0: a peak as
+        good elsewhere in the window means the scan fits the submap in two places (a
+        corridor's repeated doors, a symmetric room seen turned round) -- a test of the
+        match's uniqueness after Olson, "Real-Time Correlative Scan Matching" (ICRA
+        2009, §IV: a match is only as good as the response's spread)."""
         thetas, cells, w = self.candidates(points, pose, linear_window_m, angular_window_rad,
                                            min_step_rad)
         res = self.grid.resolution_m
         ex = np.round((best.pose[:2] - pose[:2]) / res).astype(int) + w
-        b = branch_and_bound(self.stack, cells, 2 * w + 1, 2 * w + 1, ratio * best.score,
-                             int(ex[0]), int(ex[1]), int(np.ceil(exclusion_m / res)), True)
-        return float(b[3]) if b[0] >= 0 else 0.0
+        turned = np.abs(wrap_angle(pose[2] + thetas - best.pose[2])) > exclusion_rad
+        out = 0.0
+        for part, ex_r in ((~turned, int(np.ceil(exclusion_m / res))), (turned, -1)):
+            if not part.any():
+                continue
+            b = branch_and_bound(self.stack, np.ascontiguousarray(cells[part]), 2 * w + 1,
+                                 2 * w + 1, ratio * best.score, int(ex[0]), int(ex[1]), ex_r,
+                                 True)
+            out = max(out, float(b[3]) if b[0] >= 0 else 0.0)
+        return out
