@@ -44,6 +44,7 @@ bench: install
 	$(PY) tests/bench/eigenspace.py
 	$(PY) tests/bench/eigenspace_unseen.py
 	$(PY) tests/bench/slam.py
+	$(PY) tests/bench/gated.py
 	$(PY) tests/bench/slam_unseen.py
 	$(PY) tests/bench/map_localization.py
 	$(PY) tests/bench/merge.py

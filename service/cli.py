@@ -153,8 +153,8 @@ def _slam_outputs(out: Path, times, poses, grid) -> None:  # type: ignore[no-unt
 
 @app.command()
 def slam(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .bag (or bag dir)"),
-         method: str = typer.Option("graph", help="graph (recommended) | rbpf | gated | icp | "
-                                             "odom"),
+         method: str = typer.Option("graph", help="graph (recommended) | rbpf | gated | "
+                                             "gated-icp | icp | odom"),
          particles: int = typer.Option(512, min=1, max=4096),
          alpha: float = typer.Option(0.0, min=0.0, help="intensity weight (eqs. 1, 9)"),
          proposal: str = typer.Option(

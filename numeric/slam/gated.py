@@ -1,12 +1,15 @@
-"""Single-hypothesis SLAM (§6): odometry alone, Intensity-ICP alone, and Intensity-ICP
-gated by the odometry motion model of eq. 5.
+"""Single-hypothesis SLAM (§6) as the paper builds it: odometry alone, Intensity-ICP
+alone, and Intensity-ICP gated by the odometry motion model of eq. 5 (``gated-icp``).
+The method ``gated`` is the same single hypothesis with the RBPF's scan matcher as its
+front end (:meth:`numeric.slam.rbpf.RbpfConfig.single_hypothesis`); this module keeps
+eq. 5's gate for both.
 
 Every scan gets a pose. A scan is matched when the odometry says the robot moved at
 least ``update_linear_m`` / ``update_angular_rad`` since the last matched scan; in
 between, poses follow odometry from the last matched pose. The reference is the
 previous matched scan plus the keyframes selected by :meth:`Keyframes.select` (§4).
 
-Eq. 5 (gated): the Intensity-ICP pose x̂_t is accepted only if it lies in the box
+Eq. 5 (gated-icp): the Intensity-ICP pose x̂_t is accepted only if it lies in the box
 ``x_{t-1} + R_{t-1}(u_t ± ε)`` -- in the frame of x_{t-1}, each component of the
 matched increment differs from the odometry increment u_t by at most ε -- else the
 odometry prediction is kept. ε grows with the motion (``eps_*_ratio``).
@@ -25,7 +28,7 @@ from numeric.scan import Scan
 from numeric.slam.keyframes import Keyframes, MapConfig, moved
 from numeric.slam.matching.intensity_icp import IcpConfig, IcpResult, Reference, intensity_icp
 
-SingleMethod = Literal["odom", "icp", "gated"]
+SingleMethod = Literal["odom", "icp", "gated-icp"]
 
 
 class GateConfig(BaseModel):
@@ -61,9 +64,9 @@ class StepInfo:
 
 @dataclass
 class SingleHypothesisSlam:
-    """``method`` = "odom", "icp" or "gated" (eq. 5); feed scans with :meth:`process`."""
+    """``method`` = "odom", "icp" or "gated-icp" (eq. 5); feed scans with :meth:`process`."""
 
-    method: SingleMethod = "gated"
+    method: SingleMethod = "gated-icp"
     icp: IcpConfig = field(default_factory=IcpConfig)
     map: MapConfig = field(default_factory=MapConfig)
     gate: GateConfig = field(default_factory=GateConfig)
@@ -78,7 +81,7 @@ class SingleHypothesisSlam:
     _prev: tuple[np.ndarray, np.ndarray | None] | None = None
 
     def __post_init__(self) -> None:
-        if self.method not in ("odom", "icp", "gated"):
+        if self.method not in ("odom", "icp", "gated-icp"):
             raise ValueError(f"unknown single-hypothesis method {self.method!r}")
         self.keyframes = Keyframes(self.map)
 

@@ -1,5 +1,5 @@
-"""One entry point for the methods (odometry, Intensity-ICP, gated and RBPF from the
-paper; graph SLAM beyond it): options, a factory, and a run over a whole log with the
+"""One entry point for the methods (odometry, Intensity-ICP, gated SLAM and RBPF from
+the paper; graph SLAM beyond it): options, a factory, and a run over a whole log with the
 outputs the CLI and the service write."""
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from numeric.slam.matching.intensity_icp import IcpConfig
 from numeric.slam.rbpf import Proposal, RbpfConfig, RbpfSlam, Resample
 from numeric.slam.simulate import simulated_log
 
-Method = Literal["odom", "icp", "gated", "rbpf", "graph"]
+Method = Literal["odom", "icp", "gated-icp", "gated", "rbpf", "graph"]
 
 
 def _field(model: type[BaseModel], name: str) -> Any:
@@ -40,7 +40,9 @@ class SlamOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
     method: Method = Field("graph", description="graph SLAM (the recommended method), "
                            "the RBPF of the paper with Grisetti et al.'s proposal (rbpf), "
-                           "gated, icp or odom")
+                           "the paper's gated single-hypothesis SLAM with the RBPF's scan "
+                           "matcher (gated) or with Intensity-ICP as in the paper "
+                           "(gated-icp), icp or odom")
     particles: int = _field(RbpfConfig, "particles")
     alpha: float = _field(RbpfConfig, "alpha")
     proposal: Proposal = _field(RbpfConfig, "proposal")
@@ -50,11 +52,13 @@ class SlamOptions(BaseModel):
     seed: int = _field(RbpfConfig, "seed")
 
     def to_config(self) -> RbpfConfig | GraphSlamConfig | IcpConfig:
-        """The estimator's config: RBPF's, graph SLAM's, or the single-hypothesis
-        methods' Intensity-ICP config."""
+        """The estimator's config: RBPF's (also the gated single hypothesis's), graph
+        SLAM's, or the Intensity-ICP config of the paper's single-hypothesis methods."""
         icp = IcpConfig(alpha=self.alpha)
         if self.method == "graph":
             return GraphSlamConfig(alpha=self.alpha)
+        if self.method == "gated":
+            return RbpfConfig.single_hypothesis(alpha=self.alpha, seed=self.seed)
         if self.method == "rbpf":
             return RbpfConfig(particles=self.particles, alpha=self.alpha,
                               proposal=self.proposal, resample=self.resample,
@@ -87,7 +91,7 @@ def create(options: SlamOptions) -> Slam:
         return GraphSlam(cfg, seed=options.seed)
     if isinstance(cfg, RbpfConfig):
         return RbpfSlam(cfg)
-    assert options.method in ("odom", "icp", "gated")
+    assert options.method in ("odom", "icp", "gated-icp")
     return SingleHypothesisSlam(method=options.method, icp=cfg)
 
 

@@ -54,7 +54,8 @@ PUBLISHED = {"aces": (0.173, 0.060, 0.044, 0.0375), "mit-csail": (0.106, 0.049, 
 #: (label, SlamOptions fields) of chizu's methods; "karto" and "small_gicp" are the peers
 #: of tests/bench/slam_peers.py, run the same way.
 METHODS: dict[str, dict[str, str]] = {
-    "odom": {"method": "odom"}, "icp": {"method": "icp"}, "gated": {"method": "gated"},
+    "odom": {"method": "odom"}, "icp": {"method": "icp"},
+    "gated (icp)": {"method": "gated-icp"}, "gated": {"method": "gated"},
     "rbpf (paper proposal)": {"method": "rbpf", "proposal": "odometry"},
     "rbpf (improved)": {"method": "rbpf", "proposal": "improved"},
     "graph": {"method": "graph"},
@@ -103,7 +104,8 @@ def one_run(name: str, label: str, quick: bool, out: Path,
     keep = (rt[:, 1] <= log.scans[-1].t + 1e-6) & (rt[:, 0] >= log.scans[0].t - 1e-6)
     rt, rd = rt[keep], rd[keep]
     base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    slug = label.split()[0] + ("-improved" if "improved" in label else "")
+    slug = label.split()[0] + ("-improved" if "improved" in label else "") + (
+        "-icp" if "(icp)" in label else "")
     slug += f"-s{seed}" if seed else ""
     times, poses, seconds, slam, res = estimate(log, label, seed)
     online = float("nan")  # before the end-of-run alignment, where there is one
@@ -253,8 +255,9 @@ def corridor(lines: list[str]) -> None:
     lines += ["", "## Stripe corridor (34 m, odometry under-reads distance by 5 %)", "",
               "| method | alpha | final along-corridor error (m) | mean position error (m) |",
               "|---|---|---|---|"]
-    for method, alpha in [("odom", 0.0), ("icp", 0.0), ("icp", 1e-9), ("gated", 0.0),
-                          ("gated", 1e-9), ("rbpf", 0.0), ("rbpf", 1e-9)]:
+    for method, alpha in [("odom", 0.0), ("icp", 0.0), ("icp", 1e-9), ("gated-icp", 0.0),
+                          ("gated-icp", 1e-9), ("gated", 0.0), ("gated", 1e-9), ("rbpf", 0.0),
+                          ("rbpf", 1e-9)]:
         _, res = run_log(log, SlamOptions(method=method, alpha=alpha))  # type: ignore[arg-type]
         err = np.hypot(*(res.poses[:, :2] - truth[:, :2]).T)
         lines.append(f"| {method} | {alpha:g} | {res.poses[-1, 0] - truth[-1, 0]:+.2f} | "

@@ -1,7 +1,7 @@
 """SLAM batches on Dask: the same tasks in this process and on a LocalCluster of 2
 worker processes (this machine's cores), wall time and whether the results agree.
 
-    .venv/bin/python tests/bench/slam_batch.py [--limit 1500] [--method gated]
+    .venv/bin/python tests/bench/slam_batch.py [--limit 1500] [--method gated-icp]
 
 Tasks: the four Freiburg logs (the first --limit scans of each) with --method. Writes
 docs/results/slam_batch.md.
@@ -25,7 +25,7 @@ def main() -> None:
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--limit", type=int, default=1500)
-    ap.add_argument("--method", default="gated")
+    ap.add_argument("--method", default="gated-icp")
     args = ap.parse_args()
     d = slam_data_dir()
     logs = [d / "aces" / "aces.recon.clf", d / "mit-csail" / "mit-csail.clf",

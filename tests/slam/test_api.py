@@ -46,7 +46,7 @@ def world(client: TestClient) -> str:
 
 @pytest.fixture(scope="module")
 def run(client: TestClient, world: str) -> str:
-    r = client.post(f"/worlds/{world}/slam-runs", json={"method": "gated"})
+    r = client.post(f"/worlds/{world}/slam-runs", json={"method": "gated-icp"})
     assert r.status_code == 201, r.text
     assert r.headers["location"].endswith(r.json()["id"])
     rid = r.json()["id"]

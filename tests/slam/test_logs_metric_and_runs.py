@@ -218,13 +218,47 @@ def _mean_err(poses: np.ndarray, truth: np.ndarray) -> float:
 
 def test_gated_slam_beats_odometry_in_the_room(room_log) -> None:  # type: ignore[no-untyped-def]
     odo = _mean_err(room_log.odometry, room_log.truth)
-    s = SingleHypothesisSlam(method="gated")
+    s = SingleHypothesisSlam(method="gated-icp")
     for scan in room_log.scans:
         s.process(scan)
     t, p = s.trajectory()
     assert len(t) == len(room_log) and np.allclose(t, room_log.times)
     assert _mean_err(p, room_log.truth) < 0.5 * odo
     assert 0 < s.accepted <= s.matched
+
+
+def test_gated_slam_with_the_rbpf_matcher_is_one_deterministic_hypothesis(room_log) -> None:  # type: ignore[no-untyped-def]
+    """Method ``gated``: one particle whose pose is the match's mean (no draw: two seeds
+    give one trajectory), well below the odometry's error in the room."""
+    from numeric.slam.rbpf import RbpfSlam
+    from numeric.slam.runner import SlamOptions, run_log
+
+    odo = _mean_err(room_log.odometry, room_log.truth)
+    runs = []
+    for seed in (0, 1):
+        slam, res = run_log(room_log, SlamOptions(method="gated", seed=seed))
+        runs.append(res.poses)
+    assert isinstance(slam, RbpfSlam) and len(slam.x) == 1 and slam.reloc is None
+    assert np.array_equal(runs[0], runs[1])
+    assert _mean_err(runs[0], room_log.truth) < 0.5 * odo
+
+
+def test_the_single_hypothesis_keeps_its_start_when_eq5_refuses_the_match() -> None:
+    """Eq. 5 around the increment the front end started from: a match inside the box is
+    taken, one outside it (or a failed one) leaves the start."""
+    from numeric.slam.rbpf import RbpfConfig, RbpfSlam
+    from numeric.slam.rbpf.improved import _single
+
+    slam = RbpfSlam(RbpfConfig.single_hypothesis())
+    slam.x = np.array([[1.0, 2.0, 0.5]])
+    u = np.array([0.2, 0.0, 0.0])
+    start = compose(slam.x[0], u)
+    near = compose(slam.x[0], np.array([0.22, 0.01, 0.01]))
+    far = compose(slam.x[0], np.array([0.6, 0.0, 0.0]))
+    assert np.allclose(_single(slam, u, near, True)[0][0], near)
+    assert np.allclose(_single(slam, u, far, True)[0][0], start)
+    new, _, fell_back = _single(slam, u, near, False)
+    assert np.allclose(new[0], start) and fell_back == 1
 
 
 def test_rbpf_tracks_and_keeps_maps_without_copies(room_log) -> None:  # type: ignore[no-untyped-def]

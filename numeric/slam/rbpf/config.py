@@ -60,7 +60,9 @@ class OdometryCalibrationConfig(BaseModel):
 
 class LoopStartConfig(BaseModel):
     """The loop-aware start (:mod:`numeric.slam.rbpf.loop_start`): a wide search of the
-    scan against the best particle's old keyframes once per update."""
+    scan against the best particle's old keyframes every ``every`` updates."""
+
+    every: int = Field(1, ge=1, description="updates between two searches")
 
     radius_m: float = Field(2.0, gt=0, description="half width of its position grid")
     step_m: float = Field(0.2, gt=0, description="... and its spacing")
@@ -176,7 +178,8 @@ class ImprovedConfig(BaseModel):
                     "increment once per update (one value: no correction)")
     odometry: OdometryCalibrationConfig = Field(default_factory=OdometryCalibrationConfig)
     loop: LoopStartConfig = Field(default_factory=LoopStartConfig)
-    reloc: RelocalisationConfig = Field(default_factory=RelocalisationConfig)
+    reloc: RelocalisationConfig | None = Field(default_factory=RelocalisationConfig,
+                                               description="None: no relocalisation")
 
     def model(self, field_cutoff_m: float) -> MatchModel:
         """The matcher's constants: the residual cap (the smaller of ours and the
@@ -237,6 +240,20 @@ class RbpfConfig(BaseModel):
     alignment: AlignmentConfig | None = Field(
         default_factory=AlignmentConfig, description="global scan alignment when the "
         "run ends (the improved proposal); None: the filter's estimate as it is")
+
+    @classmethod
+    def single_hypothesis(cls, alpha: float = 0.0, seed: int = 0) -> RbpfConfig:
+        """The paper's single-hypothesis SLAM (Hara et al. §6) with the improved
+        proposal's scan matcher as its front end: one particle, whose pose is the
+        match's mean gated by eq. 5 (:func:`~numeric.slam.rbpf.improved.improved_update`);
+        the loop start every sixth update (its wide search is most of an update's time),
+        no relocalisation and no learned odometry sigma (a particle cloud's spread; one
+        hypothesis has none), the scans between updates on odometry, as §6 has them, and
+        no end-of-run alignment: an online estimate, update by update."""
+        imp = ImprovedConfig(loop=LoopStartConfig(every=6), reloc=None,
+                             odometry=OdometryCalibrationConfig(window=0))
+        return cls(particles=1, alpha=alpha, seed=seed, improved=imp, track_scans=False,
+                   alignment=None)
 
     @model_validator(mode="after")
     def _paper_reference(self) -> RbpfConfig:

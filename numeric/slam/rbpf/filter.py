@@ -118,7 +118,7 @@ class RbpfSlam(AlignedOutputs):
         self._last_kf_odom: np.ndarray | None = None
         imp = cfg.improved
         self.loop = LoopStart(imp.loop)
-        self.reloc = Relocalisation(imp.reloc, imp.loop)
+        self.reloc = None if imp.reloc is None else Relocalisation(imp.reloc, imp.loop)
         self.calibration = HeadingCalibration(imp.odometry)
         self.scans = ScanStore()
 
@@ -375,6 +375,11 @@ class RbpfSlam(AlignedOutputs):
 
     # -- outputs ------------------------------------------------------------------------
     @property
+    def updates(self) -> int:
+        """Filter updates so far (the first scan counts as one)."""
+        return len(self._hist_pose)
+
+    @property
     def best(self) -> int:
         """The particle with the highest accumulated likelihood (§7.4)."""
         return int(np.argmax(self.loglik))
@@ -385,11 +390,11 @@ class RbpfSlam(AlignedOutputs):
 
     @property
     def relocalisations(self) -> list[tuple[float, float, float, float, float]]:
-        return self.reloc.taken
+        return [] if self.reloc is None else self.reloc.taken
 
     @property
     def reloc_refused(self) -> list[tuple[float, float, float]]:
-        return self.reloc.refused
+        return [] if self.reloc is None else self.reloc.refused
 
     def _online_pose(self) -> np.ndarray:
         """The best particle's pose, with the odometry since its last update."""

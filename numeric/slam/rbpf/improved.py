@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from numeric.geometry import compose, wrap_angle
+from numeric.slam.gated import inside_gate
 from numeric.slam.matching.likelihood_field import Beams, FieldPack
 from numeric.slam.rbpf.proposal import Sampling, Starts, loglik_all, propose_all, robust_increment
 from numeric.threads import thread_map
@@ -88,8 +89,10 @@ def _start(slam: RbpfSlam, u: np.ndarray, beams: Beams, fp: FieldPack, chosen: n
         u_start, won = robust_start(slam, u, beams, fp, kf_best)
         if won:  # the odometry failed here: its learned sigma does not apply
             sig = slam.config.motion.sigmas(u)
-    u_loop = slam.loop.search(slam, u_start, chosen, beams, kf_best)
-    if u_loop is None:
+    u_loop = None
+    if slam.updates % imp.loop.every == 0:
+        u_loop = slam.loop.search(slam, u_start, chosen, beams, kf_best)
+    if u_loop is None and slam.reloc is not None:
         u_loop = slam.reloc.search(slam, u_start, beams)
     if u_loop is not None:  # the loop's increment replaces the odometry's
         u = u_start = u_loop
@@ -116,6 +119,8 @@ def _draw(slam: RbpfSlam, u: np.ndarray, u_start: np.ndarray, sig: np.ndarray, b
     parts = np.array_split(np.arange(len(first)), max(1, min(cfg.threads, len(first) // 16)))
     done = thread_map(propose, parts, cfg.threads)
     mu, chol, logeta, ok = (np.concatenate([d[i] for d in done]) for i in range(4))
+    if p == 1:
+        return _single(slam, u_start, mu[0], bool(ok[0]))
     noise = slam.rng.normal(size=(p, 3))
     okp = ok[inv]
     new = np.empty_like(slam.x)
@@ -132,3 +137,19 @@ def _draw(slam: RbpfSlam, u: np.ndarray, u_start: np.ndarray, sig: np.ndarray, b
         inc[fb] = loglik_all(new[fb], beams, fp, np.ascontiguousarray(kf_pose[:, fb]),
                              slam.model)
     return new, inc, int(fb.sum())
+
+
+def _single(slam: RbpfSlam, u_start: np.ndarray, mu: np.ndarray,
+            ok: bool) -> tuple[np.ndarray, np.ndarray, int]:
+    """One particle: the single hypothesis of §6, where a draw would only add noise. Its
+    pose is the match's mean when eq. 5 accepts it -- inside ``x_{t-1} (+) (u ± ε)``,
+    ``u`` the increment the front end started from (the odometry's, corrected by the
+    multi-start match or a loop start: the paper's odometry gate applied to raw
+    odometry would refuse every match where the odometry failed, as fr079's does in
+    its turns) -- else the start itself."""
+    x0 = slam.x[0]
+    pose = mu.copy()
+    pose[2] = wrap_angle(pose[2])
+    if not ok or not inside_gate(x0, pose, u_start, slam.config.gate):
+        return compose(x0, u_start)[None, :], np.zeros(1), int(not ok)
+    return pose[None, :], np.zeros(1), 0
