@@ -49,6 +49,7 @@ bench: install
 	$(PY) tests/bench/map_localization.py
 	$(PY) tests/bench/merge.py
 	$(PY) tests/bench/robots.py
+	$(PY) tests/bench/lifelong.py
 	$(PY) tests/bench/slam_stream.py
 	$(PY) tests/bench/viewpoint.py
 	$(PY) tests/bench/restart.py

@@ -643,3 +643,33 @@ def test_the_odometry_heading_sigma_learned_follows_the_odometrys_quality() -> N
     assert scales["drifting"] > 0.8  # measured 1.0
     off = GraphSlam(GraphSlamConfig(odometry={"window": 0}))
     assert off.odometry.scale == 1.0
+
+
+def test_a_room_driven_again_trims_its_submaps_and_keeps_its_accuracy() -> None:
+    """The room's tour driven forwards and then backwards as one run: the second pass's
+    submaps observe what the first pass's did and are trimmed (their grids dropped, no
+    loop search against them), so the grids held stay as large as after the first pass,
+    and the second pass is as accurate as the first."""
+    from dataclasses import replace
+
+    log = simulated_log("room_a", seed=0)
+    slam = GraphSlam(GraphSlamConfig())
+    last, n = log.scans[-1].t, len(log)
+    cells = []
+    for k, scans in enumerate((log.scans, log.scans[::-1])):
+        for sc in scans:
+            slam.process(replace(sc, t=sc.t if k == 0 else last + 1 + last - sc.t))
+        cells.append(sum(s.grid.prob.size for s in slam.submaps))
+    trimmed = [s for s in slam.submaps if s.trimmed]
+    assert trimmed and all(s.finished and s.grid.prob.size == 0 for s in trimmed)
+    assert cells[1] <= 1.1 * cells[0]
+    _, poses = slam.trajectory()
+    err = [float(np.mean(np.hypot(*(p[:, :2] - log.truth[:, :2]).T)))
+           for p in (poses[:n], poses[n:][::-1])]
+    assert err[1] < max(1.5 * err[0], 0.05), err
+    # a loop search after the second pass never looks at a trimmed submap
+    searched: list[int] = []
+    real = slam.loop_map
+    slam.loop_map = lambda k, node: searched.append(k) or real(k, node)  # type: ignore[method-assign]
+    slam.search_loops(len(slam.local) - 1)
+    assert searched and not {slam.submaps.index(s) for s in trimmed} & set(searched)

@@ -64,6 +64,10 @@ class SubmapConfig(BaseModel):
         2.0, gt=0, description="a wall seen at grazing incidence (collinear returns, "
         "keyframes.collinear_grazing_segments) is joined into a line up to this gap "
         "(None: its returns stay dots)")
+    trim_share: float | None = Field(
+        0.95, gt=0, le=1, description="a finished submap is trimmed when older kept "
+        "submaps observed this share of its cells (Submaps.trim; None: never)")
+    trim_cell_m: float = Field(0.25, gt=0, description="cells of that comparison")
 
 
 class OdometryModelConfig(BaseModel):

@@ -97,7 +97,7 @@ class LoopClosing:
         # estimate may have drifted from it: the radius and the window grow with it
         grow, grow_rad = {}, {}
         for k, s in enumerate(self.submaps):
-            if not s.finished or node in s.nodes:
+            if not s.finished or s.trimmed or node in s.nodes:
                 continue
             since = self.drift_path(node, k)
             grow[k] = min(cfg.loop.window_growth * since, cfg.loop.max_growth_m)

@@ -63,6 +63,8 @@ class GraphSlam(Submaps, LocalSlam, LoopClosing, AlignedOutputs):
         self.scans = ScanStore()
         self._global = np.zeros((0, 3))
         self._loop_maps: dict[tuple[int, tuple[int, ...]], LoopMap] = {}
+        self._cells: dict[int, np.ndarray] = {}
+        self._covered = np.zeros(0, dtype=np.int64)
         self._last_closed: dict[int, int] = {}  # submap -> last node closed against it
         self._pending: dict[int, LoopClosure] = {}  # submap -> match awaiting confirmation
         self._prev: tuple[np.ndarray, np.ndarray | None] | None = None  # for alpha > 0

@@ -7,6 +7,12 @@ where the first was taken) and the collinear returns of a wall seen at grazing
 incidence joined farther apart (``grazing_gap_m``), so that such a wall fixes a scan
 across itself and leaves it free along it. Loop closure matches against a submap
 stitched with its neighbours in time (:meth:`Submaps.loop_map`).
+
+On a long run over the same building a finished submap that observed almost nothing the
+older submaps had not is trimmed (:meth:`Submaps.trim`, after Cartographer's overlapping
+submaps trimmer): its grid is dropped and loop closure no longer searches it, while its
+nodes stay in the pose graph. Memory and the loop searches then grow with the building,
+not with the hours the robot drives through it.
 """
 
 from __future__ import annotations
@@ -16,7 +22,7 @@ from functools import cached_property
 
 import numpy as np
 
-from numeric.geometry import place
+from numeric.geometry import compose, invert, place
 from numeric.probability_grid import ProbabilityGrid
 from numeric.slam.graph.config import GraphSlamConfig
 from numeric.slam.keyframes import connect_returns
@@ -31,6 +37,8 @@ class Submap:
     grid: ProbabilityGrid
     nodes: list[int] = field(default_factory=list)
     finished: bool = False
+    #: its grid was dropped: older submaps had observed what it did (Submaps.trim)
+    trimmed: bool = False
 
 
 @dataclass
@@ -61,6 +69,11 @@ class Submaps:
     _span_hi: np.ndarray
     _tied_at: np.ndarray
     _loop_maps: dict[tuple[int, tuple[int, ...]], LoopMap]
+    _global: np.ndarray
+    #: the coarse world cells each kept finished submap observed, and their union over
+    #: the kept submaps old enough to count (Submaps.trim)
+    _cells: dict[int, np.ndarray]
+    _covered: np.ndarray
 
     def active(self) -> list[Submap]:
         """The (at most two) submaps scans are inserted into."""
@@ -93,6 +106,42 @@ class Submaps:
             if len(s.nodes) >= cfg.submaps.scans:
                 s.finished = True
                 s.grid = s.grid.cropped().frozen()
+                if cfg.submaps.trim_share is not None:
+                    self.trim(self.submaps.index(s))
+
+    def observed_cells(self, k: int) -> np.ndarray:
+        """The cells of ``trim_cell_m`` in the world frame that submap ``k`` observed,
+        as sorted keys: its grid's observed cells placed by its anchor node's current
+        global pose."""
+        s, cell = self.submaps[k], self.config.submaps.trim_cell_m
+        g = s.grid
+        ii, jj = np.nonzero(g.known())
+        local = g.origin + (np.stack([ii, jj], axis=1) + 0.5) * g.resolution_m
+        world = place(local, compose(self._global[s.anchor], invert(self.local[s.anchor])))
+        c = np.floor(world / cell).astype(np.int64)
+        return np.unique(c[:, 0] * 2_000_003 + c[:, 1])
+
+    def trim(self, k: int) -> bool:
+        """Trim the submap ``k`` just finished when at least ``trim_share`` of the cells
+        it observed were observed by kept submaps finished before its two neighbours in
+        time (a submap always overlaps the one before it by half, and a robot turning in
+        a room fills the next with the same cells): its grid is dropped, loop closure
+        skips it. Else its cells join the cover. Returns whether it was trimmed."""
+        cfg = self.config.submaps
+        keys = self.observed_cells(k)
+        old = [j for j in self._cells if j < k - 2]
+        for j in old:  # old enough now: into the cover
+            self._covered = np.union1d(self._covered, self._cells.pop(j))
+        share = (np.isin(keys, self._covered, assume_unique=True).mean() if len(keys)
+                 else 1.0)
+        assert cfg.trim_share is not None
+        if share >= cfg.trim_share:
+            s = self.submaps[k]
+            s.trimmed = True
+            s.grid = ProbabilityGrid(s.grid.config)
+            return True
+        self._cells[k] = keys
+        return False
 
     def loop_map(self, k: int, node: int) -> LoopMap:
         """Submap ``k`` stitched with its finished neighbours in time, ``loop.neighbours``
@@ -103,7 +152,8 @@ class Submaps:
         where the right place was, below any threshold that rejects false matches."""
         n = self.config.loop.neighbours
         ks = tuple(j for j in range(k - n, k + n + 1) if 0 <= j < len(self.submaps)
-                   and self.submaps[j].finished and node not in self.submaps[j].nodes)
+                   and self.submaps[j].finished and not self.submaps[j].trimmed
+                   and node not in self.submaps[j].nodes)
         key = (k, ks)
         lm = self._loop_maps.pop(key, None)
         if lm is None:
