@@ -364,8 +364,8 @@ class MissionService:
                                                n)
                 motion = None if prev is None else relative(prev, robot.odom_pose)
                 ans = await self.eigenspace.add_stop(run.world, sid, imgs, motion)
-                run.trace.stops.append(robot.pose.copy())
                 truth = robot.pose.copy()
+                run.trace.stops.append(truth)
                 if rid is not None:
                     laser = await self._laser_turn(run, w, robot, rng, rid)
                 state = ans.state.state
@@ -564,7 +564,7 @@ class MissionService:
         # the way extends the world's map (its poses are in the world's frame however
         # they were fixed); one that shares no place with it makes a map of its own
         resume = (run.config.slam_method == "graph"
-                  and self.slam.store.artifact(run.world, SAVED_MAP_ARTIFACT) is not None)
+                  and self.slam.store.has_artifact(run.world, SAVED_MAP_ARTIFACT))
         rid, c = await self._slam_commit(run, scans, resume)
         if c is None:
             resume = False

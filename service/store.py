@@ -222,6 +222,13 @@ class Store:
         conn.execute("INSERT OR REPLACE INTO artifacts (world, kind, blob, created_at) "
                      "VALUES (?, ?, ?, ?)", (world, kind, blob, time.time()))
 
+    def has_artifact(self, world: str, kind: str) -> bool:
+        """Whether ``world`` has an artifact of ``kind`` (its blob is not read)."""
+        with self._lock:
+            row = self._conn.execute("SELECT 1 FROM artifacts WHERE world = ? AND kind = ?",
+                                     (world, kind)).fetchone()
+        return row is not None
+
     def artifact(self, world: str, kind: str) -> bytes | None:
         with self._lock:
             row = self._conn.execute("SELECT blob FROM artifacts WHERE world = ? AND kind = ?",

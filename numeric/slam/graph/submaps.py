@@ -102,12 +102,13 @@ class Submaps:
             s.grid.insert(pose[:2], hits, miss, surface)
             s.nodes.append(node)
         self._span_hi[len(self.submaps) - len(act):] = self._travel[node]
-        for s in act:
+        for k in range(len(self.submaps) - len(act), len(self.submaps)):
+            s = self.submaps[k]
             if len(s.nodes) >= cfg.submaps.scans:
                 s.finished = True
                 s.grid = s.grid.cropped().frozen()
                 if cfg.submaps.trim_share is not None:
-                    self.trim(self.submaps.index(s))
+                    self.trim(k)
 
     def observed_cells(self, k: int) -> np.ndarray:
         """The cells of ``trim_cell_m`` in the world frame that submap ``k`` observed,
@@ -121,12 +122,12 @@ class Submaps:
         c = np.floor(world / cell).astype(np.int64)
         return np.unique(c[:, 0] * 2_000_003 + c[:, 1])
 
-    def trim(self, k: int) -> bool:
+    def trim(self, k: int) -> None:
         """Trim the submap ``k`` just finished when at least ``trim_share`` of the cells
         it observed were observed by kept submaps finished before its two neighbours in
         time (a submap always overlaps the one before it by half, and a robot turning in
         a room fills the next with the same cells): its grid is dropped, loop closure
-        skips it. Else its cells join the cover. Returns whether it was trimmed."""
+        skips it. Else its cells join the cover."""
         cfg = self.config.submaps
         keys = self.observed_cells(k)
         old = [j for j in self._cells if j < k - 2]
@@ -139,9 +140,8 @@ class Submaps:
             s = self.submaps[k]
             s.trimmed = True
             s.grid = ProbabilityGrid(s.grid.config)
-            return True
-        self._cells[k] = keys
-        return False
+        else:
+            self._cells[k] = keys
 
     def loop_map(self, k: int, node: int) -> LoopMap:
         """Submap ``k`` stitched with its finished neighbours in time, ``loop.neighbours``
