@@ -9,6 +9,7 @@ from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
 
+from numeric.memory import return_large_frees
 from service import errors
 from service.api.routes import (
     eigenspace,
@@ -32,6 +33,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        return_large_frees()  # SLAM runs and map builds make and drop large grids
         services = await asyncio.to_thread(open_services, settings, None, False)
         try:
             await ensure_demo(services)  # on this loop: its locks are this loop's

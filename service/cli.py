@@ -23,6 +23,14 @@ app = typer.Typer(help="chizu: hybrid symbolic-numeric planner for mobile robots
 console = Console()
 
 
+@app.callback()
+def _process() -> None:
+    """chizu: hybrid symbolic-numeric planner for mobile robots."""
+    from numeric.memory import return_large_frees
+
+    return_large_frees()  # long SLAM runs make and drop large grids
+
+
 @app.command()
 def serve(host: str = typer.Option(None, help="default: CHIZU_HOST or 127.0.0.1"),
           port: int = typer.Option(None, help="default: CHIZU_PORT or 8000")) -> None:

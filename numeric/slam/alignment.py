@@ -36,6 +36,7 @@ closures. What it gains on the logs: ``docs/notes/slam-graph.md``.
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -46,7 +47,14 @@ from numba import njit
 from pydantic import BaseModel, Field
 from scipy.spatial import cKDTree
 
-from numeric.geometry import compose_into, place_into, relative, wrap_angle, wrap_scalar
+from numeric.geometry import (
+    compose,
+    compose_into,
+    place_into,
+    relative,
+    wrap_angle,
+    wrap_scalar,
+)
 from numeric.slam.matching.intensity_icp import (
     IcpConfig,
     IcpSteps,
@@ -92,6 +100,10 @@ class AlignmentConfig(BaseModel):
     huber_k: float = Field(1.345, gt=0, description="Huber threshold of the matches "
                            "(whitened units)")
     lm_iterations: int = Field(50, ge=1)
+    keep_scans: int = Field(10_000, ge=2, description="a long run keeps every scan's "
+                            "points for the alignment up to this many scans; beyond, it "
+                            "forgets those whose place the map already holds, oldest first "
+                            "(graph SLAM's trimmed submaps; ScanStore)")
     alpha: float = Field(0.0, ge=0, description="intensity weight of eq. 1 in ICP")
 
 
@@ -341,13 +353,70 @@ def align_scans(points: Sequence[np.ndarray], intensities: Sequence[np.ndarray |
 class ScanStore:
     """Every scan of a run as :func:`align_scans` takes it at the end: its points and
     intensities (down-sampled) and, where the estimator has it, its odometry; and the
-    aligned poses once :meth:`AlignedOutputs.finish` has run (until the next scan)."""
+    aligned poses once :meth:`AlignedOutputs.finish` has run (until the next scan).
+
+    A long run bounds it: scans whose place the map already holds are marked
+    (:meth:`redundant`; graph SLAM's trimmed submaps) and, once more than ``keep`` scans
+    hold points, forgotten oldest first. The alignment leaves a forgotten scan out and
+    moves it with the nearest earlier scan it kept (:func:`follow_kept`)."""
 
     xy: list[np.ndarray] = field(default_factory=list)
     inten: list[np.ndarray | None] = field(default_factory=list)
     odom: list[np.ndarray] = field(default_factory=list)
+    keep: int = 10_000
+    #: one byte per scan, 1 where its points were forgotten
+    forgotten: bytearray = field(default_factory=bytearray)
+    #: the marked scans not forgotten yet, as ranges (start, stop) in marking order
+    marked: deque[tuple[int, int]] = field(default_factory=deque)
+    held: int = 0
     aligned: np.ndarray | None = None
     matches: int = 0
+
+    def add(self, xy: np.ndarray, inten: np.ndarray | None,
+            odom: np.ndarray | None = None) -> None:
+        self.xy.append(xy)
+        self.inten.append(inten)
+        if odom is not None:
+            self.odom.append(odom.copy())
+        self.forgotten.append(0)
+        self.held += 1
+        self._bound()
+
+    def redundant(self, start: int, stop: int) -> None:
+        """Scans ``start`` to ``stop - 1`` may be forgotten (the map holds their place)."""
+        if start < stop:
+            self.marked.append((start, min(stop, len(self.xy))))
+            self._bound()
+
+    def _bound(self) -> None:
+        while self.held > self.keep and self.marked:
+            start, stop = self.marked.popleft()
+            for i in range(start, stop):
+                if not self.forgotten[i]:
+                    self.xy[i], self.inten[i] = _NO_POINTS, None
+                    self.forgotten[i] = 1
+                    self.held -= 1
+
+    def kept(self) -> np.ndarray:
+        """The indices of the scans whose points are kept."""
+        return np.flatnonzero(np.frombuffer(bytes(self.forgotten), dtype=np.uint8) == 0)
+
+
+_NO_POINTS = np.zeros((0, 2))
+
+
+def follow_kept(poses: np.ndarray, kept: np.ndarray, aligned: np.ndarray) -> np.ndarray:
+    """Every scan's pose when only the scans ``kept`` were aligned (to ``aligned``):
+    each other scan keeps its place relative to the nearest earlier kept scan (the first
+    kept one before any), as the online estimate ``poses`` had it."""
+    out = poses.copy()
+    out[kept] = aligned
+    ref = kept[np.clip(np.searchsorted(kept, np.arange(len(poses)), side="right") - 1,
+                       0, len(kept) - 1)]
+    rest = np.setdiff1d(np.arange(len(poses)), kept, assume_unique=True)
+    if len(rest):
+        out[rest] = compose(out[ref[rest]], relative(poses[ref[rest]], poses[rest]))
+    return out
 
 
 class AlignedOutputs:
@@ -397,8 +466,22 @@ class AlignedOutputs:
         odometry, closures, noise = self._alignment_inputs(poses)
         if alpha > 0 and cfg.alpha == 0:
             cfg = cfg.model_copy(update={"alpha": alpha})
-        self.scans.aligned, self.scans.matches = align_scans(
-            self.scans.xy, self.scans.inten, poses, odometry, closures, cfg, noise)
+        kept = self.scans.kept()
+        if len(kept) == len(poses):
+            self.scans.aligned, self.scans.matches = align_scans(
+                self.scans.xy, self.scans.inten, poses, odometry, closures, cfg, noise)
+            return self.scans.matches
+        if len(kept) < 2:
+            self.scans.aligned, self.scans.matches = poses.copy(), 0
+            return 0
+        at = np.full(len(poses), -1)
+        at[kept] = np.arange(len(kept))
+        aligned, self.scans.matches = align_scans(
+            [self.scans.xy[i] for i in kept], [self.scans.inten[i] for i in kept],
+            poses[kept], odometry[kept],
+            [(int(at[a]), int(at[b]), d) for a, b, d in closures if at[a] >= 0 and at[b] >= 0],
+            cfg, noise)
+        self.scans.aligned = follow_kept(poses, kept, aligned)
         return self.scans.matches
 
     @property

@@ -224,6 +224,14 @@ class Keyframes:
         self.frames.append(Keyframe(scan_index, xy, intensity, misses, surface))
         return len(self.frames) - 1
 
+    def forget(self, k: int) -> None:
+        """Drop keyframe ``k``'s returns (a lifelong run's, where the map already holds
+        the place); it stays, empty, so that keyframe indices keep their meaning."""
+        f = self.frames[k]
+        self.frames[k] = Keyframe(f.scan_index, np.zeros((0, 2)),
+                                  None if f.intensity is None else np.zeros(0),
+                                  None if f.misses is None else np.zeros((0, 2)))
+
     def select(self, pose: np.ndarray, kf_xy: np.ndarray) -> np.ndarray:
         """Keyframes forming the reference at ``pose``: the ``recent_keyframes`` last ones
         and up to ``nearby_keyframes`` older ones within ``nearby_radius_m`` (``kf_xy`` =

@@ -508,6 +508,8 @@ class KeyframeClouds:
 
     def __init__(self, saved: SavedMap, keyframes: int, radius_m: float) -> None:
         self.saved, self.keyframes, self.radius_m = saved, keyframes, radius_m
+        # a lifelong run's map holds keyframes whose returns were forgotten
+        self._empty = np.array([len(x) == 0 for x in saved.kf_xy], dtype=bool)
         self._key: tuple[int, ...] | None = None
         self._ref: Reference | None = None
 
@@ -516,6 +518,7 @@ class KeyframeClouds:
         if self.keyframes == 0 or len(s) == 0:
             return None
         d = np.hypot(*(s.kf_pose[:, :2] - pose[:2]).T)
+        d[self._empty] = np.inf
         near = tuple(sorted(int(k) for k in np.argsort(d)[:self.keyframes]
                             if d[k] <= self.radius_m))
         if not near:

@@ -98,9 +98,10 @@ def frame_transform(a: PreparedMap, kf_xy: list[np.ndarray], kf_pose: np.ndarray
     """Step 1: B's frame in A's, from B's keyframes (robot-frame returns ``kf_xy``, poses
     ``kf_pose`` in B's frame). Raises :class:`InvalidInput` (field ``map``) when too few
     fixes agree."""
-    n = len(kf_pose)
-    picks = np.unique(np.linspace(0, n - 1, min(n, config.searches)).round().astype(int)) \
-        if n else np.zeros(0, dtype=int)
+    have = np.flatnonzero([len(x) for x in kf_xy])  # a lifelong run forgets some
+    n = len(have)
+    picks = have[np.unique(np.linspace(0, n - 1, min(n, config.searches)).round().astype(int))
+                 ] if n else np.zeros(0, dtype=int)
     found: list[np.ndarray] = []
     for k in picks:
         m = a.globally.fix(_context(kf_xy, kf_pose, int(k), config.context_m))

@@ -27,6 +27,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
+from numeric.memory import return_large_frees  # noqa: E402
 from numeric.slam.datasets import slam_data_dir  # noqa: E402
 from numeric.slam.evaluation import relation_errors  # noqa: E402
 from numeric.slam.graph import GraphSlam, GraphSlamConfig  # noqa: E402
@@ -47,6 +48,7 @@ def rss_mb() -> float:
 
 def one(name: str, passes: int, trim: bool) -> list[dict[str, Any]]:
     """The passes over log ``name`` as one run, in this process."""
+    return_large_frees()  # as the CLI and the service do
     log = read_log(DATA / name / dict(LOGS)[name])
     rt, rd = read_relations(DATA / name / f"{name}.relations")
     cfg = GraphSlamConfig()

@@ -127,7 +127,7 @@ def test_graph_slam_finish_aligns_and_a_new_scan_resumes_online() -> None:
     _, online = s.trajectory()
     assert s.finish() > 0 and s.aligned
     _, aligned = s.trajectory()
-    assert np.allclose(s.pose, aligned[-1]) and len(s.map_poses()) == len(s.node_xy)
+    assert np.allclose(s.pose, aligned[-1]) and len(s.map_poses()) == len(s.local)
     err = lambda p: float(np.mean(np.hypot(*(compose(relative(p[0], p), np.zeros(3))  # noqa: E731
                                              - relative(truth[0], truth[:len(p)]))[:, :2].T)))
     assert err(aligned) <= err(online) * 1.05  # no worse (the sim's laser is coarse)

@@ -70,7 +70,6 @@ class LoopClosing:
     closures: list[LoopClosure]
     graph: PoseGraph
     local: list[np.ndarray]
-    node_xy: list[np.ndarray]
     searches: int
     degeneracies: list[float]
     loop_log: list[tuple[int, int, str, float]] | None
@@ -85,12 +84,13 @@ class LoopClosing:
     if TYPE_CHECKING:
         def loop_map(self, k: int, node: int) -> LoopMap: ...
 
-    def search_loops(self, node: int) -> int:
-        """Branch-and-bound matches of ``node`` against the finished submaps near it
-        (Hess et al. §V); accepted matches become robust edges. Returns how many."""
+    def search_loops(self, node: int, xy: np.ndarray) -> int:
+        """Branch-and-bound matches of ``node`` (its returns ``xy``, robot frame)
+        against the finished submaps near it (Hess et al. §V); accepted matches become
+        robust edges. Returns how many."""
         cfg = self.config
         g = self._global
-        pts = adaptive_voxel(self.node_xy[node], cfg.loop.max_points)
+        pts = adaptive_voxel(xy, cfg.loop.max_points)
         found = 0
         near = []
         # the longer the path since the trajectory was tied to a submap, the farther the
@@ -141,22 +141,23 @@ class LoopClosing:
                                                              cfg.loop.angular_step_rad),
                                  chunk, cfg.loop.threads)
             for (k, a, tracking, guess, lin, ang, lm), m in zip(chunk, matches, strict=True):
-                found += self._judge(node, pts, k, a, tracking, guess, lin, ang, lm, m)
+                found += self._judge(node, xy, pts, k, a, tracking, guess, lin, ang, lm, m)
         return found
 
-    def _judge(self, node: int, pts: np.ndarray, k: int, a: int, tracking: bool,
-               guess: np.ndarray, lin: float, ang: float, lm: LoopMap,
+    def _judge(self, node: int, xy: np.ndarray, pts: np.ndarray, k: int, a: int,
+               tracking: bool, guess: np.ndarray, lin: float, ang: float, lm: LoopMap,
                m: Match | None) -> int:
-        """Whether branch and bound's match ``m`` of ``node`` against submap ``k``
-        (anchor ``a``) becomes a closure: refined, not degenerate, and -- for a first
-        match against the submap -- unique in its window and confirmed by a nearby
-        node's. Returns how many closures it accepted (0-2)."""
+        """Whether branch and bound's match ``m`` of ``node`` (returns ``xy``; ``pts``
+        those searched with) against submap ``k`` (anchor ``a``) becomes a closure:
+        refined, not degenerate, and -- for a first match against the submap -- unique
+        in its window and confirmed by a nearby node's. Returns how many closures it
+        accepted (0-2)."""
         cfg = self.config
         pre = lm.search
         if m is None:
             self._log(node, k, "none", 0.0)
             return 0
-        r = refine(lm.grid, self.node_xy[node], m.pose, prior=m.pose,
+        r = refine(lm.grid, xy, m.pose, prior=m.pose,
                    translation_weight=cfg.local.translation_weight,
                    rotation_weight=cfg.local.rotation_weight)
         self.degeneracies.append(r.degeneracy())

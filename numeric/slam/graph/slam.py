@@ -54,13 +54,12 @@ class GraphSlam(Submaps, LocalSlam, LoopClosing, AlignedOutputs):
         self.local: list[np.ndarray] = []  # node poses in the local-SLAM frame
         self.node_odom: list[np.ndarray] = []
         self.node_time: list[float] = []
-        self.node_xy: list[np.ndarray] = []  # matching points (robot frame)
         self._node_scan: list[int] = []
         self._scan_node: list[int] = []
         self._scan_delta: list[np.ndarray] = []
         self.times: list[float] = []
         # every scan's points (down-sampled), intensities and odometry, for finish()
-        self.scans = ScanStore()
+        self.scans = ScanStore(keep=cfg.alignment.keep_scans if cfg.alignment else 0)
         self._global = np.zeros((0, 3))
         self._loop_maps: dict[tuple[int, tuple[int, ...]], LoopMap] = {}
         self._cells: dict[int, np.ndarray] = {}
@@ -93,9 +92,7 @@ class GraphSlam(Submaps, LocalSlam, LoopClosing, AlignedOutputs):
         self.scans.aligned = None  # a new scan: the online estimate is current again
         pts, pin = voxel_downsample(xy, inten, cfg.local.voxel_m)  # a node's, and finish()'s
         if cfg.alignment is not None:
-            self.scans.xy.append(pts)
-            self.scans.inten.append(pin)
-            self.scans.odom.append(scan.odom.copy())
+            self.scans.add(pts, pin, scan.odom)
         if not self.local:
             self._add_node(scan, scan.odom.copy(), scan.odom.copy(), xy, inten, pts)
             return
@@ -122,7 +119,7 @@ class GraphSlam(Submaps, LocalSlam, LoopClosing, AlignedOutputs):
                                  else rotate_xy(weak, -self.local[last][2]))
         self.graph.add_odometry(last, node, u, self.odometry_sigmas(u))
         self.calibrate_odometry(u, self._free_heading if cfg.local.matching else None)
-        if node % cfg.loop.every == 0 and self.search_loops(node):
+        if node % cfg.loop.every == 0 and self.search_loops(node, pts):
             self.graph.update()
             est = self.graph.estimate()
             self._global = est
@@ -138,7 +135,6 @@ class GraphSlam(Submaps, LocalSlam, LoopClosing, AlignedOutputs):
         self.local.append(local)
         self.node_odom.append(scan.odom.copy())
         self.node_time.append(scan.t)
-        self.node_xy.append(pts)
         self._node_scan.append(len(self.times) - 1)
         self._scan_node.append(node)
         self._scan_delta.append(np.zeros(3))
@@ -150,6 +146,17 @@ class GraphSlam(Submaps, LocalSlam, LoopClosing, AlignedOutputs):
         if self.config.alpha > 0:
             self._prev = (place(xy, local), inten)
         return node
+
+    def forget(self, nodes: list[int]) -> None:
+        """Forget ``nodes``, which only trimmed submaps hold (the map already had their
+        place): their keyframes' returns now, and their scans' (those from the node's
+        scan to the next node's) once the end-of-run alignment holds more than it
+        keeps (:class:`~numeric.slam.alignment.ScanStore`). The nodes stay in the pose
+        graph and their scans in the trajectory."""
+        for n in nodes:
+            self.keyframes.forget(n)
+            if self.config.alignment is not None and n + 1 < len(self._node_scan):
+                self.scans.redundant(self._node_scan[n], self._node_scan[n + 1])
 
     # -- outputs ------------------------------------------------------------------------
     def optimise(self) -> np.ndarray:

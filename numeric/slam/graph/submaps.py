@@ -10,15 +10,17 @@ stitched with its neighbours in time (:meth:`Submaps.loop_map`).
 
 On a long run over the same building a finished submap that observed almost nothing the
 older submaps had not is trimmed (:meth:`Submaps.trim`, after Cartographer's overlapping
-submaps trimmer): its grid is dropped and loop closure no longer searches it, while its
-nodes stay in the pose graph. Memory and the loop searches then grow with the building,
-not with the hours the robot drives through it.
+submaps trimmer): its grid is dropped and loop closure no longer searches it, the
+returns of its nodes no kept submap holds are forgotten, while the nodes stay in the pose
+graph (and their scans in the trajectory). Memory and the loop searches then grow with
+the building, not with the hours the robot drives through it.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -75,6 +77,9 @@ class Submaps:
     _cells: dict[int, np.ndarray]
     _covered: np.ndarray
 
+    if TYPE_CHECKING:
+        def forget(self, nodes: list[int]) -> None: ...
+
     def active(self) -> list[Submap]:
         """The (at most two) submaps scans are inserted into."""
         return [s for s in self.submaps if not s.finished][-2:]
@@ -127,7 +132,9 @@ class Submaps:
         it observed were observed by kept submaps finished before its two neighbours in
         time (a submap always overlaps the one before it by half, and a robot turning in
         a room fills the next with the same cells): its grid is dropped, loop closure
-        skips it. Else its cells join the cover."""
+        skips it, and the returns of its nodes no kept submap holds are forgotten
+        (:meth:`~numeric.slam.graph.slam.GraphSlam.forget`). Else its cells join the
+        cover."""
         cfg = self.config.submaps
         keys = self.observed_cells(k)
         old = [j for j in self._cells if j < k - 2]
@@ -140,6 +147,9 @@ class Submaps:
             s = self.submaps[k]
             s.trimmed = True
             s.grid = ProbabilityGrid(s.grid.config)
+            near = [self.submaps[j] for j in (k - 1, k + 1) if 0 <= j < len(self.submaps)]
+            self.forget([n for n in s.nodes if all(
+                o.trimmed for o in near if o.nodes and o.nodes[0] <= n <= o.nodes[-1])])
         else:
             self._cells[k] = keys
 

@@ -269,8 +269,7 @@ class RbpfSlam(AlignedOutputs):
         self.scans.aligned = None  # a new scan: the filter's estimate is current again
         if self.config.alignment is not None:
             pts, pin = voxel_downsample(xy, inten, self.config.map.voxel_m)
-            self.scans.xy.append(pts)
-            self.scans.inten.append(pin)
+            self.scans.add(pts, pin)
         if self._anchor_odom is None:
             self._first(scan, xy, inten)
             return RbpfStep(scan.t, "first", keyframe=True)
