@@ -5,7 +5,7 @@ on ``free``; but after such a free it raises the threshold to that size (up to 3
 so later grids of a few MiB come from the heap, where a freed one stays resident. A long
 SLAM run makes and drops grids all the time (submaps finished and trimmed, loop-closure
 grids stitched and evicted): fixing the threshold keeps its resident memory to what it
-holds (measured in ``docs/notes/slam-lifelong.md``)."""
+holds (measured in ``docs/notes/slam-graph.md``, on lifelong runs)."""
 
 from __future__ import annotations
 

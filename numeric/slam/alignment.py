@@ -48,7 +48,6 @@ from pydantic import BaseModel, Field
 from scipy.spatial import cKDTree
 
 from numeric.geometry import (
-    compose,
     compose_into,
     place_into,
     relative,
@@ -357,8 +356,8 @@ class ScanStore:
 
     A long run bounds it: scans whose place the map already holds are marked
     (:meth:`redundant`; graph SLAM's trimmed submaps) and, once more than ``keep`` scans
-    hold points, forgotten oldest first. The alignment leaves a forgotten scan out and
-    moves it with the nearest earlier scan it kept (:func:`follow_kept`)."""
+    hold points, forgotten oldest first. The alignment leaves a forgotten scan out; it
+    keeps its online pose."""
 
     xy: list[np.ndarray] = field(default_factory=list)
     inten: list[np.ndarray | None] = field(default_factory=list)
@@ -403,20 +402,6 @@ class ScanStore:
 
 
 _NO_POINTS = np.zeros((0, 2))
-
-
-def follow_kept(poses: np.ndarray, kept: np.ndarray, aligned: np.ndarray) -> np.ndarray:
-    """Every scan's pose when only the scans ``kept`` were aligned (to ``aligned``):
-    each other scan keeps its place relative to the nearest earlier kept scan (the first
-    kept one before any), as the online estimate ``poses`` had it."""
-    out = poses.copy()
-    out[kept] = aligned
-    ref = kept[np.clip(np.searchsorted(kept, np.arange(len(poses)), side="right") - 1,
-                       0, len(kept) - 1)]
-    rest = np.setdiff1d(np.arange(len(poses)), kept, assume_unique=True)
-    if len(rest):
-        out[rest] = compose(out[ref[rest]], relative(poses[ref[rest]], poses[rest]))
-    return out
 
 
 class AlignedOutputs:
@@ -481,7 +466,10 @@ class AlignedOutputs:
             poses[kept], odometry[kept],
             [(int(at[a]), int(at[b]), d) for a, b, d in closures if at[a] >= 0 and at[b] >= 0],
             cfg, noise)
-        self.scans.aligned = follow_kept(poses, kept, aligned)
+        # a forgotten scan keeps its online pose: moved with the aligned scans around it
+        # (their corrections blended) it fitted aces' relations worse than left alone
+        self.scans.aligned = poses.copy()
+        self.scans.aligned[kept] = aligned
         return self.scans.matches
 
     @property
