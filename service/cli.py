@@ -57,12 +57,12 @@ def _open_services():  # type: ignore[no-untyped-def]
 def path(world: str, source: str = typer.Argument(..., metavar="FROM"),
          target: str = typer.Argument(..., metavar="TO")) -> None:
     """Print the most probable DRM path FROM -> TO in WORLD."""
-    from numeric.errors import NotFound
+    from numeric.errors import InvalidInput, NotFound
 
     services = _open_services()
     try:
         p = asyncio.run(services.worlds.path(world, source, target))
-    except NotFound as e:
+    except (NotFound, InvalidInput) as e:
         console.print(f"[red]{e}[/red]")
         raise typer.Exit(2) from None
     finally:

@@ -39,7 +39,7 @@ from numeric.eigenspace.localization import (
     session_from_dict,
     session_to_dict,
 )
-from numeric.errors import InvalidInput, NotFound
+from numeric.errors import Conflict, InvalidInput, NotFound
 from service.compute import (
     Cached,
     ComputePool,
@@ -134,13 +134,16 @@ class EigenspaceService:
         self._blobs.pop(world, None)
 
     def analysis(self, world: str) -> EigenspaceAnalysis:
+        """The world's learned eigenspace; 404 without the world, 409 (field
+        ``eigenspace``) while it has none: the world is there, the request needs what it
+        does not know yet."""
         self.worlds.require(world)
         a = self._analyses.get(world)
         if a is None:
             blob = self.store.artifact(world, ARTIFACT)
             if blob is None:
-                raise NotFound(f"world {world!r} has no eigenspace yet; POST "
-                               f"/worlds/{world}/eigenspace first", field="world")
+                raise Conflict(f"world {world!r} has no eigenspace yet; POST "
+                               f"/worlds/{world}/eigenspace first", field="eigenspace")
             a = self._keep(world, EigenspaceAnalysis.from_bytes(blob), blob)
         return a
 
@@ -194,11 +197,19 @@ class EigenspaceService:
             self._keep(world, a, blob)
         return a
 
+    def learned(self, world: str) -> EigenspaceAnalysis:
+        """:meth:`analysis` for the eigenspace's own resources (``/eigenspace`` and
+        what hangs below it): 404 while there is none."""
+        try:
+            return self.analysis(world)
+        except Conflict as e:
+            raise NotFound(str(e), field="eigenspace") from None
+
     def summary(self, world: str) -> EigenspaceOut:
         """The analysis summary plus what it learned: the learning points (id, x, y) and
         the localizable triplets (their points' ids, the three directions, the triangle's
         area, the common target and the candidate-multiple set, if any)."""
-        a = self.analysis(world)
+        a = self.learned(world)
         facts = facts_call(world, a)  # the rows the knowledge base is given, plus more
         set_of, target = a.set_of(), a.triplets.target
         return EigenspaceOut(
@@ -280,7 +291,7 @@ class EigenspaceService:
                        motion: np.ndarray | None) -> SessionLocalizationOut:
         """A stop: images of one full turn and the odometry (dx, dy, dtheta) since the
         previous stop's start, in that stop's frame."""
-        a = self.analysis(world)  # 404s before the work
+        a = self.analysis(world)  # 409 before the work
         self._session(world, sid)
         cands = await self.compute.run_cached(turn_task, self._blobs[world], turn, False)
         assert not isinstance(cands, FirstStop)
@@ -319,7 +330,7 @@ class EigenspaceService:
 
     async def coverage(self, world: str, cell_m: float) -> CoverageOut:
         """The eq.-7 coverage map (:meth:`EigenspaceAnalysis.coverage_map`)."""
-        a = self.analysis(world)
+        a = self.learned(world)
         w = self.worlds.model(world)
         xs, ys = raster_axes(w, cell_m)
         cells = len(xs) * len(ys)
@@ -334,7 +345,7 @@ class EigenspaceService:
                            share=m.share, p_enter=grid)
 
     async def covering(self, world: str, x: float, y: float) -> list[dict[str, Any]]:
-        self.analysis(world)
+        self.learned(world)
         return list(await self.kb.acall("eigenspace_covering", world=world, x=x, y=y))
 
     # -- camera -------------------------------------------------------------------------

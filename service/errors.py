@@ -232,6 +232,12 @@ CONFLICTS = {("post", "/worlds"), ("post", "/worlds/{world}/eigenspace"),
              ("post", "/worlds/{world}/slam-runs/{rid}/commit"),
              # one mission job per world at a time
              ("post", "/worlds/{world}/missions"),
+             # a world that has learned no eigenspace yet
+             *(("post", f"/worlds/{{world}}/{tail}") for tail in (
+                 "localize", "localize/images", "localization-sessions",
+                 "localization-sessions/{sid}/stops")),
+             ("get", "/worlds/{world}/localization-sessions/{sid}"),
+             ("get", "/worlds/{world}/localization-sessions/{sid}/next-move"),
              # a world without a map to localize on; a run whose map was replaced
              ("post", "/worlds/{world}/localization-runs"),
              *((m, f"/worlds/{{world}}/localization-runs/{{rid}}{tail}")

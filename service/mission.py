@@ -46,7 +46,7 @@ import numpy as np
 
 from numeric.camera import Camera
 from numeric.eigenspace.analysis import learning_pixels
-from numeric.errors import Conflict, InvalidInput, NotFound
+from numeric.errors import Conflict, InvalidInput
 from numeric.geometry import line_of_sight, relative, wrap_angle
 from numeric.laser import Laser
 from numeric.mission import (
@@ -213,8 +213,8 @@ class MissionService:
         """404 / 422 before any work: the world, the goal landmark, the room and door."""
         w = self.worlds.model(world)
         if config.goal not in w.landmark_index:
-            raise NotFound(f"landmark {config.goal!r} has no position in world {world!r}",
-                           field="goal")
+            raise InvalidInput(f"landmark {config.goal!r} has no position in world "
+                               f"{world!r}", field="goal")
         (x0, y0), (x1, y1) = config.room
         if not (x0 < x1 and y0 < y1):
             raise InvalidInput("room: the lower corner must be below and left of the upper",
@@ -226,7 +226,7 @@ class MissionService:
         start_points(w, config.start, np.random.default_rng(0))
         try:
             self.eigenspace.analysis(world)
-        except NotFound:  # the mission will learn one: the learning job's cap applies
+        except Conflict:  # the mission will learn one: the learning job's cap applies
             n = learning_pixels(w, config.eigenspace)
             if n > self.eigenspace.max_learning_pixels:
                 raise InvalidInput(
@@ -310,7 +310,7 @@ class MissionService:
         await self._record(run, "survey", **await self._ensure_drm(run.world, w))
         try:
             self.eigenspace.analysis(run.world)
-        except NotFound:
+        except Conflict:
             report("learning the eigenspace", 0.02)
             t = time.perf_counter()
             a = await self.eigenspace.learn(run.world, run.config.eigenspace, None,

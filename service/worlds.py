@@ -378,7 +378,7 @@ class WorldService:
         g = await self.drm_graph(world)
         for field, lm in (("from", source), ("to", target)):
             if lm not in g:
-                raise NotFound(f"landmark {lm!r} is not in world {world!r}", field=field)
+                raise InvalidInput(f"landmark {lm!r} is not in world {world!r}", field=field)
         return max_probability_path(g, source, target)
 
     async def query(self, world: str, goal: str, max_solutions: int) -> dict[str, Any]:

@@ -58,6 +58,16 @@ class PlanningGrid:
     def resolution(self) -> float:
         return self.grid.resolution_m
 
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """The grid's lower-left and upper-right corners (m)."""
+        lo = np.asarray(self.grid.origin, dtype=float)
+        return lo, lo + np.array(self.state.shape) * self.resolution
+
+    def covers(self, xy: np.ndarray) -> bool:
+        """Whether the point ``xy`` (m) lies on the grid."""
+        lo, hi = self.bounds()
+        return bool(np.all(np.isfinite(xy)) and np.all(xy >= lo) and np.all(xy < hi))
+
     @property
     def state(self) -> np.ndarray:
         return self.grid.state

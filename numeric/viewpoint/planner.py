@@ -358,8 +358,16 @@ class ViewpointPlanner:
 
     def prepare(self, req: PlanRequest, grid: PlanningGrid,
                 beliefs: dict[str, np.ndarray] | None = None) -> Prepared:
-        """Step 1 (:meth:`candidates`) and what step 2's grouping is asked."""
+        """Step 1 (:meth:`candidates`) and what step 2's grouping is asked. The robot
+        and the exit must stand on the grid (else :class:`InvalidInput` naming them)."""
         t0 = time.perf_counter()
+        for name, xy in (("robot", req.robot[:2]), ("exit", req.exit)):
+            if not grid.covers(np.asarray(xy, dtype=float)):
+                lo, hi = grid.bounds()
+                raise InvalidInput(
+                    f"the {name} at ({xy[0]:.6g}, {xy[1]:.6g}) m is off the planning grid, "
+                    f"which covers x {lo[0]:.2f} to {hi[0]:.2f} m, y {lo[1]:.2f} to "
+                    f"{hi[1]:.2f} m", field=name)
         cands, comps = self.candidates(req, grid, beliefs)
         return Prepared(cands, comps, self.group_args(req, cands, comps),
                         1e3 * (time.perf_counter() - t0))

@@ -195,8 +195,10 @@ def test_unknowns_and_limits(client: TestClient, learned: str) -> None:
                    "world")
     assert client.post("/worlds", json={"name": "eig_empty", "template": "room_b"}
                        ).status_code == 201
-    assert_problem(client.post("/worlds/eig_empty/localize", json={"images": [[[0.5]]]}), 404,
-                   "world")
+    # the world is there, its eigenspace is not: 409 naming what is missing
+    assert_problem(client.post("/worlds/eig_empty/localize", json={"images": [[[0.5]]]}), 409,
+                   "eigenspace")
+    assert_problem(client.post("/worlds/eig_empty/localization-sessions"), 409, "eigenspace")
     assert_problem(client.get(f"/worlds/{learned}/localization-sessions/abc"), 422, "sid")
     assert_problem(client.get(f"/worlds/{learned}/localization-sessions/{'0' * 32}"), 404,
                    "session")
@@ -219,7 +221,7 @@ def test_failed_learning_job_reports_the_field(client: TestClient) -> None:
     r = client.post("/worlds/eig_bare/eigenspace", json=SMALL)
     job = wait_job(client, r.headers["location"])
     assert job["status"] == "failed" and job["error"]["field"] == "world"
-    assert_problem(client.get("/worlds/eig_bare/eigenspace"), 404, "world")
+    assert_problem(client.get("/worlds/eig_bare/eigenspace"), 404, "eigenspace")
 
 
 def test_analysis_and_session_survive_restart(tmp_path: Any) -> None:

@@ -109,7 +109,7 @@ def test_record_survives_a_restart(tmp_path_factory: pytest.TempPathFactory) -> 
 
 
 @pytest.mark.parametrize(("body", "status", "field"), [
-    ({"goal": "nowhere"}, 404, "goal"),
+    ({"goal": "nowhere"}, 422, "goal"),
     ({"goal": "Bad goal"}, 422, "goal"),
     ({"door": [100.0, 100.0]}, 422, "door"),
     ({"door": [6.1, 2.1]}, 422, "door"),

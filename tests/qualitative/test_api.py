@@ -100,9 +100,10 @@ def test_no_path_is_a_clear_answer(client: TestClient) -> None:
     assert r.json()["found"] is False and "no path" in r.json()["detail"]
 
 
-def test_unknown_landmark_in_path_404(client: TestClient, fig1: str) -> None:
+def test_unknown_landmark_in_path_422(client: TestClient, fig1: str) -> None:
+    """The world exists: a landmark it lacks is a bad parameter, not a missing page."""
     assert_problem(client.get(f"/worlds/{fig1}/path", params={"from": "a", "to": "zz"}),
-                   404, "to")
+                   422, "to")
     assert_problem(client.get(f"/worlds/{fig1}/path", params={"from": "A!", "to": "c"}), 422,
                    "from")
     assert_problem(client.get(f"/worlds/{fig1}/path", params={"from": "a"}), 422, "to")

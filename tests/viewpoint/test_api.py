@@ -157,11 +157,11 @@ def test_a_twelve_object_cluster_plans_with_a_bound(rooms: TestClient) -> None:
 
 
 def test_unreachable_places_are_unverifiable_not_errors(rooms: TestClient) -> None:
-    """A robot outside the building, and an unknown block walled in on a posted grid:
-    valid plans that list what cannot be reached (were 500s)."""
+    """An unknown block walled in on a posted grid: a valid plan that lists what cannot
+    be reached (was a 500). A robot off the map altogether is refused, naming it."""
     out = rooms.post("/worlds/vp_a/viewpoint-plan", json={
         **table1_body("L2"), "robot": [100, 100, 0], "exit": [0, 0]})
-    assert out.status_code == 200, out.text
+    assert out.status_code == 422 and out.json()["field"] == "robot", out.text
     cells = [100] * 4 + [100, -1, -1, 100] * 2 + [100] * 4
     out = rooms.post("/worlds/vp_a/viewpoint-plan", json={
         **table1_body("L2"), "robot": [0.75, 0.75, 0], "exit": [0.75, 0.75],

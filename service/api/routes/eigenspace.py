@@ -186,7 +186,7 @@ async def get_covering(world: WorldDep, eig: EigenspaceDep,
 async def post_localize(world: WorldDep, body: TurnIn, eig: EigenspaceDep,
                         request: Request) -> LocalizationOut:
     """One full turn of images -> state (X / Y / Z), pose when Z, candidates."""
-    eig.analysis(world)  # 404 before decoding anything
+    eig.analysis(world)  # 409 before decoding anything
     turn = await asyncio.to_thread(turn_payload, body)
     # decoded and matched in a compute worker, stopped if the client leaves
     return await unless_disconnected(request, eig.localize(world, turn))
@@ -202,7 +202,7 @@ async def post_localize_images(
         size: Annotated[str | None, Form(description="resize to WIDTHxHEIGHT px")] = None
         ) -> LocalizationOut:
     """``/localize`` for image files (multipart upload), e.g. straight from a camera."""
-    h, w = eig.analysis(world).model.image_shape  # 404 before decoding anything
+    h, w = eig.analysis(world).model.image_shape  # 409 before decoding anything
     wh = parse_size(size)
     files = await read_uploads(images, "images")
 
@@ -235,7 +235,7 @@ async def post_stop(world: WorldDep, sid: SessionId, body: StopIn,
     """One stop: a full turn of images plus the odometry since the previous stop."""
     motion = None if body.odometry is None else np.array(
         [body.odometry.dx, body.odometry.dy, body.odometry.dtheta])
-    eig.analysis(world)  # 404 before decoding anything
+    eig.analysis(world)  # 409 before decoding anything
     turn = await asyncio.to_thread(turn_payload, body)
     # decoded and matched in a compute worker; a client that leaves stops it, and its
     # stop is then not recorded (the session is written last, in one transaction)
