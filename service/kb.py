@@ -16,6 +16,7 @@ call_with_inference_limit/3) around every operation.
 from __future__ import annotations
 
 import asyncio
+import atexit
 import ctypes
 import hashlib
 import json
@@ -87,6 +88,11 @@ class KnowledgeBase:
             from pyswip import core as pl  # noqa: PLC0415 (initialises Prolog here)
 
             self._pl = pl
+            # pyswip's exit hook runs PL_cleanup from Python's main thread, which cannot
+            # stop the engine thread Prolog lives on and says so ("Failed to stop Prolog
+            # threads") at the end of every command; the process is ending and holds no
+            # Prolog-side state to flush (the store is Python's), so the hook goes
+            atexit.unregister(pl.cleanupProlog)
             if pl.PL_thread_self() == -1:  # Prolog was initialised by an earlier engine thread
                 if pl.PL_thread_attach_engine(None) < 0:
                     raise KbStartupError("cannot attach a Prolog engine to this thread")
