@@ -83,7 +83,8 @@ def repl(world: str,
          live: bool = typer.Option(False, "--live", help="query the running service's own "
                                    "knowledge base (read-only, its limits) instead of a "
                                    "copy of WORLD's facts"),
-         url: str = typer.Option("http://127.0.0.1:8000", help="the service (with --live)"),
+         url: str = typer.Option(None, help="the service (with --live); default: "
+                                 "http://CHIZU_HOST:CHIZU_PORT, as `chizu serve` listens"),
          allow_remote: bool = typer.Option(False, help="let --live query a service that is "
                                            "not on this machine")) -> None:
     """Open swipl with the rule files and WORLD's facts loaded (try ?- reachable(a, c, P,
@@ -91,7 +92,8 @@ def repl(world: str,
     from numeric.errors import NotFound
 
     if live:
-        _live_repl(world, url, allow_remote)
+        s = get_settings()
+        _live_repl(world, url or f"http://{s.host}:{s.port}", allow_remote)
         return
 
     swipl = shutil.which("swipl")

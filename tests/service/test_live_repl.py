@@ -88,3 +88,23 @@ def test_a_goal_whose_connection_drops_is_stopped(tmp_path: Path) -> None:
         assert waited < 1.2, waited  # not the ~1.6 s the dropped goal had left
     finally:
         srv.stop()
+
+
+def test_the_cli_finds_the_service_where_chizu_port_says(tmp_path: Path) -> None:
+    """``chizu repl W --live`` without ``--url`` talks to the service at CHIZU_HOST and
+    CHIZU_PORT, where ``chizu serve`` listens (it ignored the port)."""
+    import os
+    import subprocess
+    import sys
+
+    srv = LiveServer(tmp_path / "data", demo=True)
+    try:
+        env = {**os.environ, "CHIZU_PORT": str(srv.port), "CHIZU_HOST": "127.0.0.1",
+               "CHIZU_DATA_DIR": str(tmp_path / "other")}
+        r = subprocess.run([sys.executable, "-m", "service.cli", "repl", "demo", "--live"],
+                           input="landmark(rn0a).\n", capture_output=True, text=True,
+                           timeout=120, env=env)
+        assert r.returncode == 0, r.stdout + r.stderr
+        assert f"at http://127.0.0.1:{srv.port}" in r.stdout and "true" in r.stdout, r.stdout
+    finally:
+        srv.stop()
