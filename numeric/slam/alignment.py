@@ -356,8 +356,8 @@ class ScanStore:
 
     A long run bounds it: scans whose place the map already holds are marked
     (:meth:`redundant`; graph SLAM's trimmed submaps) and, once more than ``keep`` scans
-    hold points, forgotten oldest first. The alignment leaves a forgotten scan out; it
-    keeps its online pose."""
+    hold points, forgotten oldest first. The alignment matches a forgotten scan to
+    nothing; the online estimate's relative poses hold it to its neighbours."""
 
     xy: list[np.ndarray] = field(default_factory=list)
     inten: list[np.ndarray | None] = field(default_factory=list)
@@ -451,25 +451,14 @@ class AlignedOutputs:
         odometry, closures, noise = self._alignment_inputs(poses)
         if alpha > 0 and cfg.alpha == 0:
             cfg = cfg.model_copy(update={"alpha": alpha})
-        kept = self.scans.kept()
-        if len(kept) == len(poses):
-            self.scans.aligned, self.scans.matches = align_scans(
-                self.scans.xy, self.scans.inten, poses, odometry, closures, cfg, noise)
-            return self.scans.matches
-        if len(kept) < 2:
-            self.scans.aligned, self.scans.matches = poses.copy(), 0
-            return 0
-        at = np.full(len(poses), -1)
-        at[kept] = np.arange(len(kept))
-        aligned, self.scans.matches = align_scans(
-            [self.scans.xy[i] for i in kept], [self.scans.inten[i] for i in kept],
-            poses[kept], odometry[kept],
-            [(int(at[a]), int(at[b]), d) for a, b, d in closures if at[a] >= 0 and at[b] >= 0],
-            cfg, noise)
-        # a forgotten scan keeps its online pose: moved with the aligned scans around it
-        # (their corrections blended) it fitted aces' relations worse than left alone
-        self.scans.aligned = poses.copy()
-        self.scans.aligned[kept] = aligned
+        # a forgotten scan has no points to match: it is held to its neighbours by the
+        # online estimate's relative poses, so that it moves with the aligned scans
+        lost = np.flatnonzero(np.frombuffer(bytes(self.scans.forgotten), np.uint8))
+        pairs = np.union1d(lost, lost - 1)
+        pairs = pairs[(pairs >= 0) & (pairs + 1 < len(poses))]
+        chain = [(int(i), int(i + 1), relative(poses[i], poses[i + 1])) for i in pairs]
+        self.scans.aligned, self.scans.matches = align_scans(
+            self.scans.xy, self.scans.inten, poses, odometry, [*closures, *chain], cfg, noise)
         return self.scans.matches
 
     @property
