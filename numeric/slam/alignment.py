@@ -36,7 +36,6 @@ closures. What it gains on the logs: ``docs/notes/slam-graph.md``.
 from __future__ import annotations
 
 import math
-from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -99,10 +98,6 @@ class AlignmentConfig(BaseModel):
     huber_k: float = Field(1.345, gt=0, description="Huber threshold of the matches "
                            "(whitened units)")
     lm_iterations: int = Field(50, ge=1)
-    keep_scans: int = Field(10_000, ge=2, description="a long run keeps every scan's "
-                            "points for the alignment up to this many scans; beyond, it "
-                            "forgets those whose place the map already holds, oldest first "
-                            "(graph SLAM's trimmed submaps; ScanStore)")
     alpha: float = Field(0.0, ge=0, description="intensity weight of eq. 1 in ICP")
 
 
@@ -354,20 +349,15 @@ class ScanStore:
     intensities (down-sampled) and, where the estimator has it, its odometry; and the
     aligned poses once :meth:`AlignedOutputs.finish` has run (until the next scan).
 
-    A long run bounds it: scans whose place the map already holds are marked
-    (:meth:`redundant`; graph SLAM's trimmed submaps) and, once more than ``keep`` scans
-    hold points, forgotten oldest first. The alignment matches a forgotten scan to
-    nothing; the online estimate's relative poses hold it to its neighbours."""
+    A long run forgets the points of scans whose place the map already holds
+    (:meth:`forget`; graph SLAM's trimmed submaps): the alignment matches such a scan to
+    nothing, and the online estimate's relative poses hold it to its neighbours."""
 
     xy: list[np.ndarray] = field(default_factory=list)
     inten: list[np.ndarray | None] = field(default_factory=list)
     odom: list[np.ndarray] = field(default_factory=list)
-    keep: int = 10_000
     #: one byte per scan, 1 where its points were forgotten
     forgotten: bytearray = field(default_factory=bytearray)
-    #: the marked scans not forgotten yet, as ranges (start, stop) in marking order
-    marked: deque[tuple[int, int]] = field(default_factory=deque)
-    held: int = 0
     aligned: np.ndarray | None = None
     matches: int = 0
 
@@ -378,23 +368,12 @@ class ScanStore:
         if odom is not None:
             self.odom.append(odom.copy())
         self.forgotten.append(0)
-        self.held += 1
-        self._bound()
 
-    def redundant(self, start: int, stop: int) -> None:
-        """Scans ``start`` to ``stop - 1`` may be forgotten (the map holds their place)."""
-        if start < stop:
-            self.marked.append((start, min(stop, len(self.xy))))
-            self._bound()
-
-    def _bound(self) -> None:
-        while self.held > self.keep and self.marked:
-            start, stop = self.marked.popleft()
-            for i in range(start, stop):
-                if not self.forgotten[i]:
-                    self.xy[i], self.inten[i] = _NO_POINTS, None
-                    self.forgotten[i] = 1
-                    self.held -= 1
+    def forget(self, start: int, stop: int) -> None:
+        """Drop the points of scans ``start`` to ``stop - 1``."""
+        for i in range(start, min(stop, len(self.xy))):
+            self.xy[i], self.inten[i] = _NO_POINTS, None
+            self.forgotten[i] = 1
 
     def kept(self) -> np.ndarray:
         """The indices of the scans whose points are kept."""

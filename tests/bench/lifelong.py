@@ -109,8 +109,9 @@ def main() -> None:
     lines = [f"{a.log} driven {a.passes} times end to end as one graph SLAM run "
              "(forwards, backwards, forwards); figures after each pass; relation error of "
              "the pass's own poses on the log's relations, online and after the end-of-run "
-             "alignment of the whole run (which keeps at most "
-             f"{rows[-1]['scans_kept'] if rows else 0} scans' points in the trimmed run).", "",
+             "alignment of the whole run (the trimmed run, which forgets what the map "
+             "holds past 10 000 scans, held the points of "
+             f"{rows[-1]['scans_kept'] if rows else 0} of its scans).", "",
              "| submaps | pass | trans (m) | rot (deg) | trans aligned (m) | resident (MB) | "
              "peak (MB) | submaps (trimmed) | loop closures | seconds | x real time |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]

@@ -68,6 +68,10 @@ class SubmapConfig(BaseModel):
         0.95, gt=0, le=1, description="a finished submap is trimmed when older kept "
         "submaps observed this share of its cells (Submaps.trim; None: never)")
     trim_cell_m: float = Field(0.25, gt=0, description="cells of that comparison")
+    forget_after_scans: int = Field(
+        10_000, ge=1, description="a run past this many scans forgets the returns of the "
+        "nodes only trimmed submaps hold, their keyframes' and, for the end-of-run "
+        "alignment, their scans' (GraphSlam.forget); a shorter run keeps them all")
 
 
 class OdometryModelConfig(BaseModel):

@@ -59,7 +59,8 @@ class GraphSlam(Submaps, LocalSlam, LoopClosing, AlignedOutputs):
         self._scan_delta: list[np.ndarray] = []
         self.times: list[float] = []
         # every scan's points (down-sampled), intensities and odometry, for finish()
-        self.scans = ScanStore(keep=cfg.alignment.keep_scans if cfg.alignment else 0)
+        self.scans = ScanStore()
+        self._redundant: deque[int] = deque()  # nodes to forget on a long run (forget)
         self._global = np.zeros((0, 3))
         self._loop_maps: dict[tuple[int, tuple[int, ...]], LoopMap] = {}
         self._cells: dict[int, np.ndarray] = {}
@@ -93,6 +94,8 @@ class GraphSlam(Submaps, LocalSlam, LoopClosing, AlignedOutputs):
         pts, pin = voxel_downsample(xy, inten, cfg.local.voxel_m)  # a node's, and finish()'s
         if cfg.alignment is not None:
             self.scans.add(pts, pin, scan.odom)
+        if self._redundant and len(self.times) > cfg.submaps.forget_after_scans:
+            self.forget([])
         if not self.local:
             self._add_node(scan, scan.odom.copy(), scan.odom.copy(), xy, inten, pts)
             return
@@ -148,15 +151,19 @@ class GraphSlam(Submaps, LocalSlam, LoopClosing, AlignedOutputs):
         return node
 
     def forget(self, nodes: list[int]) -> None:
-        """Forget ``nodes``, which only trimmed submaps hold (the map already had their
-        place): their keyframes' returns now, and their scans' (those from the node's
-        scan to the next node's) once the end-of-run alignment holds more than it
-        keeps (:class:`~numeric.slam.alignment.ScanStore`). The nodes stay in the pose
-        graph and their scans in the trajectory."""
-        for n in nodes:
+        """``nodes`` are held only by trimmed submaps: the map already had their place.
+        Once the run is past ``forget_after_scans`` scans their returns are forgotten,
+        those queued before first: their keyframes' points (the keyframes stay, empty)
+        and their scans' (from the node's scan to the next node's) for the end-of-run
+        alignment. The nodes stay in the pose graph and their scans in the trajectory."""
+        self._redundant.extend(nodes)
+        if len(self.times) <= self.config.submaps.forget_after_scans:
+            return
+        while self._redundant:
+            n = self._redundant.popleft()
             self.keyframes.forget(n)
             if self.config.alignment is not None and n + 1 < len(self._node_scan):
-                self.scans.redundant(self._node_scan[n], self._node_scan[n + 1])
+                self.scans.forget(self._node_scan[n], self._node_scan[n + 1])
 
     # -- outputs ------------------------------------------------------------------------
     def optimise(self) -> np.ndarray:

@@ -10,10 +10,11 @@ stitched with its neighbours in time (:meth:`Submaps.loop_map`).
 
 On a long run over the same building a finished submap that observed almost nothing the
 older submaps had not is trimmed (:meth:`Submaps.trim`, after Cartographer's overlapping
-submaps trimmer): its grid is dropped and loop closure no longer searches it, the
-returns of its nodes no kept submap holds are forgotten, while the nodes stay in the pose
-graph (and their scans in the trajectory). Memory and the loop searches then grow with
-the building, not with the hours the robot drives through it.
+submaps trimmer): its grid is dropped and loop closure no longer searches it, and on a
+run past ``forget_after_scans`` scans the returns of its nodes no kept submap holds are
+forgotten, while the nodes stay in the pose graph (and their scans in the trajectory).
+Memory and the loop searches then grow with the building, not with the hours the robot
+drives through it.
 """
 
 from __future__ import annotations
@@ -132,8 +133,8 @@ class Submaps:
         it observed were observed by kept submaps finished before its two neighbours in
         time (a submap always overlaps the one before it by half, and a robot turning in
         a room fills the next with the same cells): its grid is dropped, loop closure
-        skips it, and the returns of its nodes no kept submap holds are forgotten
-        (:meth:`~numeric.slam.graph.slam.GraphSlam.forget`). Else its cells join the
+        skips it, and on a long run the returns of its nodes no kept submap holds are
+        forgotten (:meth:`~numeric.slam.graph.slam.GraphSlam.forget`). Else its cells join the
         cover."""
         cfg = self.config.submaps
         keys = self.observed_cells(k)
