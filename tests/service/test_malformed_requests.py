@@ -140,7 +140,7 @@ def test_json_types_are_strict(client: TestClient, endpoints: Any) -> None:
     """An integer field takes a number without a fraction (2 or 2.0, as JSON Schema's
     "integer"; not 2.5, "2" or true); a number field a JSON number; a pose's array
     still fills its tuple."""
-    grid = {"width": 2, "height": 1, "resolution_m": 0.5, "data": [0, 0]}
+    grid = {"width": 2, "height": 2, "resolution_m": 0.5, "data": [0, 0, 0, 0]}
     base = {**plan_body(), "grid": grid}
     ok = client.post("/worlds/rel_room/viewpoint-plan", json=base)
     assert ok.status_code == 200, ok.text
