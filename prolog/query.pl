@@ -25,6 +25,9 @@
       - comparison: =, \=, ==, \==, and <, >, =<, >=, =:= on numbers or
         variables only (no arithmetic expressions, so no arithmetic bombs)
       - member/2, memberchk/2
+      - findall/3 and aggregate_all/3 (count, count(T), bag(T), set(T), and
+        sum, max, min of a number or variable, max(X, W), min(X, W)) over an
+        allowed goal
 
     Anything else (call/N, assert, I/O, halt, ...) raises
     chizu_error(not_allowed(Name/Arity)).  The query runs inside api:handle,
@@ -100,6 +103,9 @@ safe(_, fail, fail) :- !.
 safe(_, false, false) :- !.
 safe(W, G, R) :- relation_goal(W, G, R), !.
 safe(_, G, G) :- comparison(G), !.
+safe(W, findall(T, A, L), findall(T, SA, L)) :- !, safe(W, A, SA).
+safe(W, aggregate_all(Spec, A, R), aggregate_all(Spec, SA, R)) :- !,
+    aggregate_spec(Spec), safe(W, A, SA).
 safe(_, G, G) :- G = member(_, _), !.
 safe(_, G, G) :- G = memberchk(_, _), !.
 safe(_, G, _) :-
@@ -148,6 +154,22 @@ relation_goal(W, mission_step(S, What, R), M:mission_step(S, What, R)) :- world_
 relation_goal(W, mission_pose(X, Y, Th), mission:mission_pose(W, X, Y, Th)).
 relation_goal(W, mission_path(Ls, P), mission:mission_path(W, Ls, P)).
 relation_goal(W, mission_outcome(O), mission:mission_outcome(W, O)).
+
+%   What aggregate_all/3 may gather: an expression would be arithmetic the
+%   whitelist keeps out of comparisons too, so sum, max and min take a number
+%   or a variable.
+aggregate_spec(Spec) :- var(Spec), !, throw(chizu_error(not_allowed(variable_goal), goal)).
+aggregate_spec(count) :- !.
+aggregate_spec(count(_)) :- !.
+aggregate_spec(bag(_)) :- !.
+aggregate_spec(set(_)) :- !.
+aggregate_spec(Spec) :-
+    Spec =.. [Op, X], memberchk(Op, [sum, max, min]), !, num_or_var(X).
+aggregate_spec(Spec) :-
+    Spec =.. [Op, X, _], memberchk(Op, [max, min]), !, num_or_var(X).
+aggregate_spec(Spec) :-
+    (   callable(Spec) -> functor(Spec, N, A), PI = aggregate_all(N/A) ; PI = Spec ),
+    throw(chizu_error(not_allowed(PI), goal)).
 
 comparison(G) :-
     G =.. [Op, _, _],

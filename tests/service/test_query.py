@@ -59,3 +59,29 @@ def test_query_hits_inference_limit(client: TestClient, world: str,
     r = client.post(f"/worlds/{world}/query", json={"goal": goal})
     assert_problem(r, 422, "goal")
     assert "limit" in r.json()["detail"]
+
+
+def test_query_gathers_with_findall_and_aggregate_all(client: TestClient, world: str) -> None:
+    """findall/3 and aggregate_all/3 over allowed goals answer as Prolog would; an
+    aggregate that would evaluate arithmetic, or gathers a refused goal, is refused."""
+    def one(goal: str) -> dict:  # type: ignore[type-arg]
+        r = client.post(f"/worlds/{world}/query", json={"goal": goal})
+        assert r.status_code == 200, r.text
+        return r.json()["solutions"][0]
+
+    every = client.post(f"/worlds/{world}/query",
+                        json={"goal": "reachable(a, To, P, M)", "max_solutions": 500}
+                        ).json()["solutions"]
+    assert one("aggregate_all(count, reachable(a, _, _, _), N)") == {"N": len(every)}
+    assert one("findall(To, reachable(a, To, _, move1), L)")["L"] == [
+        s["To"] for s in every if s["M"] == "move1"]
+    assert one("aggregate_all(max(P), reachable(a, _, P, _), X)")["X"] == pytest.approx(
+        max(s["P"] for s in every))
+    assert sorted(one("aggregate_all(set(T), reachable(a, T, _, _), S)")["S"]) == sorted(
+        {s["To"] for s in every})
+    for goal in ("aggregate_all(sum(P * 2), reachable(a, _, P, _), X)",
+                 "aggregate_all(count, assertz(x), N)", "findall(x, halt, L)",
+                 "aggregate_all(S, landmark(L), X)", "aggregate_all(foo(L), landmark(L), X)",
+                 "aggregate_all(max(2 ** 100000000), landmark(_), X)"):
+        assert_problem(client.post(f"/worlds/{world}/query", json={"goal": goal}), 422,
+                       "goal")

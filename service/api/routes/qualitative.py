@@ -95,10 +95,21 @@ async def get_path(world: WorldDep, worlds: WorldsDep,
 async def post_query(world: WorldDep, body: QueryIn, worlds: WorldsDep,
                      request: Request) -> Any:
     """Read-only Prolog query over the world's relations, e.g.
-    ``reachable(c0, To, P, Method), P > 0.9``.  Only whitelisted predicates run
-    (rec/3, frec/3, lr/4, align/5, rea/2, landmark/1, reachable/4-5, drm_edge/4,
-    comparisons, member/2); time and inference limits apply, and a query whose client
-    has gone is dropped if it has not started."""
+    ``reachable(c0, To, P, Method), P > 0.9``. Only whitelisted goals run, the world
+    argument filled in: control (``,`` ``;`` ``->`` ``\\+`` true fail); the spatial
+    relations rec/3, frec/3, lr/4, align/5, rea/2, landmark/1; the DRM's reachable/4-5,
+    drm_edge/4; the eigenspace's eig_point/3, eig_triplet/4, eig_candidate_set/2,
+    stop_outcome/3, next_state/3, state_after/2, covers/3, triplet_distance/4; the map's
+    map_pose/5, map_info/5, unknown_region/5, committed_map/1, loop_closure/4,
+    explored_fraction/1, unknown_region_within/5, largest_unknown_region/2,
+    map_path_length/1, loop_closure_count/1, closes_loop/2; the viewpoint scene's
+    vp_candidate/5, observation_group/3, same_group/2, joinable/2, candidate_group/2,
+    unknown_group_area/2, plan_step/4; the last mission's mission_step/3,
+    mission_pose/3, mission_path/2, mission_outcome/1; comparisons of numbers or
+    variables (no arithmetic); member/2, memberchk/2; findall/3 and aggregate_all/3
+    (count, bag, set; sum, max, min of a number or variable) over allowed goals. Time
+    and inference limits apply, and a query whose client has gone is dropped if it has
+    not started."""
     try:
         return await unless_disconnected(
             request, worlds.query(world, body.goal, body.max_solutions))
