@@ -46,13 +46,7 @@ from numba import njit
 from pydantic import BaseModel, Field
 from scipy.spatial import cKDTree
 
-from numeric.geometry import (
-    compose_into,
-    place_into,
-    relative,
-    wrap_angle,
-    wrap_scalar,
-)
+from numeric.geometry import compose_into, place_into, relative, wrap_angle, wrap_scalar
 from numeric.slam.matching.intensity_icp import (
     IcpConfig,
     IcpSteps,
@@ -377,7 +371,14 @@ class ScanStore:
 
     def kept(self) -> np.ndarray:
         """The indices of the scans whose points are kept."""
-        return np.flatnonzero(np.frombuffer(bytes(self.forgotten), dtype=np.uint8) == 0)
+        return np.flatnonzero(self._mask() == 0)
+
+    def lost(self) -> np.ndarray:
+        """The indices of the scans whose points were forgotten."""
+        return np.flatnonzero(self._mask())
+
+    def _mask(self) -> np.ndarray:
+        return np.frombuffer(bytes(self.forgotten), dtype=np.uint8)
 
 
 _NO_POINTS = np.zeros((0, 2))
@@ -432,7 +433,7 @@ class AlignedOutputs:
             cfg = cfg.model_copy(update={"alpha": alpha})
         # a forgotten scan has no points to match: it is held to its neighbours by the
         # online estimate's relative poses, so that it moves with the aligned scans
-        lost = np.flatnonzero(np.frombuffer(bytes(self.scans.forgotten), np.uint8))
+        lost = self.scans.lost()
         pairs = np.union1d(lost, lost - 1)
         pairs = pairs[(pairs >= 0) & (pairs + 1 < len(poses))]
         chain = [(int(i), int(i + 1), relative(poses[i], poses[i + 1])) for i in pairs]

@@ -94,8 +94,7 @@ class GraphSlam(Submaps, LocalSlam, LoopClosing, AlignedOutputs):
         pts, pin = voxel_downsample(xy, inten, cfg.local.voxel_m)  # a node's, and finish()'s
         if cfg.alignment is not None:
             self.scans.add(pts, pin, scan.odom)
-        if self._redundant and len(self.times) > cfg.submaps.forget_after_scans:
-            self.forget([])
+        self._forget_queued()
         if not self.local:
             self._add_node(scan, scan.odom.copy(), scan.odom.copy(), xy, inten, pts)
             return
@@ -152,11 +151,16 @@ class GraphSlam(Submaps, LocalSlam, LoopClosing, AlignedOutputs):
 
     def forget(self, nodes: list[int]) -> None:
         """``nodes`` are held only by trimmed submaps: the map already had their place.
-        Once the run is past ``forget_after_scans`` scans their returns are forgotten,
-        those queued before first: their keyframes' points (the keyframes stay, empty)
-        and their scans' (from the node's scan to the next node's) for the end-of-run
-        alignment. The nodes stay in the pose graph and their scans in the trajectory."""
+        Once the run is past ``forget_after_scans`` scans their returns are forgotten
+        (:meth:`_forget_queued`), those queued before first. The nodes stay in the pose
+        graph and their scans in the trajectory."""
         self._redundant.extend(nodes)
+        self._forget_queued()
+
+    def _forget_queued(self) -> None:
+        """On a run past ``forget_after_scans`` scans, forget the queued nodes' returns:
+        their keyframes' points (the keyframes stay, empty) and their scans' (from the
+        node's scan to the next node's) for the end-of-run alignment."""
         if len(self.times) <= self.config.submaps.forget_after_scans:
             return
         while self._redundant:
