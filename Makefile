@@ -5,7 +5,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: run test bench docs lint install prolog clean
+.PHONY: run test bench docs lint install prolog clean image image-test
 
 # SWI-Prolog (pyswip needs libswipl): apt swi-prolog-nox when swipl is missing.
 prolog:
@@ -57,15 +57,32 @@ bench: install
 	$(PY) tests/bench/slam_batch.py
 	$(PY) tests/bench/mission.py
 
+# the service's image (docker/Dockerfile) from CHIZU_BASE, any Debian bookworm image; the
+# host's CA bundle goes to pip in the build (a proxy that re-signs TLS needs it)
+CHIZU_BASE ?= debian:bookworm-slim
+image:
+	@if [ -f /etc/ssl/certs/ca-certificates.crt ]; then \
+	  cp /etc/ssl/certs/ca-certificates.crt docker/host-ca.crt; fi
+	docker build --build-arg BASE=$(CHIZU_BASE) -f docker/Dockerfile -t chizu:latest .
+
+# the image built and its compose stack run: health, a path query, a SLAM batch on the
+# Dask worker, a restart keeping the data (docker/image-test; installs Docker if missing)
+image-test:
+	docker/image-test
+
 # the documentation site into site/ (mkdocs.yml); --strict: a broken link or reference
 # fails it. MkDocs' plugins print a notice about a future MkDocs 2 on every build: silenced.
 DOCS_ENV := NO_MKDOCS_2_WARNING=1 DISABLE_MKDOCS_2_WARNING=true
 docs: install
 	$(DOCS_ENV) $(VENV)/bin/mkdocs build --strict
 
+# mypy reads the code under its installed names (chizu.numeric, chizu.service) through
+# links in build/namespace (the docs build makes the same links)
 lint: install
 	$(VENV)/bin/ruff check numeric service tests docs/_scripts
-	$(VENV)/bin/mypy numeric service
+	@mkdir -p build/namespace/chizu
+	@for d in numeric service; do ln -sfn ../../../$$d build/namespace/chizu/$$d; done
+	MYPYPATH=build/namespace $(VENV)/bin/mypy -p chizu.numeric -p chizu.service
 
 clean:
 	rm -rf $(VENV) var bench-out site

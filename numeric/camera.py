@@ -1,6 +1,6 @@
 """The camera of the one simulator: pinhole, small grey images.
 
-Every image column is a ray cast (:func:`numeric.geometry.ray_cast`) against the
+Every image column is a ray cast (:func:`chizu.numeric.geometry.ray_cast`) against the
 world's vertical surfaces (walls and object faces); the hit surface's texture is
 sampled with perspective -- the wall height covered by a pixel grows with the
 distance -- from the mip level whose texel matches the pixel's footprint.  Above
@@ -21,9 +21,9 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from scipy import ndimage
 
-from numeric.geometry import ray_cast
-from numeric.textures import BASE_TEXELS, LEVELS, pyramid
-from numeric.world import World
+from chizu.numeric.geometry import ray_cast
+from chizu.numeric.textures import BASE_TEXELS, LEVELS, pyramid
+from chizu.numeric.world import World
 
 
 class CameraConfig(BaseModel):

@@ -2,7 +2,7 @@
 Fig. 11; :func:`plan_figure`), a goal room's summarisation run (§7.3; :func:`run_figure`)
 and a whole mission (:func:`mission_figure`).
 
-Like :mod:`numeric.mission`, this module draws what the method packages compute; none
+Like :mod:`chizu.numeric.mission`, this module draws what the method packages compute; none
 of them imports it.
 """
 
@@ -12,12 +12,12 @@ from typing import Any
 
 import numpy as np
 
-from numeric.mission import MissionTrace
-from numeric.occupancy import FREE, OCCUPIED, OccupancyMap
-from numeric.viewpoint.grid import PlanningGrid
-from numeric.viewpoint.online import SummaryRun
-from numeric.viewpoint.planner import PlanReport, PlanRequest
-from numeric.world import World
+from chizu.numeric.mission import MissionTrace
+from chizu.numeric.occupancy import FREE, OCCUPIED, OccupancyMap
+from chizu.numeric.viewpoint.grid import PlanningGrid
+from chizu.numeric.viewpoint.online import SummaryRun
+from chizu.numeric.viewpoint.planner import PlanReport, PlanRequest
+from chizu.numeric.world import World
 
 
 def _axes(grid: PlanningGrid) -> tuple[Any, Any]:

@@ -2,7 +2,7 @@
 
 The default is the paper's URG-04LX with the intensity firmware (Table 1): 0.02-5.6 m,
 240 degrees in 360/512-degree steps, intensity 0-40 000. Every beam is ray-cast against
-the shared world model (:attr:`numeric.world.World.surfaces`); the intensity of a return
+the shared world model (:attr:`chizu.numeric.world.World.surfaces`); the intensity of a return
 is :func:`intensity_model` of the surface's reflectivity, the range and the incidence
 angle, plus noise.
 """
@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 from pydantic import BaseModel, Field
 
-from numeric.geometry import ray_cast
-from numeric.scan import LaserLog, Scan, beam_angles
-from numeric.world import World
+from chizu.numeric.geometry import ray_cast
+from chizu.numeric.scan import LaserLog, Scan, beam_angles
+from chizu.numeric.world import World
 
 
 class LaserConfig(BaseModel):

@@ -7,9 +7,9 @@ happens in the simulated world is here. The robot wakes up somewhere in the free
 pose standing at a landmark (:func:`landmark_pose`) and takes laser scans along its way
 (:func:`trace_scans`). :class:`MissionTrace` keeps what the robot never reads -- the
 truth -- beside its estimates, for :func:`evaluate` and for the figure
-(:func:`numeric.figures.mission_figure`).
+(:func:`chizu.numeric.figures.mission_figure`).
 
-Like :mod:`numeric.figures`, this module composes the method packages (it uses the
+Like :mod:`chizu.numeric.figures`, this module composes the method packages (it uses the
 qualitative navigation's heading and the viewpoint summary's result); none of them
 imports it.
 """
@@ -23,15 +23,15 @@ from typing import Any
 
 import numpy as np
 
-from numeric.errors import InvalidInput
-from numeric.geometry import compose, free_distance, relative, wrap_angle
-from numeric.laser import Laser
-from numeric.occupancy import OccupancyMap
-from numeric.qualitative.navigation import map_heading
-from numeric.scan import Scan
-from numeric.simulator import LandmarkObserver, OdometryConfig, Robot
-from numeric.viewpoint.online import SummaryRun
-from numeric.world import World
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.geometry import compose, free_distance, relative, wrap_angle
+from chizu.numeric.laser import Laser
+from chizu.numeric.occupancy import OccupancyMap
+from chizu.numeric.qualitative.navigation import map_heading
+from chizu.numeric.scan import Scan
+from chizu.numeric.simulator import LandmarkObserver, OdometryConfig, Robot
+from chizu.numeric.viewpoint.online import SummaryRun
+from chizu.numeric.world import World
 
 #: a region of the floor: its lower and upper corner (m)
 Region = tuple[tuple[float, float], tuple[float, float]]
@@ -116,7 +116,7 @@ def landmark_pose(world: World, robot: Robot, observer: LandmarkObserver,
                   at: str) -> np.ndarray | None:
     """The pose of a robot standing at landmark ``at``: its position on the world's
     landmark map, the heading from the observed bearings of the other landmarks in
-    view (:func:`numeric.qualitative.navigation.map_heading`); None if no other landmark
+    view (:func:`chizu.numeric.qualitative.navigation.map_heading`); None if no other landmark
     is in view."""
     pos = dict(zip(world.landmark_ids, world.landmark_xy, strict=True))
     heading = map_heading(at, observer.observe(robot.pose, at=at), pos)

@@ -14,8 +14,8 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, model_validator
 
-from numeric.geometry import wrap_angle
-from numeric.world import Id
+from chizu.numeric.geometry import wrap_angle
+from chizu.numeric.world import Id
 
 MAX_SEEN = 512
 

@@ -13,9 +13,9 @@ from typing import Protocol
 import numpy as np
 from scipy import ndimage
 
-from numeric.errors import InvalidInput
-from numeric.geometry import place
-from numeric.probability_grid import GridConfig, ProbabilityGrid
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.geometry import place
+from chizu.numeric.probability_grid import GridConfig, ProbabilityGrid
 
 UNKNOWN, FREE, OCCUPIED = -1, 0, 100
 #: probability from which a cell is occupied (map_server's default occupied_thresh)
@@ -200,7 +200,7 @@ def build_probability_grid(frames: Sequence[ScanFrame], poses: np.ndarray,
                            max_cells: int = 16_000_000, miss_cap_m: float = 5.0,
                            grid: GridConfig | None = None,
                            ) -> tuple[ProbabilityGrid, list[np.ndarray]]:
-    """The :class:`~numeric.probability_grid.ProbabilityGrid` the scans ``frames`` placed
+    """The :class:`~chizu.numeric.probability_grid.ProbabilityGrid` the scans ``frames`` placed
     at ``poses (K, 3)`` make (each ray-cast into it: hits raise a cell's odds, cells a
     beam passes through lower them, clamped; a scan's ``misses`` clear free space up to
     ``miss_cap_m``), sized to them with ``margin_m``, and each scan's returns in the
@@ -239,7 +239,7 @@ def build_occupancy(frames: Sequence[ScanFrame], poses: np.ndarray, resolution_m
                     miss_cap_m: float = 5.0,
                     grid: GridConfig | None = None) -> OccupancyMap:
     """The occupancy grid of the scans ``frames`` placed at ``poses (K, 3)``: every scan
-    is ray-cast into one :class:`~numeric.probability_grid.ProbabilityGrid` (hits
+    is ray-cast into one :class:`~chizu.numeric.probability_grid.ProbabilityGrid` (hits
     raise a cell's odds, cells a beam passes through lower them, once per scan with hits
     winning, clamped), then thresholded the way ``map_server`` reads a map: occupied at
     ``p >= 0.65``, free below 0.5, unknown where never observed or undecided.

@@ -176,7 +176,7 @@ class ProbabilityGrid:
         """Insert one scan: ``sensor_xy (2,)`` the sensor position, ``hits (n, 2)`` the
         returns and ``misses (m, 2)`` the ends of no-return beams, world frame (m);
         ``surface (s, 2)``: more occupied points, hit without ray casting (the surface
-        between neighbouring returns, :func:`numeric.slam.keyframes.connect_returns`).
+        between neighbouring returns, :func:`chizu.numeric.slam.keyframes.connect_returns`).
         Hits farther than ``max_range_m`` are ignored; misses are cut at ``miss_cap_m``."""
         cfg = self.config
         d = hits - sensor_xy

@@ -6,8 +6,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from numeric.errors import InvalidInput
-from numeric.geometry import place
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.geometry import place
 
 
 @dataclass(frozen=True)

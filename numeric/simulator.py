@@ -1,7 +1,7 @@
 """The one simulator: a robot with noisy odometry and a landmark observer.
 
-The camera (:mod:`numeric.camera`) and the laser (:mod:`numeric.laser`) ray-cast against
-the same :class:`numeric.world.World`; :func:`follow_path` and :func:`odometry_along` drive
+The camera (:mod:`chizu.numeric.camera`) and the laser (:mod:`chizu.numeric.laser`) ray-cast against
+the same :class:`chizu.numeric.world.World`; :func:`follow_path` and :func:`odometry_along` drive
 the robot for recorded runs.
 """
 
@@ -12,9 +12,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydantic import BaseModel, Field
 
-from numeric.geometry import compose, line_of_sight, relative, segments_cross, wrap_angle
-from numeric.observation import Observation, SeenLandmark
-from numeric.world import World
+from chizu.numeric.geometry import compose, line_of_sight, relative, segments_cross, wrap_angle
+from chizu.numeric.observation import Observation, SeenLandmark
+from chizu.numeric.world import World
 
 
 class ObserverConfig(BaseModel):

@@ -15,9 +15,14 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, FiniteFloat, model_validator
 
-from numeric.errors import InvalidInput
-from numeric.geometry import enclosed_cells, inside_outline, point_segment_distance, ray_crossings
-from numeric.textures import TEXTURE_NAMES
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.geometry import (
+    enclosed_cells,
+    inside_outline,
+    point_segment_distance,
+    ray_crossings,
+)
+from chizu.numeric.textures import TEXTURE_NAMES
 
 ID_PATTERN = r"^[a-z][a-zA-Z0-9_]{0,63}$"
 Id = Annotated[str, Field(pattern=ID_PATTERN, description="id: ^[a-z][a-zA-Z0-9_]{0,63}$")]
@@ -228,7 +233,7 @@ class World:
         """True for positions ``(M, 2)`` inside the building: enclosed by the walls (no
         path from outside without crossing one) and inside their outline by the even-odd
         rule in some axis direction, so rooms between partition walls count and the
-        inside of a closed pillar does not (:func:`numeric.geometry.inside_outline`). A
+        inside of a closed pillar does not (:func:`chizu.numeric.geometry.inside_outline`). A
         building whose outer walls leave a gap encloses nothing: then the even-odd rule
         towards +x alone decides, as it always did."""
         xy = np.atleast_2d(np.asarray(xy, dtype=float))

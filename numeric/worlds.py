@@ -10,9 +10,9 @@ from collections.abc import Callable
 
 import numpy as np
 
-from numeric.geometry import point_segment_distance
-from numeric.textures import TEXTURE_NAMES
-from numeric.world import Feature, Landmark, Wall, World, WorldDescription, WorldObject
+from chizu.numeric.geometry import point_segment_distance
+from chizu.numeric.textures import TEXTURE_NAMES
+from chizu.numeric.world import Feature, Landmark, Wall, World, WorldDescription, WorldObject
 
 
 def office_world(name: str = "demo", rooms_per_side: int = 4, room_width_m: float = 6.0,

@@ -366,9 +366,9 @@ test(query_whitelist, [nondet, cleanup(drop_world(e31))]) :-
 test(repl_helpers, [nondet, cleanup(drop_world(e32))]) :-
     fixture(e32),
     repl:use_world(e32),
-    repl:eig_state_after([stop([0, 2], false)], S), S == y(1),
+    repl:state_after([stop([0, 2], false)], S), S == y(1),
     repl:covers(1, 3, 3), \+ repl:covers(0, 3, 3),
     repl:triplet_distance(2, 8, 0, D), D =:= 0,
-    repl:eig_stop_outcome([1, 3], false, O), O == in_set(2).
+    repl:stop_outcome([1, 3], false, O), O == in_set(2).
 
 :- end_tests(eigenspace).

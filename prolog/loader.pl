@@ -30,7 +30,7 @@ load_checked(Dir) :-
     setup_call_cleanup(assertz(collecting),
                        forall(member(M, Ms),
                               ( directory_file_path(Dir, M, F),
-                                load_files(F, [if(true)]) )),
+                                load_files(F, [if(true), imports([])]) )),
                        retractall(collecting)),
     findall(P, load_problem(P), Ps),
     (   Ps == []

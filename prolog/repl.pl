@@ -1,40 +1,18 @@
 /*  REPL conveniences: `chizu repl WORLD` loads a world's facts and makes the
-    world current, so that the paper's relations can be asked without the
-    world argument:  ?- reachable(a, c, P, M).
-    Eigenspace helpers: eig_state_after/2, covers/3, ...; SLAM map helpers:
-    committed_map(Run), explored_fraction(F), largest_unknown_region(Id, A),
-    unknown_region_within(X, Y, R, Id, D), map_path_length(L),
-    loop_closure_count(N), closes_loop(ScanA, ScanB).  The world's facts
-    (map_pose/5, loop_closure/4, ...) live in its module 'world:W'.
+    world current, so that the world's relations are asked without the world
+    argument:  ?- reachable(a, c, P, M).
+
+    The goals are the REST query's, by the same names: every relation
+    query.pl allows (its relation_goal/3: rec/3, frec/3, landmark/1,
+    reachable/4, state_after/2, committed_map/1, loop_closure/4, joinable/2,
+    plan_step/4, mission_outcome/1, ...) is defined here for the current world
+    and exported, so the copy REPL, `chizu repl --live` and POST /query answer
+    the same goal alike.  The world's facts live in its module 'world:W'.
 */
 :- module(repl,
           [ use_world/1,            % +World
             load_world_facts/2,     % +World, +File
-            reachable/4,            % ?From, ?To, -P, -Method
-            lr/4,                   % ?L1, ?L2, ?L3, -P
-            align/5,                % ?L1, ?L2, ?L3, ?Kind, -P
-            rec/3,                  % ?L1, ?L2, -P
-            drm_edge/4,             % ?From, ?To, -P, -Method
-            landmark/1,             % ?Landmark
-            eig_stop_outcome/3,     % +Triplets, +Unique, -Outcome
-            eig_next_state/3,       % +Prev, +Outcome, -Next
-            eig_state_after/2,      % +Stops, -State
-            covers/3,               % ?T, +X, +Y
-            triplet_distance/4,     % ?T, +X, +Y, -D
-            explored_fraction/1,    % -F
-            largest_unknown_region/2, % -Id, -Area
-            unknown_region_within/5, % +X, +Y, +R, ?Id, -D
-            map_path_length/1,      % -L
-            loop_closure_count/1,   % -N
-            closes_loop/2,          % ?ScanA, ?ScanB
-            committed_map/1,        % ?Run
-            observation_group/3,    % ?G, ?Kind, ?Members
-            same_group/2,           % ?A, ?B
-            plan_step/4,            % ?K, ?G, ?Pose, ?Times
-            mission_step/3,         % ?S, ?What, ?Result
-            mission_pose/3,         % -X, -Y, -Th
-            mission_path/2,         % -Landmarks, -P
-            mission_outcome/1,      % -Outcome
+            world_goal/1,           % ?Name/Arity
             main/0
           ]).
 :- use_module(library(main), [argv_options/3]).
@@ -45,6 +23,7 @@
 :- use_module(slam, []).
 :- use_module(grouping, []).
 :- use_module(mission, []).
+:- use_module(query, []).
 
 :- dynamic current_world/1.
 
@@ -78,43 +57,22 @@ load_terms(In, M) :-
 
 w(W) :- ( current_world(W) -> true ; throw(chizu_error(no_current_world)) ).
 
-reachable(A, B, P, M) :- w(W), drm:reachable(W, A, B, P, M).
-lr(A, B, C, P) :- w(W), qualitative:lr(W, A, B, C, P).
-align(A, B, C, K, P) :- w(W), qualitative:align(W, A, B, C, K, P).
-rec(A, B, P) :- w(W), qualitative:rec(W, A, B, P).
-drm_edge(A, B, P, M) :- w(W), drm:drm_edge(W, A, B, P, M, _).
-landmark(L) :- w(W), world_module(W, M), M:landmark(L).
+%!  world_goal(?PI) is nondet.
+%
+%   The relations asked for the current world: query:relation_goal/3's heads.
+world_goal(N/A) :-
+    distinct(N/A, ( clause(query:relation_goal(_, H, _), _), functor(H, N, A) )).
 
-%   Eigenspace localization (eigenspace.pl), e.g.
-%   ?- eig_state_after([stop([3, 7], false), stop([7], false)], S).
-eig_stop_outcome(Ts, U, O) :- w(W), eigenspace:stop_outcome(W, Ts, U, O).
-eig_next_state(S0, O, S) :- eigenspace:next_state(S0, O, S).
-eig_state_after(Stops, S) :- w(W), eigenspace:state_after(W, Stops, S).
-covers(T, X, Y) :- w(W), eigenspace:covers(W, T, X, Y).
-triplet_distance(T, X, Y, D) :- w(W), eigenspace:triplet_distance(W, T, X, Y, D).
+%   One clause and one export per relation, made while this file compiles:
+%       Head :- w(W), query:relation_goal(W, Head, Body), call(Body).
+term_expansion(world_goals, Clauses) :-
+    findall(C, ( world_goal(N/A),
+                 functor(H, N, A),
+                 member(C, [ (:- export(N/A)),
+                             (H :- w(W), query:relation_goal(W, H, B), call(B)) ]) ),
+            Clauses).
 
-%   The committed SLAM map (slam.pl), e.g.
-%   ?- explored_fraction(F), largest_unknown_region(Id, A).
-explored_fraction(F) :- w(W), slam:explored_fraction(W, F).
-largest_unknown_region(Id, A) :- w(W), slam:largest_unknown_region(W, Id, A).
-unknown_region_within(X, Y, R, Id, D) :- w(W), slam:unknown_region_within(W, X, Y, R, Id, D).
-map_path_length(L) :- w(W), slam:map_path_length(W, L).
-loop_closure_count(N) :- w(W), slam:loop_closure_count(W, N).
-closes_loop(A, B) :- w(W), slam:closes_loop(W, A, B).
-committed_map(Run) :- w(W), world_module(W, M), M:committed_map(Run).
-
-%   The last viewpoint scene and plan (grouping.pl), e.g.
-%   ?- plan_step(K, G, pose(X, Y, Th), times(TravelM, ObserveS, PRecog, DoneAtS)).
-observation_group(G, Kind, Members) :- w(W), grouping:observation_group(W, G, Kind, Members).
-same_group(A, B) :- w(W), grouping:same_group(W, A, B).
-plan_step(K, G, Pose, Times) :- w(W), grouping:plan_step(W, K, G, Pose, Times).
-
-%   The last mission (mission.pl), e.g.
-%   ?- mission_step(S, What, Result).   ?- mission_outcome(O).
-mission_step(S, What, R) :- w(W), world_module(W, M), M:mission_step(S, What, R).
-mission_pose(X, Y, Th) :- w(W), mission:mission_pose(W, X, Y, Th).
-mission_path(Ls, P) :- w(W), mission:mission_path(W, Ls, P).
-mission_outcome(O) :- w(W), mission:mission_outcome(W, O).
+world_goals.
 
 %!  main is det.
 %

@@ -9,9 +9,10 @@ from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
 
-from numeric.memory import return_large_frees
-from service import errors
-from service.api.routes import (
+from chizu.numeric.memory import return_large_frees
+from chizu.service import __version__, errors
+from chizu.service.api import operation_id
+from chizu.service.api.routes import (
     eigenspace,
     health,
     jobs,
@@ -22,8 +23,8 @@ from service.api.routes import (
     viewpoint,
     worlds,
 )
-from service.container import ensure_demo, open_services
-from service.settings import Settings, get_settings
+from chizu.service.container import ensure_demo, open_services
+from chizu.service.settings import Settings, get_settings
 
 log = logging.getLogger("chizu")
 
@@ -40,11 +41,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         except BaseException:
             services.close()
             raise
-        # the jobs a previous server process was running ended with it (the CLI, which
-        # opens the same store while a server may run, leaves them alone)
-        n = services.jobs.interrupt_unfinished()
-        if n:
-            log.warning("%d job(s) were interrupted by the last shutdown", n)
+        # the jobs a previous server process was running ended with it: queued again
+        # where they can be, else interrupted (the CLI, which opens the same store while
+        # a server may run, leaves them alone)
+        again, lost = services.jobs.resume_unfinished()
+        if again or lost:
+            log.warning("jobs the last server process left unfinished: %d queued again, "
+                        "%d interrupted", again, lost)
         app.state.services = services
         app.state.store, app.state.kb, app.state.worlds = (services.store, services.kb,
                                                            services.worlds)
@@ -56,8 +59,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             await services.jobs.close()
             services.close()
 
-    app = FastAPI(title="chizu", version="0.1.0", lifespan=lifespan,
-                  description="Hybrid symbolic-numeric planner for mobile robots.")
+    app = FastAPI(title="chizu", version=__version__, lifespan=lifespan,
+                  description="Hybrid symbolic-numeric planner for mobile robots.",
+                  generate_unique_id_function=operation_id)
     app.include_router(health.router)
     app.include_router(worlds.router)
     app.include_router(qualitative.router)

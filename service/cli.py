@@ -15,18 +15,28 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from numeric.viewpoint.planner import BUILTIN_OBJECT_TYPES
-from service.settings import get_settings
+from chizu.numeric.viewpoint.planner import BUILTIN_OBJECT_TYPES
+from chizu.service.settings import get_settings
 
 app = typer.Typer(help="chizu: hybrid symbolic-numeric planner for mobile robots.",
                   no_args_is_help=True)
 console = Console()
 
 
+def _print_version(value: bool) -> None:
+    if value:
+        from chizu.service import __version__
+
+        console.print(f"chizu {__version__}")
+        raise typer.Exit()
+
+
 @app.callback()
-def _process() -> None:
+def _process(version: Annotated[bool, typer.Option(
+        "--version", callback=_print_version, is_eager=True,
+        help="Print the version and exit.")] = False) -> None:
     """chizu: hybrid symbolic-numeric planner for mobile robots."""
-    from numeric.memory import return_large_frees
+    from chizu.numeric.memory import return_large_frees
 
     return_large_frees()  # long SLAM runs make and drop large grids
 
@@ -37,7 +47,7 @@ def serve(host: str = typer.Option(None, help="default: CHIZU_HOST or 127.0.0.1"
     """Run the HTTP service (one worker: the Prolog engine lives in this process)."""
     import uvicorn
 
-    from service.app import create_app
+    from chizu.service.app import create_app
 
     s = get_settings()
     uvicorn.run(create_app(s), host=host or s.host, port=port or s.port, workers=1)
@@ -46,8 +56,8 @@ def serve(host: str = typer.Option(None, help="default: CHIZU_HOST or 127.0.0.1"
 def _open_services():  # type: ignore[no-untyped-def]
     """The service's own wiring on the configured data directory (no HTTP): every
     world restored with its events and artifacts, as the app starts
-    (:func:`service.container.open_services`)."""
-    from service.container import open_services
+    (:func:`chizu.service.container.open_services`)."""
+    from chizu.service.container import open_services
 
     # the CLI's one request at a time needs no worker processes
     return open_services(get_settings().model_copy(update={"workers": 0}))
@@ -57,7 +67,7 @@ def _open_services():  # type: ignore[no-untyped-def]
 def path(world: str, source: str = typer.Argument(..., metavar="FROM"),
          target: str = typer.Argument(..., metavar="TO")) -> None:
     """Print the most probable DRM path FROM -> TO in WORLD."""
-    from numeric.errors import InvalidInput, NotFound
+    from chizu.numeric.errors import InvalidInput, NotFound
 
     services = _open_services()
     try:
@@ -89,7 +99,7 @@ def repl(world: str,
                                            "not on this machine")) -> None:
     """Open swipl with the rule files and WORLD's facts loaded (try ?- reachable(a, c, P,
     M).), or with --live a prompt on the running service's knowledge base."""
-    from numeric.errors import NotFound
+    from chizu.numeric.errors import NotFound
 
     if live:
         s = get_settings()
@@ -122,7 +132,7 @@ def repl(world: str,
 def _live_repl(world: str, url: str, allow_remote: bool) -> None:
     import httpx
 
-    from service.live_repl import LiveRepl, ReplError, check_local
+    from chizu.service.live_repl import LiveRepl, ReplError, check_local
 
     try:
         import readline  # noqa: F401 -- line editing and history for input()
@@ -152,10 +162,13 @@ def _live_repl(world: str, url: str, allow_remote: bool) -> None:
 
 
 def _slam_outputs(out: Path, times, poses, grid) -> None:  # type: ignore[no-untyped-def]
-    from numeric.slam.logs import write_tum
+    """The trajectory as TUM and as a ROS 2 bag (nav_msgs/Path), and the map images."""
+    from chizu.numeric.slam.logs import write_ros2_path, write_tum
 
     out.mkdir(parents=True, exist_ok=True)
     write_tum(out / "trajectory.tum", times, poses)
+    shutil.rmtree(out / "trajectory-ros2", ignore_errors=True)  # a bag is written anew
+    write_ros2_path(out / "trajectory-ros2", times, poses)
     (out / "map.png").write_bytes(grid.to_png())
     (out / "map.pgm").write_bytes(grid.to_pgm())
     (out / "map.yaml").write_text(grid.to_yaml("map.pgm"))
@@ -181,7 +194,9 @@ def slam(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .bag (or b
          resume: str | None = typer.Option(None, help="a saved map (map.chizu or the "
                                            "directory holding it) to continue: LOG's "
                                            "scans join it, in its frame")) -> None:
-    """Run SLAM over LOG; write OUT/trajectory.tum (TUM, the log's stamps), map.png
+    """Run SLAM over LOG (CARMEN, or a ROS 1 / ROS 2 bag with LaserScan and Odometry or
+    /tf); write OUT/trajectory.tum (TUM, the log's stamps) and OUT/trajectory-ros2 (the
+    same as a ROS 2 bag of one nav_msgs/Path), map.png
     (intensity-coloured), map.pgm + map.yaml (ROS map_server) and map.chizu, the saved
     map later runs localize in (chizu slam-localize); with --world, commit it into a
     world as a REST commit does. With --resume, LOG continues a saved map: found in it
@@ -190,9 +205,9 @@ def slam(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .bag (or b
     from pydantic import ValidationError
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-    from numeric.errors import InvalidInput
-    from numeric.slam.logs import read_log
-    from numeric.slam.runner import SlamOptions, run_log
+    from chizu.numeric.errors import InvalidInput
+    from chizu.numeric.slam.logs import read_log
+    from chizu.numeric.slam.runner import SlamOptions, run_log
 
     try:
         opts = SlamOptions(method=method, particles=particles, alpha=alpha,  # type: ignore[arg-type]
@@ -203,7 +218,7 @@ def slam(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .bag (or b
             _require_world(world)
         old = None
         if resume is not None:
-            from numeric.slam.saved_map import load
+            from chizu.numeric.slam.saved_map import load
 
             if opts.method != "graph":
                 raise InvalidInput("--resume continues a map with graph SLAM: --method graph",
@@ -221,12 +236,12 @@ def slam(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .bag (or b
         except InvalidInput as e:
             console.print(f"[red]{e}[/red]")
             raise typer.Exit(2) from None
-    from numeric.slam.saved_map import FILE_NAME, save, saved_map_of_log
+    from chizu.numeric.slam.saved_map import FILE_NAME, save, saved_map_of_log
 
     new = saved_map_of_log(slam_, data, opts.method, opts.map_resolution_m)
     times, poses, grid = res.times, res.poses, res.map
     if old is not None:
-        from numeric.slam.merge import resume as resume_map
+        from chizu.numeric.slam.merge import resume as resume_map
 
         try:
             with console.status(f"placing {data.name} in {resume} and aligning"):
@@ -239,7 +254,8 @@ def slam(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .bag (or b
     saved = save(new, Path(out) / FILE_NAME)
     console.print(f"{opts.method}: {len(data)} scans ({data.duration_s:.0f} s of log) in "
                   f"{res.seconds:.1f} s = {data.duration_s / max(res.seconds, 1e-9):.1f}x real "
-                  f"time; wrote {out}/trajectory.tum, map.png, map.pgm, map.yaml and "
+                  f"time; wrote {out}/trajectory.tum, trajectory-ros2, map.png, map.pgm, "
+                  f"map.yaml and "
                   f"{FILE_NAME} (the saved map)")
     if world is not None:
         services = _open_services()
@@ -253,9 +269,9 @@ def slam(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .bag (or b
 
 
 def _require_world(world: str) -> None:
-    """Raise :class:`numeric.errors.InvalidInput` (field ``world``) unless the data
+    """Raise :class:`chizu.numeric.errors.InvalidInput` (field ``world``) unless the data
     directory has ``world``."""
-    from numeric.errors import InvalidInput, NotFound
+    from chizu.numeric.errors import InvalidInput, NotFound
 
     services = _open_services()
     try:
@@ -279,9 +295,9 @@ def slam_merge(map_a: str = typer.Argument(..., metavar="MAP_A", help="a saved m
     of two lasers, are refused and nothing is written."""
     import numpy as np
 
-    from numeric.errors import InvalidInput
-    from numeric.slam.merge import merge
-    from numeric.slam.saved_map import FILE_NAME, load, save
+    from chizu.numeric.errors import InvalidInput
+    from chizu.numeric.slam.merge import merge
+    from chizu.numeric.slam.saved_map import FILE_NAME, load, save
 
     try:
         a, b = load(map_a), load(map_b)
@@ -296,8 +312,8 @@ def slam_merge(map_a: str = typer.Argument(..., metavar="MAP_A", help="a saved m
     t = placed.transform
     console.print(f"MAP_B lies at x {t[0]:.2f} m, y {t[1]:.2f} m, {np.rad2deg(t[2]):.1f} deg "
                   f"in MAP_A ({placed.agree} of {placed.searched} places agree); {len(m)} "
-                  f"keyframes; wrote {out}/map.chizu, trajectory.tum, map.png, map.pgm, "
-                  "map.yaml")
+                  f"keyframes; wrote {out}/map.chizu, trajectory.tum, trajectory-ros2, "
+                  "map.png, map.pgm, map.yaml")
 
 
 @app.command("slam-localize")
@@ -313,10 +329,10 @@ def slam_localize(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .
     map's frame) and OUT/localization.json (time to the first fix, fixes, losses)."""
     import json as json_
 
-    from numeric.errors import InvalidInput
-    from numeric.slam.logs import read_log, write_tum
-    from numeric.slam.map_localization import localize_log
-    from numeric.slam.saved_map import load, map_path, write_atomic
+    from chizu.numeric.errors import InvalidInput
+    from chizu.numeric.slam.logs import read_log, write_tum
+    from chizu.numeric.slam.map_localization import localize_log
+    from chizu.numeric.slam.saved_map import load, map_path, write_atomic
 
     try:
         saved = load(map_)
@@ -368,10 +384,10 @@ def slam_batch(logs: Annotated[list[str], typer.Argument(help="CARMEN .clf/.log 
     import yaml
     from rich.table import Table
 
-    from numeric.errors import InvalidInput
-    from numeric.slam.batch import run_batch, tasks_for
-    from numeric.slam.logs import write_tum
-    from service.executors import batch_executor
+    from chizu.numeric.errors import InvalidInput
+    from chizu.numeric.slam.batch import run_batch, tasks_for
+    from chizu.numeric.slam.logs import write_tum
+    from chizu.service.executors import batch_executor
 
     try:
         spec = yaml.safe_load(Path(grid).read_text()) if grid else {}
@@ -384,7 +400,8 @@ def slam_batch(logs: Annotated[list[str], typer.Argument(help="CARMEN .clf/.log 
         raise typer.Exit(2) from None
     where = scheduler or (f"{local_workers} local Dask workers" if local_workers else
                           "this process")
-    with console.status(f"{len(tasks)} runs on {where}"), \
+    console.print(f"{len(tasks)} runs on {where}")
+    with console.status("running"), \
             batch_executor(scheduler, local_workers) as ex:
         results = run_batch(tasks, ex)
     dest = Path(out)
@@ -418,9 +435,9 @@ def slam_eval(trajectory: Path, relations: Path,
               max_dt: float = typer.Option(0.1, help="pose-to-relation time tolerance (s)"),
               ) -> None:
     """Relation errors (Kümmerle et al. 2009) of a TUM TRAJECTORY against RELATIONS."""
-    from numeric.errors import InvalidInput
-    from numeric.slam.evaluation import relation_errors
-    from numeric.slam.logs import read_relations, read_tum
+    from chizu.numeric.errors import InvalidInput
+    from chizu.numeric.slam.evaluation import relation_errors
+    from chizu.numeric.slam.logs import read_relations, read_tum
 
     try:
         t, p = read_tum(trajectory)
@@ -446,9 +463,9 @@ def slam_sim(template: str = typer.Argument("corridor", help="built-in world"),
              seed: int = typer.Option(0, min=0)) -> None:
     """Record a simulated URG-04LX log (with intensities) in a built-in world as a
     CARMEN ROBOTLASER1 log, plus OUT.truth.tum with the true poses."""
-    from numeric.errors import InvalidInput
-    from numeric.slam.logs import write_carmen, write_tum
-    from numeric.slam.simulate import TOURS, simulated_log
+    from chizu.numeric.errors import InvalidInput
+    from chizu.numeric.slam.logs import write_carmen, write_tum
+    from chizu.numeric.slam.simulate import TOURS, simulated_log
 
     try:
         log = simulated_log(template, seed=seed)
@@ -467,9 +484,9 @@ DEFAULT_TYPES = BUILTIN_OBJECT_TYPES
 
 def _world_description(name: str):  # type: ignore[no-untyped-def]
     """A stored world of the data directory, else a built-in template."""
-    from numeric.world import WorldDescription
-    from numeric.worlds import TEMPLATES, from_template
-    from service.store import Store
+    from chizu.numeric.world import WorldDescription
+    from chizu.numeric.worlds import TEMPLATES, from_template
+    from chizu.service.store import Store
 
     s = get_settings()
     if s.db_path.exists():
@@ -494,13 +511,13 @@ def plan(scene: str = typer.Argument(..., help="SCENE.json: a viewpoint-plan req
 
     from pydantic import ValidationError
 
-    from numeric.errors import InvalidInput
-    from numeric.figures import plan_figure
-    from numeric.viewpoint.grid import look_around, scanned_grid
-    from numeric.viewpoint.planner import ViewpointPlanner
-    from numeric.world import World
-    from service.schemas.viewpoint import PlanRequest
-    from service.viewpoint import local_grouper, plan_answer
+    from chizu.numeric.errors import InvalidInput
+    from chizu.numeric.figures import plan_figure
+    from chizu.numeric.viewpoint.grid import look_around, scanned_grid
+    from chizu.numeric.viewpoint.planner import ViewpointPlanner
+    from chizu.numeric.world import World
+    from chizu.service.schemas.viewpoint import PlanRequest
+    from chizu.service.viewpoint import local_grouper, plan_answer
 
     try:
         req = PlanRequest.model_validate_json(Path(scene).read_text())
@@ -565,12 +582,12 @@ def summarise(world: str = typer.Argument(..., help="stored world or template, e
 
     import numpy as np
 
-    from numeric.figures import run_figure
-    from numeric.viewpoint.online import Summariser, SummaryConfig
-    from numeric.viewpoint.planner import ObjectType
-    from numeric.world import World
-    from numeric.worlds import SUMMARY_DOOR
-    from service.viewpoint import local_grouper
+    from chizu.numeric.figures import run_figure
+    from chizu.numeric.viewpoint.online import Summariser, SummaryConfig
+    from chizu.numeric.viewpoint.planner import ObjectType
+    from chizu.numeric.world import World
+    from chizu.numeric.worlds import SUMMARY_DOOR
+    from chizu.service.viewpoint import local_grouper
 
     if loss not in ("L1", "L2", "L3"):
         console.print(f"[red]--loss must be L1, L2 or L3, not {loss!r}[/red]")
@@ -636,9 +653,9 @@ def mission(world: str = typer.Argument("mission", help="stored world, or a temp
     viewpoints and verify the objects in the goal room. Each run's steps become
     mission_step/3 facts of WORLD (the last run's stay: `chizu repl WORLD`); writes
     mission.png (the first run), mission.json (every record) and results.csv."""
-    from numeric.errors import ChizuError
-    from numeric.world import WorldDescription
-    from numeric.worlds import TEMPLATES
+    from chizu.numeric.errors import ChizuError
+    from chizu.numeric.world import WorldDescription
+    from chizu.numeric.worlds import TEMPLATES
 
     base = _mission_config(slam_method, time_limit, goal, door, room)
     services = _open_services()
@@ -682,7 +699,7 @@ def _mission_config(slam_method: str, time_limit: float, goal: str | None,
     """The mission command's options as a MissionConfig (exit 2 naming a bad one)."""
     from pydantic import ValidationError
 
-    from service.schemas.mission import MissionConfig
+    from chizu.service.schemas.mission import MissionConfig
 
     over: dict[str, Any] = {"slam_method": slam_method, "time_limit_s": time_limit}
     try:
@@ -731,7 +748,7 @@ SizeOpt = Annotated[str | None, typer.Option(help="resize images to WIDTHxHEIGHT
 def _eigen_config(path: Path | None):  # type: ignore[no-untyped-def]
     from pydantic import ValidationError
 
-    from numeric.eigenspace.analysis import EigenspaceConfig
+    from chizu.numeric.eigenspace.analysis import EigenspaceConfig
 
     if path is None:
         return EigenspaceConfig()
@@ -748,9 +765,9 @@ def eigen_export(world: Annotated[str, typer.Argument(help="stored world or temp
                  config: ConfigOpt = None) -> None:
     """Write the simulator's learning turns and calibration images of WORLD as an image
     folder (poses.csv + 16-bit PNGs): the format `learn --images` reads."""
-    from numeric.eigenspace.analysis import render_image_set
-    from numeric.eigenspace.image_sets import write_image_folder
-    from numeric.world import World
+    from chizu.numeric.eigenspace.analysis import render_image_set
+    from chizu.numeric.eigenspace.image_sets import write_image_folder
+    from chizu.numeric.world import World
 
     with console.status("rendering and analysing"):
         images, a = render_image_set(World(_world_description(world)), _eigen_config(config))
@@ -779,7 +796,7 @@ def eigen_learn(world: Annotated[str, typer.Argument(help="stored world")],
                                 "here")] = 0) -> None:
     """Learn WORLD's eigenspace and store it (the service and the REPL see it). A WORLD
     not stored yet but named like a template (e.g. room_a) is created from it."""
-    from service.executors import batch_executor
+    from chizu.service.executors import batch_executor
 
     cfg = _eigen_config(config)
     if not strategy:
@@ -792,10 +809,10 @@ def _eigen_learn(world: str, images: Path | None, size: str | None, cfg: Any,
                  executor: Any) -> None:
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from numeric.eigenspace.image_sets import parse_size, read_image_folder
-    from numeric.errors import ChizuError
-    from numeric.world import WorldDescription
-    from numeric.worlds import TEMPLATES
+    from chizu.numeric.eigenspace.image_sets import parse_size, read_image_folder
+    from chizu.numeric.errors import ChizuError
+    from chizu.numeric.world import WorldDescription
+    from chizu.numeric.worlds import TEMPLATES
 
     services = _open_services()
     eig = services.eigenspace
@@ -832,8 +849,8 @@ def eigen_localize(world: Annotated[str, typer.Argument(help="stored world with 
 
     import numpy as np
 
-    from numeric.eigenspace.image_sets import decode_image, parse_size
-    from numeric.errors import ChizuError
+    from chizu.numeric.eigenspace.image_sets import decode_image, parse_size
+    from chizu.numeric.errors import ChizuError
 
     services = _open_services()
     eig = services.eigenspace

@@ -36,19 +36,19 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from numeric.camera import Camera, CameraConfig
-from numeric.eigenspace.analysis import EigenspaceAnalysis
-from numeric.eigenspace.image_sets import decode_image, encode_png
-from numeric.eigenspace.learning import EigenspaceModel
-from numeric.eigenspace.localization import Session, TurnCandidates, Vote, turn_candidates
-from numeric.eigenspace.movement_strategy import (
+from chizu.numeric.camera import Camera, CameraConfig
+from chizu.numeric.eigenspace.analysis import EigenspaceAnalysis
+from chizu.numeric.eigenspace.image_sets import decode_image, encode_png
+from chizu.numeric.eigenspace.learning import EigenspaceModel
+from chizu.numeric.eigenspace.localization import Session, TurnCandidates, Vote, turn_candidates
+from chizu.numeric.eigenspace.movement_strategy import (
     Decision,
     choose_action,
     initial_samples,
     session_belief,
 )
-from numeric.errors import ChizuError, InvalidInput
-from numeric.world import World, WorldDescription
+from chizu.numeric.errors import ChizuError, InvalidInput
+from chizu.numeric.world import World, WorldDescription
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -140,7 +140,7 @@ class ComputePool:
         # the fork server imports the numeric stack once; each worker forks from it.
         # One BLAS thread per worker: the workers are the parallelism, and idle
         # OpenBLAS threads spin, taking cores from the other workers.
-        ctx.set_forkserver_preload(["service.compute", "service.viewpoint_tasks"])
+        ctx.set_forkserver_preload(["chizu.service.compute", "chizu.service.viewpoint_tasks"])
         with _environ(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1"):
             forkserver.ensure_running()
         return pebble.ProcessPool(max_workers=self.workers, context=ctx)
@@ -267,7 +267,7 @@ def stop_report(s: Session, vote: Vote, model: EigenspaceModel,
     each cluster of agreeing hits, with its votes, triplet and cluster size), whether
     the vote is unique, and the pose estimate (used when the state is Z; with the
     eigenspace and the world's walls it also interpolates the whole latest turn,
-    :func:`numeric.eigenspace.localization.whole_turn_interpolation`). Made in the
+    :func:`chizu.numeric.eigenspace.localization.whole_turn_interpolation`). Made in the
     service process, where the world is."""
     cands = []
     for cluster, best in list(zip(vote.clusters, s.representatives(vote), strict=True))[:10]:

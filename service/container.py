@@ -2,8 +2,8 @@
 
 :func:`open_services` opens the store and the Prolog engine, builds the world service
 and the three domain services (each registers the artifact kinds it writes), restores
-every world with its events and artifacts (:meth:`WorldService.restore_all`) and the
-stored SLAM runs, and creates the demo world if it is configured and missing. So a
+the stored SLAM runs (worlds load into the knowledge base when first asked for:
+:meth:`WorldService.ready`), and creates the demo world if it is configured and missing. So a
 ``chizu repl WORLD`` or ``chizu eigenspace localize`` sees exactly the knowledge base
 the service would start with.
 """
@@ -15,20 +15,20 @@ import logging
 from concurrent.futures import Executor
 from dataclasses import dataclass
 
-from numeric.qualitative.survey import survey
-from numeric.simulator import ObserverConfig
-from numeric.world import WorldDescription
-from service.compute import ComputePool
-from service.eigenspace import EigenspaceService
-from service.jobs import Jobs
-from service.kb import KnowledgeBase
-from service.localization import LocalizationService
-from service.mission import MissionService
-from service.settings import Settings, get_settings
-from service.slam import SlamService
-from service.store import Store
-from service.viewpoint import ViewpointService
-from service.worlds import WorldService
+from chizu.numeric.qualitative.survey import survey
+from chizu.numeric.simulator import ObserverConfig
+from chizu.numeric.world import WorldDescription
+from chizu.service.compute import ComputePool
+from chizu.service.eigenspace import EigenspaceService
+from chizu.service.jobs import Jobs
+from chizu.service.kb import KnowledgeBase
+from chizu.service.localization import LocalizationService
+from chizu.service.mission import MissionService
+from chizu.service.settings import Settings, get_settings
+from chizu.service.slam import SlamService
+from chizu.service.store import Store
+from chizu.service.viewpoint import ViewpointService
+from chizu.service.worlds import WorldService
 
 log = logging.getLogger("chizu")
 
@@ -98,12 +98,10 @@ def open_services(settings: Settings | None = None,
                             viewpoint, MissionService(kb, worlds, jobs, eigenspace, slam,
                                                       viewpoint, localization),
                             localization)
-        counts = worlds.restore_all()
         runs = services.slam.restore_runs()
         located = services.localization.restore_runs()
-        log.info("restored from %s: %s, %d SLAM run(s), %d localization run(s)",
-                 settings.db_path, ", ".join(f"{n} {k}" for k, n in counts.items()), runs,
-                 located)
+        log.info("opened %s: worlds load when first asked for; %d SLAM run(s), "
+                 "%d localization run(s) restored", settings.db_path, runs, located)
         if demo:
             asyncio.run(ensure_demo(services))
     except BaseException:

@@ -8,17 +8,17 @@ from typing import Annotated
 
 from fastapi import Depends, Path, Request
 
-from numeric.world import ID_PATTERN
-from service.compute import ComputePool
-from service.eigenspace import EigenspaceService
-from service.jobs import Jobs
-from service.kb import KnowledgeBase
-from service.localization import LocalizationService
-from service.mission import MissionService
-from service.settings import Settings, get_settings
-from service.slam import SlamService
-from service.viewpoint import ViewpointService
-from service.worlds import WorldService
+from chizu.numeric.world import ID_PATTERN
+from chizu.service.compute import ComputePool
+from chizu.service.eigenspace import EigenspaceService
+from chizu.service.jobs import Jobs
+from chizu.service.kb import KnowledgeBase
+from chizu.service.localization import LocalizationService
+from chizu.service.mission import MissionService
+from chizu.service.settings import Settings, get_settings
+from chizu.service.slam import SlamService
+from chizu.service.viewpoint import ViewpointService
+from chizu.service.worlds import WorldService
 
 
 async def _worlds(request: Request) -> WorldService:
@@ -73,7 +73,7 @@ async def _existing_world(world: Annotated[str, Path(pattern=ID_PATTERN, descrip
                           worlds: WorldsDep) -> str:
     """The path's world, 404 once here if it does not exist: before the body's images
     are decoded or any work is done."""
-    worlds.require(world)
+    await worlds.ready(world)
     return world
 
 

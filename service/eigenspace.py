@@ -1,18 +1,19 @@
 """Eigenspace localization in the service: learning jobs, one-turn localization,
 multi-stop sessions and the movement strategy's next move.
 
-Flow: ``numeric.eigenspace`` computes; the knowledge base receives the learning
+Flow: ``chizu.numeric.eigenspace`` computes; the knowledge base receives the learning
 points, triplets and candidate-multiple sets as facts (``eigenspace_facts``) and
 decides every X / Y^(m) / Z transition by the Fig. 4 rules in
 ``prolog/eigenspace.pl`` (``eigenspace_transition``).  Analyses and sessions are
 stored in SQLite, so both survive a restart; a learning job is a durable job
-(:mod:`service.jobs`): one still running at a restart is reported ``interrupted``
+(:mod:`chizu.service.jobs`): one still running at a restart is reported ``interrupted``
 (its result was not stored) and must be posted again.
 """
 
 from __future__ import annotations
 
 import asyncio
+import io
 import logging
 import uuid
 from concurrent.futures import Executor
@@ -21,8 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from numeric.camera import CameraConfig
-from numeric.eigenspace.analysis import (
+from chizu.numeric.camera import CameraConfig
+from chizu.numeric.eigenspace.analysis import (
     EigenspaceAnalysis,
     EigenspaceConfig,
     Progress,
@@ -30,17 +31,17 @@ from numeric.eigenspace.analysis import (
     learning_pixels,
     raster_axes,
 )
-from numeric.eigenspace.diagnosis import refusal
-from numeric.eigenspace.image_sets import ImageSet
-from numeric.eigenspace.learning_strategy import learn_with_strategy
-from numeric.eigenspace.localization import (
+from chizu.numeric.eigenspace.diagnosis import refusal
+from chizu.numeric.eigenspace.image_sets import ImageSet
+from chizu.numeric.eigenspace.learning_strategy import learn_with_strategy
+from chizu.numeric.eigenspace.localization import (
     Session,
     Vote,
     session_from_dict,
     session_to_dict,
 )
-from numeric.errors import Conflict, InvalidInput, NotFound
-from service.compute import (
+from chizu.numeric.errors import Conflict, InvalidInput, NotFound
+from chizu.service.compute import (
     Cached,
     ComputePool,
     FirstStop,
@@ -50,9 +51,9 @@ from service.compute import (
     stop_report,
     turn_task,
 )
-from service.jobs import JobProgress, Jobs
-from service.kb import KnowledgeBase
-from service.schemas.eigenspace import (
+from chizu.service.jobs import JobProgress, Jobs, Work
+from chizu.service.kb import KnowledgeBase
+from chizu.service.schemas.eigenspace import (
     MAX_COVERAGE_CELLS,
     CameraOut,
     CoverageOut,
@@ -66,9 +67,9 @@ from service.schemas.eigenspace import (
     SessionLocalizationOut,
     TripletOut,
 )
-from service.schemas.jobs import JobOut
-from service.store import Store
-from service.worlds import ArtifactKind, WorldService
+from chizu.service.schemas.jobs import JobOut
+from chizu.service.store import Store
+from chizu.service.worlds import ArtifactKind, WorldService
 
 log = logging.getLogger(__name__)
 LEARNING_JOB = "eigenspace_learning"
@@ -111,6 +112,31 @@ def check_source(config: EigenspaceConfig, from_images: bool) -> None:
                            "learning_strategy null", field="config.learning_strategy")
 
 
+#: the arrays of an :class:`ImageSet`, as a learning request stores them
+IMAGE_SET_ARRAYS = ("points", "turns", "calib_poses", "calib_images")
+
+
+def learning_request(config: EigenspaceConfig, images: ImageSet | None) -> bytes:
+    """What a learning job is made again from after a restart: its configuration (JSON)
+    and, for a camera's images, the decoded image set (an npz archive)."""
+    arrays: dict[str, np.ndarray] = {
+        "config": np.frombuffer(config.model_dump_json().encode(), dtype=np.uint8)}
+    if images is not None:
+        arrays |= {k: getattr(images, k) for k in IMAGE_SET_ARRAYS}
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)  # type: ignore[arg-type]
+    return buf.getvalue()
+
+
+def read_learning_request(request: bytes) -> tuple[EigenspaceConfig, ImageSet | None]:
+    with np.load(io.BytesIO(request), allow_pickle=False) as z:
+        config = EigenspaceConfig.model_validate_json(z["config"].tobytes())
+        images = ImageSet(**{k: z[k] for k in IMAGE_SET_ARRAYS}) \
+            if IMAGE_SET_ARRAYS[0] in z.files else None
+    return config, images
+
+
+
 class EigenspaceService:
     def __init__(self, store: Store, kb: KnowledgeBase, worlds: WorldService, jobs: Jobs,
                  compute: ComputePool, executor: Executor | None = None,
@@ -125,6 +151,9 @@ class EigenspaceService:
         self._blobs: dict[str, Cached] = {}  # the analyses as the compute workers get them
         self._session_lock = asyncio.Lock()
         worlds.on_delete.append(self._forget)
+        worlds.on_reload.append(self._forget)
+        jobs.resumable(LEARNING_JOB, lambda world, request: self._learning(
+            world, *read_learning_request(request)))
         worlds.register(ArtifactKind(
             ARTIFACT, "eigenspace_facts", "eigenspace",
             lambda world, blob: facts_call(world, EigenspaceAnalysis.from_bytes(blob))))
@@ -155,7 +184,7 @@ class EigenspaceService:
     # -- learning -----------------------------------------------------------------------
     def start_learning(self, world: str, config: EigenspaceConfig,
                        images: ImageSet | None = None) -> JobOut:
-        """A durable learning job (:mod:`service.jobs`): in the simulator, or from a
+        """A durable learning job (:mod:`chizu.service.jobs`): in the simulator, or from a
         camera's ``images``; its result is the analysis summary."""
         w = self.worlds.model(world)
         check_source(config, images is not None)
@@ -170,11 +199,19 @@ class EigenspaceService:
                 f"{self.max_learning_pixels:,}: a coarser learning.spacing_m, fewer "
                 "directions or smaller images", field="learning.spacing_m")
 
+        return self.jobs.start(world, LEARNING_JOB, self._learning(world, config, images),
+                               learning_request(config, images))
+
+    def _learning(self, world: str, config: EigenspaceConfig,
+                  images: ImageSet | None) -> Work:
+        """A learning job's work; after a restart it is made again from its stored
+        request (:func:`learning_request`): the learning is deterministic given it."""
+
         async def work(progress: JobProgress) -> dict[str, Any]:
             a = await self.learn(world, config, images, progress)
             return a.summary(self.worlds.model(world))
 
-        return self.jobs.start(world, LEARNING_JOB, work)
+        return work
 
     def job(self, world: str, job_id: str) -> JobOut:
         self.worlds.require(world)
@@ -225,12 +262,13 @@ class EigenspaceService:
     # -- localization ---------------------------------------------------------------------
     async def _transition(self, world: str, state: dict[str, Any], triplets: list[int],
                           unique: bool) -> dict[str, Any]:
+        await self.worlds.ready(world)
         r = await self.kb.acall("eigenspace_transition", world=world, state=state,
                                 triplets=triplets, unique=unique)
         return dict(r)
 
     def _report(self, world: str, session: Session, vote: Vote) -> dict[str, Any]:
-        """:func:`service.compute.stop_report` with the eigenspace and the world's walls
+        """:func:`chizu.service.compute.stop_report` with the eigenspace and the world's walls
         (the estimate interpolates the whole latest turn too)."""
         a = self.analysis(world)
         report = stop_report(session, vote, a.model, self.worlds.model(world))
@@ -245,7 +283,7 @@ class EigenspaceService:
     def _answer(state: dict[str, Any], outcome: str, report: dict[str, Any]
                 ) -> dict[str, Any]:
         """The fields of an answer: the state (as the Fig. 4 rules gave it), outcome, pose
-        (in state Z), candidates (``report``: :func:`service.compute.stop_report`)."""
+        (in state Z), candidates (``report``: :func:`chizu.service.compute.stop_report`)."""
         pose = report["estimate"] if state.get("state") == "z" else None
         return {"state": state, "outcome": outcome, "pose": pose, "stops": report["stops"],
                 "unique": report["unique"], "candidates": report["candidates"],
@@ -346,6 +384,7 @@ class EigenspaceService:
 
     async def covering(self, world: str, x: float, y: float) -> list[dict[str, Any]]:
         self.learned(world)
+        await self.worlds.ready(world)
         return list(await self.kb.acall("eigenspace_covering", world=world, x=x, y=y))
 
     # -- camera -------------------------------------------------------------------------
@@ -353,7 +392,7 @@ class EigenspaceService:
                      turn: int | None, fmt: str = "png") -> CameraOut:
         """The simulated camera at ``pose`` (one image, or a full turn), rendered and
         encoded in a compute worker: ``images_png`` or ``images`` (the other unset)."""
-        self.worlds.require(world)
+        await self.worlds.ready(world)
         if config is None:
             a = self._analyses.get(world)
             config = a.config.camera if a is not None else CameraConfig()

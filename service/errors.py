@@ -11,11 +11,11 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from numeric.errors import ChizuError, Conflict, InvalidInput, NotFound
-from service.compute import BudgetExceeded, WorkerLost
-from service.disconnect import ClientGone
-from service.jobs import JobOverBudget
-from service.kb import KbError
+from chizu.numeric.errors import ChizuError, Conflict, InvalidInput, NotFound
+from chizu.service.compute import BudgetExceeded, WorkerLost
+from chizu.service.disconnect import ClientGone
+from chizu.service.jobs import JobOverBudget
+from chizu.service.kb import KbError
 
 #: the problem title of each status (the problem's type is made from it)
 TITLES = {404: "Not found", 405: "Method not allowed", 409: "Conflict", 413: "Payload too large",

@@ -2,11 +2,14 @@
 status, stage, progress and result, so a client polling it after a restart learns what
 happened instead of a 404.
 
-Status: ``queued`` -> ``running`` -> ``done`` | ``failed`` | ``cancelled``; a job that
-was queued or running when the process ended is marked ``interrupted`` at the next
-start (:meth:`Jobs.interrupt_unfinished`). ``DELETE /jobs/{id}`` cancels a job: its
-coroutine is cancelled at once (nothing it had not committed is committed) and the work
-in its worker thread stops at its next progress report.
+Status: ``queued`` -> ``running`` -> ``done`` | ``failed`` | ``cancelled``. A job
+queued or running when the process ended (a crash, a ``kill -9``, a shutdown) is queued
+again at the next start and runs from its beginning if its kind registered how to re-run
+it from its stored request (:meth:`Jobs.resumable`; an eigenspace learning, deterministic
+given its configuration), at most :data:`MAX_ATTEMPTS` times; otherwise it is marked
+``interrupted`` (:meth:`Jobs.resume_unfinished`). ``DELETE /jobs/{id}`` cancels a job:
+its coroutine is cancelled at once (nothing it had not committed is committed) and the
+work in its worker thread stops at its next progress report.
 """
 
 from __future__ import annotations
@@ -20,14 +23,17 @@ import uuid
 from collections.abc import Awaitable, Callable
 from typing import Any
 
-from numeric.errors import ChizuError, Conflict, NotFound
-from service.kb import KbError
-from service.schemas.jobs import JobOut
-from service.store import Store
+from chizu.numeric.errors import ChizuError, Conflict, NotFound
+from chizu.service.kb import KbError
+from chizu.service.schemas.jobs import JobOut
+from chizu.service.store import Store
 
 log = logging.getLogger(__name__)
 
 UNFINISHED = ("queued", "running")
+#: starts of one job after restarts at most: a job that takes the process down with it
+#: every time must not do so for ever
+MAX_ATTEMPTS = 3
 
 
 class JobCancelled(Exception):
@@ -67,6 +73,8 @@ class JobProgress:
 
 
 Work = Callable[[JobProgress], Awaitable[dict[str, Any]]]
+#: how a kind of job is made again from its world and its stored request
+Remake = Callable[[str, bytes], Work]
 
 
 class Jobs:
@@ -78,25 +86,59 @@ class Jobs:
         self._tasks: dict[str, asyncio.Task[None]] = {}
         self._cancel: dict[str, threading.Event] = {}
         self._closing = False
+        self._remake: dict[str, Remake] = {}
 
-    def interrupt_unfinished(self) -> int:
-        """Start-up: every job still queued or running belonged to a process that ended."""
-        return self.store.interrupt_jobs()
+    def resumable(self, kind: str, remake: Remake) -> None:
+        """Declare that jobs of ``kind`` can run again after a restart: ``remake(world,
+        request)`` gives the work from the request :meth:`start` stored."""
+        self._remake[kind] = remake
 
-    def start(self, world: str, kind: str, work: Work) -> JobOut:
+    def resume_unfinished(self) -> tuple[int, int]:
+        """Start-up (on the running event loop): every job still queued or running
+        belonged to a process that ended. Those of a resumable kind with a request are
+        queued again and started (their ``attempts`` counted, up to
+        :data:`MAX_ATTEMPTS`); the others are marked ``interrupted``. Returns (queued
+        again, interrupted)."""
+        again = lost = 0
+        for jid, world, kind, request, attempts in self.store.unfinished_jobs():
+            remake = self._remake.get(kind)
+            if remake is None or request is None or attempts >= MAX_ATTEMPTS:
+                why = (f"interrupted by {attempts + 1} restarts" if remake and request
+                       else "interrupted")
+                self.store.update_job(jid, status="interrupted", stage=why)
+                lost += 1
+                continue
+            try:
+                work = remake(world, request)
+            except Exception:  # noqa: BLE001 - e.g. its world is gone
+                log.exception("job %s cannot be made again", jid)
+                self.store.update_job(jid, status="interrupted", stage="interrupted")
+                lost += 1
+                continue
+            self.store.update_job(jid, status="queued", stage="queued again after a restart",
+                                  progress=0.0, attempts=attempts + 1)
+            self._launch(jid, work)
+            again += 1
+        return again, lost
+
+    def start(self, world: str, kind: str, work: Work, request: bytes | None = None) -> JobOut:
         """Queue ``work`` as a job of ``kind`` on ``world`` (one unfinished job per world
-        and kind: else 409) and run it on the running event loop."""
+        and kind: else 409) and run it on the running event loop. ``request``, for a
+        :meth:`resumable` kind, is what makes it again after a restart."""
         for st in UNFINISHED:
             if any(j["kind"] == kind for j in self.store.jobs(world=world, status=st)):
                 raise Conflict(f"a {kind} job for world {world!r} is already {st}",
                                field="world")
         jid = uuid.uuid4().hex
-        self.store.insert_job(jid, world, kind)
+        self.store.insert_job(jid, world, kind, request if kind in self._remake else None)
+        self._launch(jid, work)
+        return self.get(jid)
+
+    def _launch(self, jid: str, work: Work) -> None:
         self._cancel[jid] = threading.Event()
         task = asyncio.get_running_loop().create_task(self._run(jid, work))
         self._tasks[jid] = task
         task.add_done_callback(lambda _t: self._forget(jid))
-        return self.get(jid)
 
     def _forget(self, jid: str) -> None:
         self._tasks.pop(jid, None)
@@ -114,8 +156,11 @@ class Jobs:
         except (asyncio.CancelledError, JobCancelled):
             status = "interrupted" if self._closing else "cancelled"
             fields = {"stage": status}
+            if self._closing and self._resumes(jid):  # the next start runs it again
+                status, fields = "queued", {"stage": "queued until the next start",
+                                            "progress": 0.0}
         except ChizuError as e:
-            from service.errors import status_of  # the table knows this module's errors
+            from chizu.service.errors import status_of  # the table knows this module's errors
 
             if status_of(e) >= 500 or isinstance(e, KbError):
                 log.warning("job %s failed: %s", jid, e)
@@ -160,8 +205,15 @@ class Jobs:
             self._finish(jid, "cancelled", {"stage": "cancelled"})
         return self.get(jid)
 
+    def _resumes(self, jid: str) -> bool:
+        """Whether the next start queues job ``jid`` again."""
+        return any(j == jid and request is not None and kind in self._remake
+                   and attempts < MAX_ATTEMPTS
+                   for j, _w, kind, request, attempts in self.store.unfinished_jobs())
+
     async def close(self) -> None:
-        """Shutdown: running jobs end as interrupted (the next start would say so too)."""
+        """Shutdown: running jobs stop; a resumable one stays queued for the next start,
+        the others end as interrupted."""
         self._closing = True
         tasks = dict(self._tasks)
         for jid, task in tasks.items():
@@ -169,7 +221,7 @@ class Jobs:
             task.cancel()
         await asyncio.gather(*tasks.values(), return_exceptions=True)
         for jid in tasks:
-            if self._status(jid) in UNFINISHED:  # cancelled before it ever ran
+            if self._status(jid) in UNFINISHED and not self._resumes(jid):
                 self._finish(jid, "interrupted", {"stage": "interrupted"})
 
     def _status(self, jid: str) -> str | None:

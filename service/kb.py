@@ -26,7 +26,7 @@ from concurrent.futures import Future
 from pathlib import Path
 from typing import Any
 
-from numeric.errors import ChizuError
+from chizu.numeric.errors import ChizuError
 
 
 class KbError(ChizuError):

@@ -1,6 +1,6 @@
 """Localization runs: a robot streams scans and odometry, as into a SLAM run, and is
 localized on its world's committed map, which stays as it is
-(:class:`numeric.slam.map_localization.MapLocalizer`: global localization over the whole
+(:class:`chizu.numeric.slam.map_localization.MapLocalizer`: global localization over the whole
 map from an unknown start, tracking, a new global fix when lost or carried away).
 
 A run is pinned to the map the world had when it started (its sha256). The precomputed
@@ -20,17 +20,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from numeric.errors import Conflict, InvalidInput
-from numeric.scan import Scan
-from numeric.slam.map_localization import MapLocalizationConfig, MapLocalizer, PreparedMap
-from numeric.slam.saved_map import Laser, from_bytes
-from service.scan_runs import ScanRun, ScanRuns
-from service.schemas.common import PoseOut
-from service.schemas.localization import LocalizationRunListed, LocalizationRunOut
-from service.schemas.slam import ScanIn
-from service.slam import SAVED_MAP_ARTIFACT
-from service.store import Store
-from service.worlds import WorldService
+from chizu.numeric.errors import Conflict, InvalidInput
+from chizu.numeric.scan import Scan
+from chizu.numeric.slam.map_localization import MapLocalizationConfig, MapLocalizer, PreparedMap
+from chizu.numeric.slam.saved_map import Laser, from_bytes
+from chizu.service.scan_runs import ScanRun, ScanRuns
+from chizu.service.schemas.common import PoseOut
+from chizu.service.schemas.localization import LocalizationRunListed, LocalizationRunOut
+from chizu.service.schemas.slam import ScanIn
+from chizu.service.slam import SAVED_MAP_ARTIFACT
+from chizu.service.store import Store
+from chizu.service.worlds import WorldService
 
 #: prepared maps kept in memory (each a few tens of MB for a large building)
 KEEP_MAPS = 4
@@ -123,7 +123,7 @@ class LocalizationService(ScanRuns[LocRun]):
         run.state, run.score = step.state, float(step.score)
 
     async def create(self, world: str) -> LocalizationRunOut:
-        self.worlds.require(world)
+        await self.worlds.ready(world)
         sha, blob = self._world_map(world)
         rid = "l" + uuid.uuid4().hex[:16]
         run = LocRun(rid, world, map_sha=sha)

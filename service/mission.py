@@ -27,7 +27,8 @@ After every step the whole record so far is asserted as ``mission_step(S, What,
 Result)`` facts (prolog/mission.pl) and stored with the world, so ``chizu repl WORLD``
 and ``/query`` see it. A last ``evaluation`` step compares with the simulator's ground
 truth (never read by the robot). This module orchestrates: the robot in the simulator and
-the evaluation are :mod:`numeric.mission`'s, the figure :func:`numeric.figures.mission_figure`.
+the evaluation are :mod:`chizu.numeric.mission`'s, the figure
+:func:`chizu.numeric.figures.mission_figure`.
 """
 
 from __future__ import annotations
@@ -44,12 +45,12 @@ from typing import Any
 
 import numpy as np
 
-from numeric.camera import Camera
-from numeric.eigenspace.analysis import learning_pixels
-from numeric.errors import Conflict, InvalidInput
-from numeric.geometry import line_of_sight, relative, wrap_angle
-from numeric.laser import Laser
-from numeric.mission import (
+from chizu.numeric.camera import Camera
+from chizu.numeric.eigenspace.analysis import learning_pixels
+from chizu.numeric.errors import Conflict, InvalidInput
+from chizu.numeric.geometry import line_of_sight, relative, wrap_angle
+from chizu.numeric.laser import Laser
+from chizu.numeric.mission import (
     MissionTrace,
     TracedRobot,
     drive,
@@ -59,31 +60,31 @@ from numeric.mission import (
     trace_scans,
     wake_up,
 )
-from numeric.qualitative.navigation import (
+from chizu.numeric.qualitative.navigation import (
     NavConfig,
     execute_step,
     home_on,
     reach_any_landmark,
 )
-from numeric.qualitative.survey import survey
-from numeric.scan import Scan
-from numeric.simulator import LandmarkObserver, ObserverConfig
-from numeric.viewpoint import planner
-from numeric.viewpoint.online import Summariser, SummaryConfig
-from numeric.viewpoint.planner import BUILTIN_OBJECT_TYPES, GroupSpec
-from numeric.world import World
-from service.disconnect import thread_to_end
-from service.eigenspace import EigenspaceService
-from service.jobs import JobProgress, Jobs
-from service.kb import KnowledgeBase
-from service.localization import LocalizationService
-from service.schemas.jobs import JobOut
-from service.schemas.mission import MissionConfig, MissionRecordOut
-from service.schemas.slam import CommitOut, ScanIn, SlamRunIn
-from service.schemas.viewpoint import CandidateIn, ObjectType, PlanRequest
-from service.slam import SAVED_MAP_ARTIFACT, SlamService
-from service.viewpoint import SCENE_ARTIFACT, ViewpointService
-from service.worlds import ArtifactKind, WorldService
+from chizu.numeric.qualitative.survey import survey
+from chizu.numeric.scan import Scan
+from chizu.numeric.simulator import LandmarkObserver, ObserverConfig
+from chizu.numeric.viewpoint import planner
+from chizu.numeric.viewpoint.online import Summariser, SummaryConfig
+from chizu.numeric.viewpoint.planner import BUILTIN_OBJECT_TYPES, GroupSpec
+from chizu.numeric.world import World
+from chizu.service.disconnect import thread_to_end
+from chizu.service.eigenspace import EigenspaceService
+from chizu.service.jobs import JobProgress, Jobs
+from chizu.service.kb import KnowledgeBase
+from chizu.service.localization import LocalizationService
+from chizu.service.schemas.jobs import JobOut
+from chizu.service.schemas.mission import MissionConfig, MissionRecordOut
+from chizu.service.schemas.slam import CommitOut, ScanIn, SlamRunIn
+from chizu.service.schemas.viewpoint import CandidateIn, ObjectType, PlanRequest
+from chizu.service.slam import SAVED_MAP_ARTIFACT, SlamService
+from chizu.service.viewpoint import SCENE_ARTIFACT, ViewpointService
+from chizu.service.worlds import ArtifactKind, WorldService
 
 __all__ = ["MissionConfig", "MissionFailed", "MissionRun", "MissionService", "scan_in"]
 
@@ -138,9 +139,9 @@ class MissionRun:
                 "wall_time_s": round(self.elapsed_s, 2)}
 
     def figure(self, world: World, path_png: str) -> None:
-        """The run as a PNG (:func:`numeric.figures.mission_figure`), titled with its
+        """The run as a PNG (:func:`chizu.numeric.figures.mission_figure`), titled with its
         outcome and times."""
-        from numeric.figures import mission_figure
+        from chizu.numeric.figures import mission_figure
 
         outcome = "succeeded" if self.success else "failed"
         learn = self.learning_s
@@ -167,7 +168,7 @@ def _plain(v: Any) -> Any:
 
 
 def scan_in(scan: Scan) -> ScanIn:
-    """A simulated :class:`numeric.scan.Scan` as a client would post it (the simulator's
+    """A simulated :class:`chizu.numeric.scan.Scan` as a client would post it (the simulator's
     laser measures intensities)."""
     assert scan.intensities is not None
     return ScanIn(t=scan.t, ranges=np.round(scan.ranges, 4).tolist(),
@@ -192,7 +193,7 @@ class MissionService:
             lambda world, blob: {"world": world, "steps": json.loads(blob)["steps"]}))
 
     async def start(self, world: str, config: MissionConfig) -> JobOut:
-        """A durable job (:mod:`service.jobs`) running one mission; its result is
+        """A durable job (:mod:`chizu.service.jobs`) running one mission; its result is
         :meth:`MissionRun.result`. The input is checked first (404 / 422, no job)."""
         await asyncio.to_thread(self.check, world, config)
 
@@ -344,7 +345,7 @@ class MissionService:
         Fig. 4 rules reach state Z (at most ``max_stops``). Where the world has a
         committed map, the robot also turns once round with its laser at every stop,
         the scans streamed to a localization run on that map
-        (:class:`~service.localization.LocalizationService`): the laser's pose is then
+        (:class:`~chizu.service.localization.LocalizationService`): the laser's pose is then
         the one the mission goes on from, and the eigenspace's answer is reported
         against it -- the reference a real robot has (the simulator's truth is only
         for the evaluation). Returns the pose and what gave it (``laser`` or
@@ -664,7 +665,7 @@ class MissionService:
 
     # -- the judgement ------------------------------------------------------------------
     async def _evaluate(self, run: MissionRun, w: World) -> None:
-        """Against the simulator's truth (:func:`numeric.mission.evaluate`): the
+        """Against the simulator's truth (:func:`chizu.numeric.mission.evaluate`): the
         localization error at the stop that gave the pose, how it was found, the objects
         verified; a success needs every step done up to the verification too."""
         done = {s["what"] for s in run.steps if s["result"].get("ok") is not False}

@@ -1,5 +1,5 @@
 """Missions in batches: one task per world, runnable in this process or on Dask
-(:mod:`service.executors`). A task opens its own services (store, Prolog engine) in a
+(:mod:`chizu.service.executors`). A task opens its own services (store, Prolog engine) in a
 scratch directory, creates the world, runs the seeds and returns one row per run, so the
 same function runs on any worker of a cluster; nothing but the rows (and, if asked, the
 first run's figure as PNG bytes) comes back."""
@@ -12,18 +12,18 @@ from concurrent.futures import Executor
 from pathlib import Path
 from typing import Any
 
-from numeric.world import WorldDescription
+from chizu.numeric.world import WorldDescription
 
 
 def mission_rows(world: dict[str, Any], config: dict[str, Any], seeds: list[int],
                  kind: str = "", figure: bool = False) -> tuple[list[dict[str, Any]],
                                                                 bytes | None]:
     """Run the mission on ``world`` (a world description) for each seed with
-    ``config`` (a :class:`service.mission.MissionConfig` as JSON): one row per run, and
+    ``config`` (a :class:`chizu.service.mission.MissionConfig` as JSON): one row per run, and
     the first run's figure when ``figure``."""
-    from service.container import open_services
-    from service.mission import MissionConfig
-    from service.settings import Settings
+    from chizu.service.container import open_services
+    from chizu.service.mission import MissionConfig
+    from chizu.service.settings import Settings
 
     desc = WorldDescription.model_validate(world)
     cfg = MissionConfig.model_validate(config)

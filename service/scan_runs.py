@@ -1,6 +1,6 @@
 """Runs that a robot streams laser scans (with odometry) into: SLAM runs
-(:mod:`service.slam`) and localization runs on a world's map
-(:mod:`service.localization`) share how a batch is taken in.
+(:mod:`chizu.service.slam`) and localization runs on a world's map
+(:mod:`chizu.service.localization`) share how a batch is taken in.
 
 A batch is validated as a whole first: a malformed scan or a time stamp that does not
 increase rejects it and leaves the run as it was. Every accepted scan is stored (SQLite)
@@ -21,14 +21,14 @@ from typing import Any, Generic, TypeVar
 
 import numpy as np
 
-from numeric.errors import InvalidInput, NotFound
-from numeric.scan import Scan, beam_angles
-from numeric.slam.saved_map import Laser
-from service.compute import BudgetExceeded
-from service.disconnect import thread_to_end
-from service.schemas.slam import ScanIn
-from service.store import RunKind, Store
-from service.worlds import WorldService
+from chizu.numeric.errors import InvalidInput, NotFound
+from chizu.numeric.scan import Scan, beam_angles
+from chizu.numeric.slam.saved_map import Laser
+from chizu.service.compute import BudgetExceeded
+from chizu.service.disconnect import thread_to_end
+from chizu.service.schemas.slam import ScanIn
+from chizu.service.store import RunKind, Store
+from chizu.service.worlds import WorldService
 
 MAX_SCANS_PER_RUN = 200_000
 
@@ -89,7 +89,7 @@ class ScanRuns(Generic[R]):
         """Before a stored run is replayed (e.g. load what it runs on)."""
 
     async def _run(self, world: str, rid: str) -> R:
-        self.worlds.require(world)  # 404 for an unknown world
+        await self.worlds.ready(world)  # 404 for an unknown world
         run = self.runs.get(rid)
         if run is None or run.world != world:
             raise NotFound(f"{self.noun} {rid!r} does not exist in world {world!r}",

@@ -1,13 +1,13 @@
 """SLAM runs in the service: create a run in a world, stream scans (+ odometry) to it,
 read the pose and trajectory, fetch the map (PNG, PGM/YAML), commit it to the world.
 
-Flow: ``numeric.slam`` estimates; committing turns the best map into facts
+Flow: ``chizu.numeric.slam`` estimates; committing turns the best map into facts
 (``slam_facts``: keyframe poses, occupancy summary, enclosed unknown regions, and the
 loop closures of estimators that find them, e.g. graph SLAM) in the world's knowledge
 base, where ``prolog/slam.pl`` rules answer questions about it, and
 stores the occupancy grid as the world's ``slam_map`` artifact for the planners.
 
-Scans are taken in as :mod:`service.scan_runs` does for every streamed run (validated
+Scans are taken in as :mod:`chizu.service.scan_runs` does for every streamed run (validated
 as a batch, stored before the estimator sees them, replayed after a restart).
 """
 
@@ -23,18 +23,18 @@ from typing import Any
 
 import numpy as np
 
-from numeric.errors import Conflict, InvalidInput, NotFound
-from numeric.occupancy import OccupancyMap, build_occupancy
-from numeric.scan import LaserLog, Scan
-from numeric.slam.merge import resume, runs_of
-from numeric.slam.runner import Slam, create, warm_up
-from numeric.slam.saved_map import SavedMap, from_bytes, saved_map, to_bytes
-from service.kb import KnowledgeBase
-from service.scan_runs import ScanRun, ScanRuns, to_scan
-from service.schemas.common import PoseOut
-from service.schemas.slam import CommitOut, ScanIn, SlamRunIn, SlamRunListed, SlamRunOut
-from service.store import Store
-from service.worlds import ArtifactKind, WorldService
+from chizu.numeric.errors import Conflict, InvalidInput, NotFound
+from chizu.numeric.occupancy import OccupancyMap, build_occupancy
+from chizu.numeric.scan import LaserLog, Scan
+from chizu.numeric.slam.merge import resume, runs_of
+from chizu.numeric.slam.runner import Slam, create, warm_up
+from chizu.numeric.slam.saved_map import SavedMap, from_bytes, saved_map, to_bytes
+from chizu.service.kb import KnowledgeBase
+from chizu.service.scan_runs import ScanRun, ScanRuns, to_scan
+from chizu.service.schemas.common import PoseOut
+from chizu.service.schemas.slam import CommitOut, ScanIn, SlamRunIn, SlamRunListed, SlamRunOut
+from chizu.service.store import Store
+from chizu.service.worlds import ArtifactKind, WorldService
 
 log = logging.getLogger(__name__)
 MAP_ARTIFACT = "slam_map"
@@ -93,7 +93,7 @@ class SlamService(ScanRuns[Run]):
 
     def restore_runs(self) -> int:
         """Reload the stored runs (each replayed lazily, on first use); the committed
-        maps' facts come back with the worlds (:meth:`WorldService.restore_all`)."""
+        maps' facts come back with their worlds (:meth:`WorldService.ready`)."""
         for rid, world, opts in self.store.runs(self.kind):
             o = SlamRunIn.model_validate(opts)
             self.runs[rid] = Run(rid, world, options=o, slam=create(o), replayed=False)
@@ -103,7 +103,7 @@ class SlamService(ScanRuns[Run]):
         run.estimator.process(scan)
 
     async def create(self, world: str, options: SlamRunIn) -> SlamRunOut:
-        self.worlds.require(world)
+        await self.worlds.ready(world)
         rid = "r" + uuid.uuid4().hex[:16]
         # the method's kernels loaded before the first scan, not during it (once)
         await asyncio.to_thread(warm_up, options)
@@ -147,7 +147,7 @@ class SlamService(ScanRuns[Run]):
 
     async def commit(self, world: str, rid: str) -> CommitOut:
         """Make the run's map the world's map: facts into the knowledge base, grid stored.
-        A resumed run is first joined to the world's map (:func:`numeric.slam.merge.resume`):
+        A resumed run is first joined to the world's map (:func:`chizu.numeric.slam.merge.resume`):
         the world's map then holds both, in its frame; in a world without a map yet it
         commits as any run does (several robots mapping one building: the first to commit
         founds the map, the others join it)."""
@@ -188,7 +188,7 @@ class SlamService(ScanRuns[Run]):
         ``GET .../map.chizu``) the world's map, as a commit does: its keyframe poses and
         grid become facts and the stored map. A map saved from another world is refused
         (field ``map``): its frame is that world's."""
-        self.worlds.require(world)
+        await self.worlds.ready(world)
         saved = await asyncio.to_thread(from_bytes, blob, "map")
         made_in = saved.meta.get("world")
         if made_in not in (None, world):
@@ -205,6 +205,7 @@ class SlamService(ScanRuns[Run]):
         """One transaction: the map's facts (keyframe poses, occupancy summary, unknown
         regions, loop closures) into the knowledge base, its grid and saved map stored."""
         summary = g.summary()
+        await self.worlds.ready(world)
         params = await self.kb.acall("params", world=world)
         regions = await asyncio.to_thread(
             g.unknown_regions, float(params["parameters"]["unknown_region_min_area_m2"]))
@@ -229,11 +230,11 @@ class SlamService(ScanRuns[Run]):
         return blob
 
     async def summary(self, world: str) -> Any:
-        self.worlds.require(world)
+        await self.worlds.ready(world)
         return await self.kb.acall("slam_summary", world=world)
 
     async def regions_near(self, world: str, x: float, y: float, radius: float) -> Any:
-        self.worlds.require(world)
+        await self.worlds.ready(world)
         return await self.kb.acall("slam_regions_near", world=world, x=x, y=y, radius=radius)
 
     async def delete(self, world: str, rid: str) -> None:

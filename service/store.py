@@ -24,7 +24,8 @@ SCHEMA = """
 CREATE TABLE IF NOT EXISTS worlds (
     name        TEXT PRIMARY KEY,
     description TEXT NOT NULL,
-    created_at  REAL NOT NULL
+    created_at  REAL NOT NULL,
+    version     INTEGER NOT NULL DEFAULT 0
 );
 CREATE TABLE IF NOT EXISTS events (
     id          INTEGER PRIMARY KEY AUTOINCREMENT,
@@ -81,7 +82,9 @@ CREATE TABLE IF NOT EXISTS jobs (
     result      TEXT,
     error       TEXT,
     created_at  REAL NOT NULL,
-    updated_at  REAL NOT NULL
+    updated_at  REAL NOT NULL,
+    request     BLOB,
+    attempts    INTEGER NOT NULL DEFAULT 0
 );
 CREATE INDEX IF NOT EXISTS jobs_world ON jobs(world, created_at);
 CREATE TABLE IF NOT EXISTS sessions (
@@ -92,6 +95,17 @@ CREATE TABLE IF NOT EXISTS sessions (
 );
 """
 
+
+#: a world's version counts the writes to what its knowledge base is made of (its events
+#: and artifacts), by whichever process makes them: a service and the CLI on one data
+#: directory see each other's writes by it (the world service reloads a world whose
+#: version moved)
+VERSION_TRIGGERS = "".join(f"""
+CREATE TRIGGER IF NOT EXISTS {table}_{op.lower()}_version AFTER {op} ON {table} BEGIN
+    UPDATE worlds SET version = version + 1 WHERE name = {row}.world;
+END;""" for table in ("events", "artifacts") for op, row in (("INSERT", "NEW"),
+                                                           ("UPDATE", "NEW"),
+                                                           ("DELETE", "OLD")))
 
 #: the runs that stream scans, each with its two tables (``{kind}_runs``, ``{kind}_scans``);
 #: only these literals are ever put into the SQL
@@ -124,7 +138,18 @@ class Store:
             self._conn.execute("PRAGMA journal_mode=WAL")
             self._conn.execute("PRAGMA foreign_keys=ON")
             self._conn.execute("PRAGMA synchronous=NORMAL")
+            self._add_columns()
             self._conn.executescript(SCHEMA)
+            self._conn.executescript(VERSION_TRIGGERS)
+
+    def _add_columns(self) -> None:
+        """A store made before a column was added gets it (with its default)."""
+        for table, column, decl in (("worlds", "version", "INTEGER NOT NULL DEFAULT 0"),
+                                    ("jobs", "request", "BLOB"),
+                                    ("jobs", "attempts", "INTEGER NOT NULL DEFAULT 0")):
+            have = {r[1] for r in self._conn.execute(f"PRAGMA table_info({table})")}
+            if have and column not in have:
+                self._conn.execute(f"ALTER TABLE {table} ADD COLUMN {column} {decl}")
 
     @contextmanager
     def transaction(self) -> Iterator[sqlite3.Connection]:
@@ -144,6 +169,20 @@ class Store:
                 "SELECT name, description, created_at FROM worlds WHERE name = ?", (name,)
             ).fetchone()
         return None if row is None else WorldRow(row[0], json.loads(row[1]), row[2])
+
+    def world_version(self, name: str) -> tuple[float, int] | None:
+        """What identifies the world's stored content now: its creation time (a world
+        deleted and made again is another) and its version; None if there is none."""
+        with self._lock:
+            row = self._conn.execute(
+                "SELECT created_at, version FROM worlds WHERE name = ?", (name,)).fetchone()
+        return None if row is None else (row[0], row[1])
+
+    def world_names(self) -> list[str]:
+        with self._lock:
+            rows = self._conn.execute(
+                "SELECT name FROM worlds ORDER BY created_at, name").fetchall()
+        return [r[0] for r in rows]
 
     def worlds(self) -> list[WorldRow]:
         with self._lock:
@@ -289,33 +328,38 @@ class Store:
 
     # -- jobs ------------------------------------------------------------------------------
     _JOB_COLUMNS = ("id, world, kind, status, stage, progress, result, error, created_at, "
-                    "updated_at")
+                    "updated_at, attempts")
 
-    def insert_job(self, jid: str, world: str, kind: str) -> None:
+    def insert_job(self, jid: str, world: str, kind: str, request: bytes | None = None) -> None:
+        """A queued job; ``request`` is what re-runs it after a restart (None: it cannot
+        be re-run)."""
         now = time.time()
         with self.transaction() as conn:
             conn.execute("INSERT INTO jobs (id, world, kind, status, stage, progress, "
-                         "created_at, updated_at) VALUES (?, ?, ?, 'queued', 'queued', 0, ?, ?)",
-                         (jid, world, kind, now, now))
+                         "created_at, updated_at, request) "
+                         "VALUES (?, ?, ?, 'queued', 'queued', 0, ?, ?, ?)",
+                         (jid, world, kind, now, now, request))
+
+    def unfinished_jobs(self) -> list[tuple[str, str, str, bytes | None, int]]:
+        """Jobs queued or running: (id, world, kind, request, attempts), oldest first."""
+        with self._lock:
+            rows = self._conn.execute(
+                "SELECT id, world, kind, request, attempts FROM jobs WHERE status IN "
+                "('queued', 'running') ORDER BY created_at, id").fetchall()
+        return [(r[0], r[1], r[2], r[3], int(r[4])) for r in rows]
 
     def update_job(self, jid: str, unfinished_only: bool = False, **fields: Any) -> None:
         """Set some of status, stage, progress, result, error (dicts stored as JSON);
         ``unfinished_only``: only while the job is queued or running (progress reports,
         which must not touch a job that has ended)."""
-        cols = [k for k in ("status", "stage", "progress", "result", "error") if k in fields]
+        cols = [k for k in ("status", "stage", "progress", "result", "error", "attempts")
+                if k in fields]
         vals = [json.dumps(fields[k], allow_nan=False) if k in ("result", "error") and
                 fields[k] is not None else fields[k] for k in cols]
         guard = " AND status IN ('queued', 'running')" if unfinished_only else ""
         with self.transaction() as conn:
             conn.execute(f"UPDATE jobs SET {', '.join(c + ' = ?' for c in cols)}, "  # noqa: S608
                          f"updated_at = ? WHERE id = ?{guard}", (*vals, time.time(), jid))
-
-    def interrupt_jobs(self) -> int:
-        """Start-up: jobs that were queued or running when the process ended."""
-        with self.transaction() as conn:
-            cur = conn.execute("UPDATE jobs SET status = 'interrupted', updated_at = ? "
-                               "WHERE status IN ('queued', 'running')", (time.time(),))
-            return int(cur.rowcount)
 
     def jobs(self, jid: str | None = None, world: str | None = None,
              status: str | None = None) -> list[dict[str, Any]]:

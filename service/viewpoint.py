@@ -17,15 +17,15 @@ import time
 from pathlib import Path
 from typing import Any
 
-from numeric.occupancy import OccupancyMap
-from numeric.viewpoint.planner import GroupSpec
-from service.compute import Cached, ComputePool, blob_key
-from service.kb import KnowledgeBase
-from service.schemas.viewpoint import PlanRequest, ViewpointPlanOut
-from service.slam import MAP_ARTIFACT
-from service.store import Store
-from service.viewpoint_tasks import finish_task, plan_answer, prepare_task
-from service.worlds import ArtifactKind, WorldService
+from chizu.numeric.occupancy import OccupancyMap
+from chizu.numeric.viewpoint.planner import GroupSpec
+from chizu.service.compute import Cached, ComputePool, blob_key
+from chizu.service.kb import KnowledgeBase
+from chizu.service.schemas.viewpoint import PlanRequest, ViewpointPlanOut
+from chizu.service.slam import MAP_ARTIFACT
+from chizu.service.store import Store
+from chizu.service.viewpoint_tasks import finish_task, plan_answer, prepare_task
+from chizu.service.worlds import ArtifactKind, WorldService
 
 __all__ = ["ViewpointService", "kb_grouper", "local_grouper", "plan_answer"]
 
@@ -33,7 +33,7 @@ SCENE_ARTIFACT = "viewpoint_scene"
 
 
 def kb_grouper(kb: KnowledgeBase, world: str):  # type: ignore[no-untyped-def]
-    """A :data:`numeric.viewpoint.planner.Grouper` asking the world's Prolog rules (the
+    """A :data:`chizu.numeric.viewpoint.planner.Grouper` asking the world's Prolog rules (the
     CLI's and the benchmarks' planner, in-process)."""
 
     def group(cands: list[dict[str, Any]], regions: list[dict[str, Any]],
@@ -58,7 +58,7 @@ class ViewpointService:
     def __init__(self, store: Store, kb: KnowledgeBase, worlds: WorldService,
                  compute: ComputePool) -> None:
         self.store, self.kb, self.worlds = store, kb, worlds
-        #: the planner's numeric steps run there (:mod:`service.viewpoint_tasks`)
+        #: the planner's numeric steps run there (:mod:`chizu.service.viewpoint_tasks`)
         self.compute = compute
         worlds.register(ArtifactKind(SCENE_ARTIFACT, "viewpoint_groups", "viewpoint",
                                      lambda _world, blob: dict(json.loads(blob))))
@@ -76,7 +76,7 @@ class ViewpointService:
     async def plan(self, world: str, req: PlanRequest) -> ViewpointPlanOut:
         """One planning step: the grid and step 1 in a compute worker, the grouping by
         the world's Prolog rules, steps 3-4 and the answer in a compute worker."""
-        self.worlds.require(world)  # 404 for an unknown world
+        await self.worlds.ready(world)  # 404 for an unknown world
         # grouping asserts the scene as it plans: a failure anywhere puts the stored one back
         async with self.worlds.write_artifact(world, SCENE_ARTIFACT) as w:
             source, material = self.grid_source(world, req)
@@ -99,5 +99,5 @@ class ViewpointService:
         return answer
 
     async def scene(self, world: str) -> Any:
-        self.worlds.require(world)
+        await self.worlds.ready(world)
         return await self.kb.acall("viewpoint_scene", world=world)

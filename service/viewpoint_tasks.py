@@ -1,4 +1,4 @@
-"""Viewpoint planning in a compute worker (:mod:`service.compute`): the planner's
+"""Viewpoint planning in a compute worker (:mod:`chizu.service.compute`): the planner's
 steps before and after the Prolog grouping, and the answer (:class:`ViewpointPlanOut`). Imports
 ``numeric`` and the request's schema only (no web, no Prolog): it runs in the workers.
 
@@ -12,11 +12,11 @@ import dataclasses
 import math
 from typing import Any
 
-from numeric.errors import InvalidInput
-from numeric.occupancy import OccupancyMap
-from numeric.viewpoint.grid import PlanningGrid, look_around, scanned_grid
-from numeric.viewpoint.plan import Plan
-from numeric.viewpoint.planner import (
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.occupancy import OccupancyMap
+from chizu.numeric.viewpoint.grid import PlanningGrid, look_around, scanned_grid
+from chizu.numeric.viewpoint.plan import Plan
+from chizu.numeric.viewpoint.planner import (
     GroupSpec,
     PlannedGroup,
     PlanReport,
@@ -24,8 +24,8 @@ from numeric.viewpoint.planner import (
     Prepared,
     ViewpointPlanner,
 )
-from numeric.world import World
-from service.schemas.viewpoint import (
+from chizu.numeric.world import World
+from chizu.service.schemas.viewpoint import (
     GroupOut,
     OptimalityOut,
     PlanGridOut,

@@ -4,33 +4,40 @@ Write order for every mutation (under one asyncio lock, so writers never
 interleave): validate -> apply to the knowledge base (atomic there, a Prolog
 transaction) -> commit the event to SQLite.  If the commit fails the world is
 rebuilt in the knowledge base from the store, so the two never disagree.
+
+Worlds are loaded into the knowledge base when first asked for (:meth:`WorldService.ready`),
+not at start-up, so start-up does not grow with the number of stored worlds. The store
+counts every write to a world's events and artifacts (its version, kept by SQLite
+triggers), so a world another process wrote -- the CLI on the service's data directory --
+is reloaded before it is next read, and one deleted there is dropped.
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import AsyncIterator, Callable
-from contextlib import asynccontextmanager
+import sqlite3
+from collections.abc import AsyncIterator, Callable, Iterator
+from contextlib import asynccontextmanager, contextmanager
 from dataclasses import dataclass
 from typing import Any
 
 import networkx as nx
 
-from numeric.errors import Conflict, InvalidInput, NotFound
-from numeric.observation import Observation, observation_quantities
-from numeric.qualitative.drm import (
+from chizu.numeric.errors import Conflict, InvalidInput, NotFound
+from chizu.numeric.observation import Observation, observation_quantities
+from chizu.numeric.qualitative.drm import (
     DrmPath,
     build_drm,
     edges_from_records,
     max_probability_path,
 )
-from numeric.world import World, WorldDescription
-from numeric.worlds import TEMPLATES, from_template
-from service.compute import Cached, blob_key, load_world
-from service.kb import KbError, KnowledgeBase
-from service.schemas.common import WorldSummary
-from service.store import Store
+from chizu.numeric.world import World, WorldDescription
+from chizu.numeric.worlds import TEMPLATES, from_template
+from chizu.service.compute import Cached, blob_key, load_world
+from chizu.service.kb import KbError, KnowledgeBase
+from chizu.service.schemas.common import WorldSummary
+from chizu.service.store import Store
 
 log = logging.getLogger(__name__)
 
@@ -85,7 +92,7 @@ class ArtifactWrite:
         args = self.kind.call(self.world, blob) if call is None else call
         self.reply = await self.worlds._kb(self.kind.op, args)
         store = self.worlds.store
-        with store.transaction() as conn:
+        with self.worlds._own_write(self.world) as conn:
             store.put_artifact(conn, self.world, self.kind.name, blob)
             for name, b in (extra or {}).items():
                 store.put_artifact(conn, self.world, name, b)
@@ -119,49 +126,87 @@ class WorldService:
         self._versions: dict[str, int] = {}
         #: called with the world's name after it is deleted (caches elsewhere drop it)
         self.on_delete: list[Callable[[str], None]] = []
+        #: called with the world's name when it is reloaded because another process
+        #: wrote it (caches of its artifacts drop them)
+        self.on_reload: list[Callable[[str], None]] = []
+        #: what of each world the knowledge base holds: the store's (created_at, version)
+        #: when it was loaded, kept in step with this service's own writes
+        self._loaded: dict[str, tuple[float, int]] = {}
         #: the artifact kinds whose facts a world's knowledge base holds (register)
         self.artifacts: dict[str, ArtifactKind] = {}
         self._since_snapshot: dict[str, int] = {}  # events appended since the snapshot
 
     def register(self, kind: ArtifactKind) -> None:
-        """Declare an artifact kind: :meth:`restore_all` re-asserts it and
+        """Declare an artifact kind: :meth:`ready` re-asserts it when it loads a world and
         :meth:`write_artifact` writes it."""
         self.artifacts[kind.name] = kind
 
-    # -- start-up ----------------------------------------------------------------------
-    def restore_all(self) -> dict[str, int]:
-        """Rebuild every stored world in the knowledge base: its description, its
-        events in order, then every registered artifact it has. Returns how many worlds
-        and how many of each artifact kind were restored. The app's start-up and every
-        CLI command that opens worlds call this (:func:`service.container.open_services`),
-        so ``chizu repl`` sees what the service sees."""
-        counts = {"worlds": 0, **dict.fromkeys(self.artifacts, 0)}
-        for row in self.store.worlds():
-            for kind in self._load_into_kb(WorldDescription.model_validate(row.description)):
-                counts[kind] += 1
-            counts["worlds"] += 1
-        return counts
+    # -- loading on demand -----------------------------------------------------------
+    async def ready(self, name: str) -> None:
+        """Make sure the knowledge base holds world ``name`` as the store has it now:
+        loaded if it is not yet, reloaded if another process wrote it since, dropped
+        (and 404, NotFound) if it is gone. One indexed read when nothing changed."""
+        if self._loaded.get(name) == self.store.world_version(name) is not None:
+            return
+        async with self._write:
+            await self._ready_locked(name)
 
-    def _load_into_kb(self, desc: WorldDescription) -> list[str]:
-        """(Re)build one world from the store; returns the artifact kinds it had."""
-        self._changed(desc.name)
-        self.kb.call("create_world", **self.create_call(desc))
-        after = self._load_snapshot(desc)
-        events = self.store.events(desc.name, after)
+    async def _ready_locked(self, name: str) -> None:
+        """:meth:`ready` for a caller holding the writers' lock."""
+        version = self.store.world_version(name)
+        loaded = self._loaded.get(name)
+        if version is not None and loaded == version:
+            return
+        if loaded is not None:  # deleted or written by another process
+            self._loaded.pop(name, None)
+            self._models.pop(name, None)
+            for hook in self.on_delete if version is None else self.on_reload:
+                hook(name)
+            if version is None:
+                self._since_snapshot.pop(name, None)
+                try:
+                    await self._kb("drop_world", {"world": name})
+                except KbError:
+                    log.exception("dropping world %s from the knowledge base", name)
+        row = self.store.world(name)
+        if row is None:
+            raise NotFound(f"world {name!r} does not exist", field="world")
+        await self._load_into_kb(WorldDescription.model_validate(row.description))
+
+    async def _load_into_kb(self, desc: WorldDescription) -> None:
+        """(Re)build one world from the store: its description, its snapshot and the
+        events after it in order, then every registered artifact it has."""
+        name = desc.name
+        version = self.store.world_version(name)
+        self._changed(name)
+        await self._kb("create_world", self.create_call(desc))
+        after = await self._load_snapshot(desc)
+        events = self.store.events(name, after)
         for ev in events:
-            op, args = self.event_call(desc.name, ev.kind, ev.payload)
-            self.kb.call(op, **args)
-        self._since_snapshot[desc.name] = len(events)
-        restored = []
+            op, args = self.event_call(name, ev.kind, ev.payload)
+            await self._kb(op, args)
+        self._since_snapshot[name] = len(events)
         for kind in self.artifacts.values():
-            blob = self.store.artifact(desc.name, kind.name)
+            blob = self.store.artifact(name, kind.name)
             if blob is not None:
-                self.kb.call(kind.op, **kind.call(desc.name, blob))
-                restored.append(kind.name)
-        self._models[desc.name] = World(desc)
-        return restored
+                await self._kb(kind.op, kind.call(name, blob))
+        self._models[name] = World(desc)
+        if version is not None:
+            self._loaded[name] = version
 
-    def _load_snapshot(self, desc: WorldDescription) -> int:
+    @contextmanager
+    def _own_write(self, world: str) -> Iterator[sqlite3.Connection]:
+        """A store transaction of this service's on ``world``, whose knowledge base
+        already has the change: the loaded version follows it, unless another process
+        wrote the world in between (then the next :meth:`ready` reloads it)."""
+        with self.store.transaction() as conn:
+            before = self.store.world_version(world)
+            yield conn
+            after = self.store.world_version(world)
+        if before is not None and self._loaded.get(world) == before and after is not None:
+            self._loaded[world] = after
+
+    async def _load_snapshot(self, desc: WorldDescription) -> int:
         """Load the world's snapshot if the rules that made it are the ones loaded now;
         returns the last event it covers (0: replay every event). A snapshot the rules
         refuse is dropped, and the world is rebuilt from its events alone."""
@@ -175,11 +220,11 @@ class WorldService:
         event_id, rules, facts = snap
         if rules == self._snapshot_key():
             try:
-                self.kb.call("load_snapshot", world=desc.name, facts=facts)
+                await self._kb("load_snapshot", {"world": desc.name, "facts": facts})
                 return event_id
             except KbError:
                 log.exception("snapshot of %s refused: replaying its events", desc.name)
-                self.kb.call("create_world", **self.create_call(desc))
+                await self._kb("create_world", self.create_call(desc))
         with self.store.transaction() as conn:  # stale: the next one is made afresh
             self.store.delete_snapshot(conn, desc.name)
         return 0
@@ -200,7 +245,7 @@ class WorldService:
         if there are none), and the error propagates."""
         art = self.artifacts[kind]
         async with self._write:
-            self.require(world)
+            await self._ready_locked(world)
             previous = self.store.artifact(world, art.name)
             try:
                 yield ArtifactWrite(self, world, art)
@@ -269,10 +314,14 @@ class WorldService:
                 await self._kb("drop_world", {"world": desc.name})
                 raise
             self._models[desc.name] = World(desc)
+            version = self.store.world_version(desc.name)
+            if version is not None:
+                self._loaded[desc.name] = version
         return self.summary(desc.name)
 
     def require(self, name: str) -> None:
-        """404 (NotFound) unless world ``name`` exists; cheap (no geometry is built)."""
+        """404 (NotFound) unless world ``name`` exists; cheap (no geometry is built, and
+        the knowledge base is not loaded: :meth:`ready` before asking it)."""
         if name not in self._models and self.store.world(name) is None:
             raise NotFound(f"world {name!r} does not exist", field="world")
 
@@ -297,7 +346,7 @@ class WorldService:
                             events=self.store.event_count(name))
 
     def names(self) -> list[str]:
-        return [r.name for r in self.store.worlds()]
+        return self.store.world_names()
 
     async def delete(self, name: str) -> None:
         async with self._write:
@@ -305,9 +354,12 @@ class WorldService:
             with self.store.transaction() as conn:
                 self.store.delete_world(conn, name)
             self._models.pop(name, None)
+            loaded = self._loaded.pop(name, None) is not None
             self._since_snapshot.pop(name, None)
             for hook in self.on_delete:
                 hook(name)
+            if not loaded:
+                return
             try:
                 await self._kb("drop_world", {"world": name})
             except KbError:
@@ -316,15 +368,16 @@ class WorldService:
     # -- qualitative navigation ---------------------------------------------------------
     async def _append(self, world: str, kind: str, payload: dict[str, Any]) -> Any:
         async with self._write:
-            self.require(world)
+            await self._ready_locked(world)
             op, args = self.event_call(world, kind, payload)
             result = await self._kb(op, args)
             try:
-                with self.store.transaction() as conn:
+                with self._own_write(world) as conn:
                     event_id = self.store.append_event(conn, world, kind, payload)
             except BaseException:
                 log.exception("store write failed; rebuilding %s from the store", world)
-                self._load_into_kb(self.model(world).description)
+                self._loaded.pop(world, None)
+                await self._load_into_kb(self.model(world).description)
                 raise
             n = self._since_snapshot[world] = self._since_snapshot.get(world, 0) + 1
             if n >= SNAPSHOT_EVERY:
@@ -354,11 +407,11 @@ class WorldService:
         return await self._append(world, "failed", {"from": source, "to": target})
 
     async def relations(self, world: str, kind: str) -> list[dict[str, Any]]:
-        self.require(world)
+        await self.ready(world)
         return list(await self._kb("relations", {"world": world, "kind": kind}))
 
     async def drm(self, world: str) -> dict[str, Any]:
-        self.require(world)
+        await self.ready(world)
         return dict(await self._kb("drm", {"world": world}))
 
     async def drm_graph(self, world: str) -> nx.DiGraph:
@@ -374,7 +427,7 @@ class WorldService:
         return g
 
     async def path(self, world: str, source: str, target: str) -> DrmPath | None:
-        self.require(world)
+        await self.ready(world)
         g = await self.drm_graph(world)
         for field, lm in (("from", source), ("to", target)):
             if lm not in g:
@@ -383,10 +436,10 @@ class WorldService:
 
     async def query(self, world: str, goal: str, max_solutions: int) -> dict[str, Any]:
         """A read-only, whitelisted Prolog query over the world (prolog/query.pl)."""
-        self.require(world)
+        await self.ready(world)
         return dict(await self._kb("query", {"world": world, "goal": goal,
                                              "max_solutions": max_solutions}))
 
     async def facts(self, world: str) -> list[str]:
-        self.require(world)
+        await self.ready(world)
         return list(await self._kb("facts", {"world": world}))

@@ -15,8 +15,8 @@ import httpx
 import pytest
 from fastapi.testclient import TestClient
 
-from service.app import create_app
-from service.settings import Settings
+from chizu.service.app import create_app
+from chizu.service.settings import Settings
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -46,7 +46,8 @@ class LiveServer:
     """``chizu serve`` in a subprocess on a free loopback port."""
 
     def __init__(self, data_dir: Path, demo: bool = False,
-                 start_timeout_s: float = 60.0) -> None:
+                 start_timeout_s: float = 60.0, command: list[str] | None = None,
+                 cwd: Path = ROOT) -> None:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         env = {**os.environ, "CHIZU_DATA_DIR": str(data_dir), "CHIZU_PORT": str(self.port),
@@ -55,8 +56,9 @@ class LiveServer:
         # the log goes to a file: an unread pipe fills up and blocks the server
         self.log_path = data_dir / "server.log"
         self._log = self.log_path.open("ab")
-        self.proc = subprocess.Popen([sys.executable, "-m", "service.cli", "serve"], env=env,
-                                     cwd=ROOT, stdout=self._log, stderr=subprocess.STDOUT)
+        command = command or [sys.executable, "-m", "chizu.service.cli", "serve"]
+        self.proc = subprocess.Popen(command, env=env, cwd=cwd, stdout=self._log,
+                                     stderr=subprocess.STDOUT)
         deadline = time.monotonic() + start_timeout_s
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:

@@ -30,11 +30,13 @@ HTTP_WORD = re.compile(r"\bHTTP\b|\bHTTPStatus\b")
 
 
 def imports(path: Path) -> Iterator[str]:
+    """The modules a file imports, named as the repository's folders (``numeric.x`` for
+    the installed ``chizu.numeric.x``)."""
     for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
         if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            yield node.module
+            yield node.module.removeprefix("chizu.")
         elif isinstance(node, ast.Import):
-            yield from (a.name for a in node.names)
+            yield from (a.name.removeprefix("chizu.") for a in node.names)
 
 
 def back_edges(root: Path) -> list[str]:
@@ -111,16 +113,32 @@ def test_the_http_check_sees_a_status(tmp_path: Path, monkeypatch: pytest.Monkey
 def test_every_domain_error_has_one_status() -> None:
     """service/errors.py's table answers every error class of numeric and the service
     (the nearest class in its MRO), and the classes themselves carry none."""
-    import numeric.errors
-    from service.errors import STATUS, status_of
+    from chizu.numeric import errors
+    from chizu.service.errors import STATUS, status_of
 
-    classes = [c for c in vars(numeric.errors).values()
-               if isinstance(c, type) and issubclass(c, numeric.errors.ChizuError)]
+    classes = [c for c in vars(errors).values()
+               if isinstance(c, type) and issubclass(c, errors.ChizuError)]
     classes += list(STATUS)
     for c in classes:
         assert "status" not in vars(c), c
         assert 400 <= status_of(c.__new__(c)) <= 599, c
-    assert status_of(numeric.errors.NotFound("x")) == 404
+    assert status_of(errors.NotFound("x")) == 404
+
+
+def test_the_code_imports_its_installed_names() -> None:
+    """numeric/ and service/ are installed as chizu.numeric and chizu.service: an import of
+    the bare folder name would work from the repository only, and load a second copy of
+    the module beside the installed one."""
+    bare = []
+    for folder in ("numeric", "service", "tests", "docs", "examples"):
+        for f in sorted((ROOT / folder).rglob("*.py")):
+            for node in ast.walk(ast.parse(f.read_text(encoding="utf-8"))):
+                names = [node.module or ""] if isinstance(node, ast.ImportFrom) \
+                    and node.level == 0 else [a.name for a in node.names] \
+                    if isinstance(node, ast.Import) else []
+                bare += [f"{f.relative_to(ROOT)}:{node.lineno}" for n in names
+                         if n.split(".")[0] in ("numeric", "service")]
+    assert bare == []
 
 
 def test_the_method_packages_are_found() -> None:
@@ -138,7 +156,7 @@ def test_the_check_sees_a_back_edge(tmp_path: Path, monkeypatch: pytest.MonkeyPa
     fake = tmp_path / "numeric"
     (fake / "slam").mkdir(parents=True)
     (fake / "slam" / "__init__.py").write_text("")
-    (fake / "shared.py").write_text("def f():\n    from numeric.slam.x import y\n")
+    (fake / "shared.py").write_text("def f():\n    from chizu.numeric.slam.x import y\n")
     monkeypatch.setattr(__import__(__name__, fromlist=["ROOT"]), "ROOT", tmp_path)
     assert back_edges(fake) == ["numeric/shared.py -> numeric.slam.x"]
 
@@ -150,8 +168,8 @@ def test_the_check_sees_a_composite_imported(tmp_path: Path,
     fake = tmp_path / "numeric"
     (fake / "viewpoint").mkdir(parents=True)
     (fake / "viewpoint" / "__init__.py").write_text("")
-    (fake / "viewpoint" / "online.py").write_text("from numeric.mission import Trace\n")
-    (fake / "mission.py").write_text("from numeric.viewpoint.online import Run\n")
+    (fake / "viewpoint" / "online.py").write_text("from chizu.numeric.mission import Trace\n")
+    (fake / "mission.py").write_text("from chizu.numeric.viewpoint.online import Run\n")
     monkeypatch.setattr(__import__(__name__, fromlist=["ROOT"]), "ROOT", tmp_path)
     assert back_edges(fake) == ["numeric/viewpoint/online.py -> numeric.mission"]
 
@@ -159,7 +177,7 @@ def test_the_check_sees_a_composite_imported(tmp_path: Path,
 def test_the_openapi_documents_every_answer() -> None:
     """Every operation's success answer has a schema (a model, a typed list, or the
     media type of an image or text answer): no bare ``object``."""
-    from service.app import create_app
+    from chizu.service.app import create_app
 
     spec = create_app().openapi()
     generic = ({}, {"type": "object"}, {"type": "object", "additionalProperties": True})
@@ -184,7 +202,7 @@ def test_the_openapi_documents_every_error_as_a_problem() -> None:
     """Every 4xx and 5xx answer of every operation is declared as
     application/problem+json with the Problem schema (FastAPI's default 422 declared a
     JSON shape chizu never sends); 404 wherever the path names something."""
-    from service.app import create_app
+    from chizu.service.app import create_app
 
     spec = create_app().openapi()
     assert "HTTPValidationError" not in spec["components"]["schemas"]
@@ -204,9 +222,9 @@ def test_the_compute_workers_load_no_web_and_no_prolog() -> None:
     import subprocess
     import sys
 
-    code = ("import sys, service.compute, service.viewpoint_tasks; "
+    code = ("import sys, chizu.service.compute, chizu.service.viewpoint_tasks; "
             "print(sorted(m for m in sys.modules if m.split('.')[0] in "
-            "('pyswip', 'fastapi', 'starlette', 'uvicorn') or m == 'service.kb'))")
+            "('pyswip', 'fastapi', 'starlette', 'uvicorn') or m == 'chizu.service.kb'))")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
                          text=True, check=True).stdout.strip()
     assert out == "[]", out
@@ -217,8 +235,8 @@ def test_the_schema_names_every_built_in_world() -> None:
     sees which names exist)."""
     import typing
 
-    from numeric.world import TemplateName
-    from numeric.worlds import TEMPLATES
+    from chizu.numeric.world import TemplateName
+    from chizu.numeric.worlds import TEMPLATES
 
     assert set(typing.get_args(TemplateName)) == set(TEMPLATES)
 
@@ -253,6 +271,6 @@ def test_the_slam_check_sees_a_back_edge(tmp_path: Path) -> None:
     """The walker itself: a kernel importing an estimator is reported."""
     kernels = tmp_path / "numeric" / "slam" / "matching"
     kernels.mkdir(parents=True)
-    (kernels / "k.py").write_text("from numeric.slam.rbpf.filter import RbpfSlam\n")
+    (kernels / "k.py").write_text("from chizu.numeric.slam.rbpf.filter import RbpfSlam\n")
     assert slam_back_edges(tmp_path) == [
         "numeric/slam/matching/k.py -> numeric.slam.rbpf.filter"]

@@ -3,7 +3,7 @@
 - ``reference/``: one page per module of ``numeric/`` and ``service/`` found on disk at
   build time (a package's page is its ``index.md``), each a mkdocstrings ``:::``
   directive, with its own literate-nav ``SUMMARY.md`` in the package tree's order.
-- ``http-api/``: ``openapi.json`` from ``service.app.create_app()`` and its rendering
+- ``http-api/``: ``openapi.json`` from ``chizu.service.app.create_app()`` and its rendering
   (:mod:`openapi_page`).
 - ``results/index.md`` (unless one is written by hand): the results pages that
   ``make bench`` wrote, with the command, date and commit of each.
@@ -31,7 +31,6 @@ SECTIONS = {"tutorials": "Tutorials", "notes": "Notes", "results": "Results"}
 NOT_SECTIONS = {"_scripts", "figures", "reference", "http-api"}
 
 sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(ROOT))  # service.app, when the package is not installed
 from openapi_page import render  # noqa: E402
 
 
@@ -57,11 +56,12 @@ def reference_pages() -> None:
                 doc = Path("reference", *parts).with_suffix(".md")
             nav[parts] = doc.relative_to("reference").as_posix()
             with mkdocs_gen_files.open(doc, "w") as f:
-                f.write(f"::: {'.'.join(parts)}\n")
+                f.write(f"::: chizu.{'.'.join(parts)}\n")
     with mkdocs_gen_files.open("reference/index.md", "w") as f:
-        f.write("# API reference\n\nEvery module of `numeric/` (the numeric plugins: no "
-                "HTTP, no Prolog) and `service/` (the FastAPI service, the CLI and the "
-                "Prolog bridge), generated from the docstrings at build time.\n\n"
+        f.write("# API reference\n\nEvery module of `chizu.numeric` (the numeric plugins: "
+                "no HTTP, no Prolog; the folder `numeric/`) and `chizu.service` (the FastAPI "
+                "service, the CLI and the Prolog bridge; `service/`), generated from the "
+                "docstrings at build time.\n\n"
                 + "".join(f"- [`{p}`]({p}/index.md)\n" for p in PACKAGES))
     with mkdocs_gen_files.open("reference/SUMMARY.md", "w") as f:
         f.write("* [API reference](index.md)\n")
@@ -70,7 +70,7 @@ def reference_pages() -> None:
 
 def http_api_page() -> None:
     """``http-api/openapi.json`` and ``http-api/index.md`` from the app's schema."""
-    from service.app import create_app
+    from chizu.service.app import create_app
 
     spec = create_app().openapi()
     with mkdocs_gen_files.open("http-api/openapi.json", "w") as f:

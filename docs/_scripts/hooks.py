@@ -4,7 +4,7 @@ The generated navigation files (``SUMMARY.md``) are not published as pages, and 
 rewrites of the Markdown before MkDocs sees it make the sources read well both on the
 site and where they live:
 
-- Sphinx roles in docstrings (``:func:`run_log```, ``:class:`~numeric.scan.Scan```)
+- Sphinx roles in docstrings (``:func:`run_log```, ``:class:`~chizu.numeric.scan.Scan```)
   become code spans (``run_log``, ``Scan``); the API reference renders docstrings as
   Markdown, where a role would show as literal text.
 - A relative link in a page that points into the repository outside ``docs/`` (a source
@@ -61,9 +61,24 @@ class SphinxRoles(Extension):
         md.preprocessors.register(_RolesPreprocessor(md), "chizu_sphinx_roles", 40)
 
 
+#: the installed names' tree: build/namespace/chizu/numeric -> numeric/ (and service/),
+#: so that mkdocstrings finds chizu.numeric.x as a user imports it (mkdocs.yml's paths)
+NAMESPACE = ROOT / "build" / "namespace" / "chizu"
+
+
+def link_installed_names() -> None:
+    """``build/namespace/chizu/<folder>`` as symbolic links to the repository's folders."""
+    NAMESPACE.mkdir(parents=True, exist_ok=True)
+    for folder in REFERENCED:
+        link = NAMESPACE / folder
+        if not link.is_symlink():
+            link.symlink_to(Path("..", "..", "..", folder))
+
+
 @event_priority(100)  # before mkdocstrings copies the extension list for its docstrings
 def on_config(config: Any) -> Any:
     config.markdown_extensions.append(SphinxRoles())
+    link_installed_names()
     return config
 
 

@@ -149,7 +149,7 @@ def render(spec: dict[str, Any], json_name: str = "openapi.json") -> str:
              f"{info.get('title', 'The API')} {info.get('version', '')}: "
              f"{info.get('description', '')}".strip(), "",
              "This page is generated at build time from the OpenAPI "
-             f"{spec.get('openapi', '')} schema of `service.app.create_app()` (the same "
+             f"{spec.get('openapi', '')} schema of `chizu.service.app.create_app()` (the same "
              f"schema `chizu serve` answers on `/openapi.json`); download it as "
              f"[{json_name}]({json_name}). Errors are RFC 9457 problem details "
              "(`application/problem+json`).", "",

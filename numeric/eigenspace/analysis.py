@@ -3,7 +3,7 @@ candidate-multiple sets, read top to bottom (paper §2-§3), plus (de)serialisat
 
 The images come from an :class:`ImageSource`: :class:`SimulatedCamera` renders them in
 the world (the paper's experiments, §5), :class:`ImportedImages` takes a user's own
-camera's learning images (:mod:`numeric.eigenspace.image_sets`). The pipeline is the
+camera's learning images (:mod:`chizu.numeric.eigenspace.image_sets`). The pipeline is the
 same; only where c_a's and eq. 7's observations come from differs.
 """
 
@@ -17,9 +17,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from numeric.camera import Camera, CameraConfig
-from numeric.eigenspace.image_sets import ImageSet
-from numeric.eigenspace.learning import (
+from chizu.numeric.camera import Camera, CameraConfig
+from chizu.numeric.eigenspace.image_sets import ImageSet
+from chizu.numeric.eigenspace.learning import (
     EigenspaceModel,
     LearningConfig,
     LearningStrategyConfig,
@@ -28,14 +28,14 @@ from numeric.eigenspace.learning import (
     learning_grid,
     render_learning_images,
 )
-from numeric.eigenspace.localization import (
+from chizu.numeric.eigenspace.localization import (
     LocalizationConfig,
     RegionModel,
     agrees,
     candidate_multiple_sets,
 )
-from numeric.eigenspace.movement_strategy import RegionLayout, StrategyConfig
-from numeric.eigenspace.regions import (
+from chizu.numeric.eigenspace.movement_strategy import RegionLayout, StrategyConfig
+from chizu.numeric.eigenspace.regions import (
     Candidates,
     EntryModel,
     RegionConfig,
@@ -50,10 +50,15 @@ from numeric.eigenspace.regions import (
     real_world_distance,
     region_candidates,
 )
-from numeric.eigenspace.triplets import TripletConfig, Triplets, find_localizable_triplets, merge
-from numeric.errors import InvalidInput
-from numeric.geometry import wrap_angle
-from numeric.world import World
+from chizu.numeric.eigenspace.triplets import (
+    TripletConfig,
+    Triplets,
+    find_localizable_triplets,
+    merge,
+)
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.geometry import wrap_angle
+from chizu.numeric.world import World
 
 Progress = Callable[[str, float], None]
 
@@ -458,7 +463,7 @@ def analyse(world: World, config: EigenspaceConfig, points: np.ndarray | None = 
             progress: Progress | None = None) -> EigenspaceAnalysis:
     """Learn and analyse ``world`` in the simulator (§2.1-§3.3).  ``points`` defaults
     to the learning grid; the learning strategy's additions (§4.2) are
-    :func:`numeric.eigenspace.learning_strategy.learn_with_strategy`."""
+    :func:`chizu.numeric.eigenspace.learning_strategy.learn_with_strategy`."""
     source = SimulatedCamera(world, config, np.random.default_rng(config.seed))
     return analyse_source(world, config, source, points, progress)
 

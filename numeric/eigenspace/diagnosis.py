@@ -26,8 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from numeric.eigenspace.localization import RegionModel, Session, Vote
-from numeric.eigenspace.regions import estimation_error, triplet_differences
+from chizu.numeric.eigenspace.localization import RegionModel, Session, Vote
+from chizu.numeric.eigenspace.regions import estimation_error, triplet_differences
 
 REFUSALS = ("no_region", "plane_test", "vote_threshold", "vote_margin", "candidate_set")
 

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from numeric.errors import InvalidInput
-from numeric.geometry import wrap_angle
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.geometry import wrap_angle
 
 #: Fourier coefficients kept per row (the DC term and the first harmonics); Payá et al.
 #: find localization saturating between 8 and 32 components on panoramas of 128 rows

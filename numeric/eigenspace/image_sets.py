@@ -10,9 +10,9 @@ optional ``role``:
   within a quarter of a step), as the paper's robot does at its N_w points;
 - ``calibrate``: single images at other known poses, e.g. from a motion-capture run.
   Those inside a triplet's triangle fit the constant c_a of eq. 6 as the simulator's
-  observations do (:func:`numeric.eigenspace.analysis.analyse_images`).
+  observations do (:func:`chizu.numeric.eigenspace.analysis.analyse_images`).
 
-:func:`numeric.eigenspace.analysis.render_image_set` renders the simulator's images and
+:func:`chizu.numeric.eigenspace.analysis.render_image_set` renders the simulator's images and
 :func:`write_image_folder` writes them in this form, so a user can see the format; an
 imported folder gives the same eigenspace as learning in the simulator (a test does
 the round trip).
@@ -30,8 +30,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
-from numeric.errors import InvalidInput
-from numeric.geometry import heading_bin, wrap_angle
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.geometry import heading_bin, wrap_angle
 
 POSES_FILE = "poses.csv"
 FORMATS = ("PNG", "JPEG")

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from numeric.geometry import wrap_angle
+from chizu.numeric.geometry import wrap_angle
 
 
 def affine_weights(x: np.ndarray, x3: np.ndarray) -> np.ndarray:

@@ -15,10 +15,10 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy import linalg
 from scipy.sparse.linalg import svds
 
-from numeric.camera import Camera
-from numeric.errors import InvalidInput
-from numeric.geometry import wrap_angle
-from numeric.world import World
+from chizu.numeric.camera import Camera
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.geometry import wrap_angle
+from chizu.numeric.world import World
 
 DYNAMIC_RANGE = 1.0
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from numeric.eigenspace.analysis import (
+from chizu.numeric.eigenspace.analysis import (
     EigenspaceAnalysis,
     EigenspaceConfig,
     Progress,
@@ -33,16 +33,16 @@ from numeric.eigenspace.analysis import (
     probe_validated,
     with_learning_point,
 )
-from numeric.eigenspace.learning import LearningStrategyConfig
-from numeric.eigenspace.localization import RegionModel, candidate_multiple_sets
-from numeric.eigenspace.movement_strategy import (
+from chizu.numeric.eigenspace.learning import LearningStrategyConfig
+from chizu.numeric.eigenspace.localization import RegionModel, candidate_multiple_sets
+from chizu.numeric.eigenspace.movement_strategy import (
     RegionLayout,
     initial_samples,
     p_z_curve,
 )
-from numeric.eigenspace.triplets import triangle_area
-from numeric.eigenspace.twins import twin_transform
-from numeric.world import World
+from chizu.numeric.eigenspace.triplets import triangle_area
+from chizu.numeric.eigenspace.twins import twin_transform
+from chizu.numeric.world import World
 
 
 @dataclass
@@ -51,7 +51,7 @@ class LearningStep:
     p_z: list[float]
     triplets: int
     learning_points: int
-    #: the added point's twin place, learned with it (:mod:`numeric.eigenspace.twins`)
+    #: the added point's twin place, learned with it (:mod:`chizu.numeric.eigenspace.twins`)
     twin: list[float] | None = None
 
 

@@ -19,10 +19,10 @@ from functools import lru_cache
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from numeric.eigenspace.learning import DYNAMIC_RANGE, EigenspaceModel
-from numeric.eigenspace.regions import RegionConfig, agrees, region_candidates
-from numeric.eigenspace.triplets import Triplets, triangle_area
-from numeric.geometry import compose, free_distance, invert, wrap_angle
+from chizu.numeric.eigenspace.learning import DYNAMIC_RANGE, EigenspaceModel
+from chizu.numeric.eigenspace.regions import RegionConfig, agrees, region_candidates
+from chizu.numeric.eigenspace.triplets import Triplets, triangle_area
+from chizu.numeric.geometry import compose, free_distance, invert, wrap_angle
 
 
 class LocalizationConfig(BaseModel):
@@ -104,7 +104,7 @@ def turn_appearance(model: EigenspaceModel, q: np.ndarray) -> np.ndarray | None:
     direction 2 pi m / n: the nearest-learning-image estimate of Maeda & Shirai's Table 2
     baseline, kept for every point and heading. The movement strategy weighs where the
     robot may be with it while no region has been entered (see
-    :func:`numeric.eigenspace.movement_strategy.appearance_scores`). None when the
+    :func:`chizu.numeric.eigenspace.movement_strategy.appearance_scores`). None when the
     turn does not have one image per learned direction."""
     p = model.projections  # (Nw, n, K)
     n = p.shape[1]

@@ -24,9 +24,9 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy.spatial import cKDTree
 
-from numeric.eigenspace.localization import Session
-from numeric.eigenspace.regions import EntryModel
-from numeric.geometry import compose, free_distance, heading_bin, wrap_angle
+from chizu.numeric.eigenspace.localization import Session
+from chizu.numeric.eigenspace.regions import EntryModel
+from chizu.numeric.geometry import compose, free_distance, heading_bin, wrap_angle
 
 Angle = Annotated[float, Field(ge=-2 * np.pi, le=2 * np.pi, allow_inf_nan=False)]
 Length = Annotated[float, Field(ge=0.0, le=100.0, allow_inf_nan=False)]
@@ -240,7 +240,7 @@ def appearance_scores(points: np.ndarray, appearance: np.ndarray, xy: np.ndarray
     each learned direction 2 pi m / n, agrees with what was seen: ``(I, n)`` in (0, 1].
     The learning points near a position (Gaussian weights of ``radius_m``) vote with
     ``exp(-(A[i, m] - min A) / (tau * spread))``, where ``A`` is the turn's
-    :func:`~numeric.eigenspace.localization.turn_appearance` and the spread is its
+    :func:`~chizu.numeric.eigenspace.localization.turn_appearance` and the spread is its
     median minus its minimum.
 
     Beyond Maeda & Shirai: eq. 8 weighs the initial poses s_0^(i) by

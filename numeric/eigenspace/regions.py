@@ -28,12 +28,12 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from numeric.eigenspace.interpolation import affine_weights, interpolate_pose
-from numeric.eigenspace.learning import EigenspaceModel, f_d
-from numeric.eigenspace.triplets import Triplets
-from numeric.errors import InvalidInput
-from numeric.geometry import bearing, wrap_angle
-from numeric.world import World
+from chizu.numeric.eigenspace.interpolation import affine_weights, interpolate_pose
+from chizu.numeric.eigenspace.learning import EigenspaceModel, f_d
+from chizu.numeric.eigenspace.triplets import Triplets
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.geometry import bearing, wrap_angle
+from chizu.numeric.world import World
 
 
 class RegionConfig(BaseModel):
@@ -199,7 +199,7 @@ def false_admissions(model: EigenspaceModel, triplets: Triplets, c_a: float, d_t
     room symmetric under a turn, a repeated photograph). Those admissions are not
     counted here but returned as ``twins``: the paper resolves such confusions with
     candidate-multiple sets (§3.3, state Y) and moving, so the caller keeps twins that
-    a candidate-multiple set groups (:func:`numeric.eigenspace.analysis.validated`).
+    a candidate-multiple set groups (:func:`chizu.numeric.eigenspace.analysis.validated`).
 
     Returns ``(counts (T,), twins)`` with twins the set of twin pairs (t, t')."""
     _, n_t, k = model.projections.shape

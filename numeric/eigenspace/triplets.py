@@ -19,8 +19,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.spatial import cKDTree
 
-from numeric.eigenspace.learning import EigenspaceModel
-from numeric.geometry import wrap_angle
+from chizu.numeric.eigenspace.learning import EigenspaceModel
+from chizu.numeric.geometry import wrap_angle
 
 
 class TripletConfig(BaseModel):

@@ -13,7 +13,7 @@ hexagon: the only wrong answers left were of such triplets).
 whose whole turn is matched by a far learning point's turn (at some cyclic shift) much
 better than by any near one has a twin there, and when many such pairs agree on one
 rigid motion, that motion is the symmetry. The learning strategy then learns each added
-point's image under it as well (:func:`numeric.eigenspace.learning_strategy.
+point's image under it as well (:func:`chizu.numeric.eigenspace.learning_strategy.
 learning_strategy`), so §3.3 sees both places and decides from the images whether they
 can be told apart.
 """
@@ -24,9 +24,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from numeric.eigenspace.learning import EigenspaceModel
-from numeric.eigenspace.localization import turn_appearance
-from numeric.geometry import wrap_angle
+from chizu.numeric.eigenspace.learning import EigenspaceModel
+from chizu.numeric.eigenspace.localization import turn_appearance
+from chizu.numeric.geometry import wrap_angle
 
 #: a learning point farther than this is "far" (beyond a grid neighbour's reach)
 FAR_M = 3.0

@@ -26,10 +26,10 @@ import numpy as np
 from pydantic import BaseModel, Field
 from scipy.optimize import least_squares
 
-from numeric.geometry import circular_mean, wrap_angle
-from numeric.observation import Observation
-from numeric.qualitative.drm import DrmEdge
-from numeric.simulator import LandmarkObserver, Robot
+from chizu.numeric.geometry import circular_mean, wrap_angle
+from chizu.numeric.observation import Observation
+from chizu.numeric.qualitative.drm import DrmEdge
+from chizu.numeric.simulator import LandmarkObserver, Robot
 
 
 class NavConfig(BaseModel):

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from numeric.observation import Observation
-from numeric.simulator import LandmarkObserver, ObserverConfig
-from numeric.world import World
+from chizu.numeric.observation import Observation
+from chizu.numeric.simulator import LandmarkObserver, ObserverConfig
+from chizu.numeric.world import World
 
 
 def survey(world: World, config: ObserverConfig, seed: int = 0) -> list[Observation]:

@@ -3,21 +3,21 @@ with loop closure beyond it (Hess et al. 2016).
 
 Where each part of the papers lives:
 
-- the scans with intensity (§3): :mod:`numeric.scan`; logs (CARMEN, ROS bags) and TUM
-  trajectories: :mod:`~numeric.slam.logs`;
+- the scans with intensity (§3): :mod:`chizu.numeric.scan`; logs (CARMEN, ROS bags) and TUM
+  trajectories: :mod:`~chizu.numeric.slam.logs`;
 - Intensity-ICP (§4, eqs. 1-3) and the other scan matchers both estimators share:
-  :mod:`~numeric.slam.matching`;
+  :mod:`~chizu.numeric.slam.matching`;
 - the map the matchers match against, keyframes and their likelihood fields:
-  :mod:`~numeric.slam.keyframes`;
+  :mod:`~chizu.numeric.slam.keyframes`;
 - the gated single-hypothesis SLAM (§6, eq. 5) and the odometry and ICP baselines:
-  :mod:`~numeric.slam.gated`;
+  :mod:`~chizu.numeric.slam.gated`;
 - the Rao-Blackwellized particle filter (§7, eqs. 6-9) with Grisetti et al.'s improved
-  proposal: :mod:`~numeric.slam.rbpf`;
-- graph SLAM (Hess et al. 2016, Cartographer): :mod:`~numeric.slam.graph`, its pose
-  graph on GTSAM in :mod:`~numeric.slam.pose_graph`;
+  proposal: :mod:`~chizu.numeric.slam.rbpf`;
+- graph SLAM (Hess et al. 2016, Cartographer): :mod:`~chizu.numeric.slam.graph`, its pose
+  graph on GTSAM in :mod:`~chizu.numeric.slam.pose_graph`;
 - the global scan alignment both estimators end a run with (after Lu & Milios 1997):
-  :mod:`~numeric.slam.alignment`;
-- one entry point for every method: :mod:`~numeric.slam.runner`; batches over logs and
-  settings: :mod:`~numeric.slam.batch`; simulated logs: :mod:`~numeric.slam.simulate`;
-- the relation metric of Kümmerle et al. 2009: :mod:`~numeric.slam.evaluation`.
+  :mod:`~chizu.numeric.slam.alignment`;
+- one entry point for every method: :mod:`~chizu.numeric.slam.runner`; batches over logs and
+  settings: :mod:`~chizu.numeric.slam.batch`; simulated logs: :mod:`~chizu.numeric.slam.simulate`;
+- the relation metric of Kümmerle et al. 2009: :mod:`~chizu.numeric.slam.evaluation`.
 """

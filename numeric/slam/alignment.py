@@ -3,14 +3,14 @@ Consistent Range Scan Alignment for Environment Mapping" (Autonomous Robots 4, 1
 every scan of the run is a pose, every pair of overlapping scans that point-to-line ICP
 aligns is a constraint, and all poses are solved for at once.
 
-Graph SLAM's online estimate (:mod:`numeric.slam.graph`) places scans by matching them
+Graph SLAM's online estimate (:mod:`chizu.numeric.slam.graph`) places scans by matching them
 to submaps on a 5 cm probability grid and closes loops between nodes; it gets the
 topology right but leaves centimetre errors between neighbouring scans (the grid's
 cells, scans between nodes tracked in a small window). This step starts from that
 estimate and refines it:
 
 1. pairwise matches (:func:`pairwise_matches`): each scan is aligned by point-to-line
-   ICP (:func:`numeric.slam.matching.intensity_icp.intensity_icp`, eq. 1's intensity term when
+   ICP (:func:`chizu.numeric.slam.matching.intensity_icp.intensity_icp`, eq. 1's intensity term when
    ``alpha > 0``) to the scans ``sequential`` steps before it and to up to
    ``revisits`` earlier scans within ``revisit_radius_m`` (from different passes),
    starting at their relative pose in the online estimate. A match counts only when
@@ -24,7 +24,7 @@ estimate and refines it:
 3. one batch optimisation (GTSAM Levenberg-Marquardt) of all scan poses over the
    matches (Huber-robust), the odometry between consecutive scans, and the online
    run's loop closures, those two with the online pose graph's noise
-   (:class:`numeric.slam.pose_graph.GraphConfig`).
+   (:class:`chizu.numeric.slam.pose_graph.GraphConfig`).
 
 Each pair is matched in one compiled kernel (:func:`_match_pair`, releasing the GIL), so
 the thread pool's workers run side by side. The improved RBPF ends its runs with the
@@ -46,8 +46,8 @@ from numba import njit
 from pydantic import BaseModel, Field
 from scipy.spatial import cKDTree
 
-from numeric.geometry import compose_into, place_into, relative, wrap_angle, wrap_scalar
-from numeric.slam.matching.intensity_icp import (
+from chizu.numeric.geometry import compose_into, place_into, relative, wrap_angle, wrap_scalar
+from chizu.numeric.slam.matching.intensity_icp import (
     IcpConfig,
     IcpSteps,
     Reference,
@@ -56,8 +56,8 @@ from numeric.slam.matching.intensity_icp import (
     line_normal_equations,
     nearest_points,
 )
-from numeric.slam.pose_graph import ANCHOR_SIGMAS, GraphConfig, as_pose2
-from numeric.threads import default_threads, thread_map
+from chizu.numeric.slam.pose_graph import ANCHOR_SIGMAS, GraphConfig, as_pose2
+from chizu.numeric.threads import default_threads, thread_map
 
 
 class AlignmentConfig(BaseModel):

@@ -20,10 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from numeric.errors import InvalidInput
-from numeric.slam.evaluation import relation_errors
-from numeric.slam.logs import read_log, read_relations
-from numeric.slam.runner import SlamOptions, run_log
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.slam.evaluation import relation_errors
+from chizu.numeric.slam.logs import read_log, read_relations
+from chizu.numeric.slam.runner import SlamOptions, run_log
 
 LOOP_GAP_S = 60.0  #: relations spanning more than this are "loop" relations
 

@@ -17,8 +17,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from numeric.errors import InvalidInput
-from numeric.geometry import compose, invert, relative
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.geometry import compose, invert, relative
 
 
 @dataclass(frozen=True)

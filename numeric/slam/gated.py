@@ -1,7 +1,7 @@
 """Single-hypothesis SLAM (§6) as the paper builds it: odometry alone, Intensity-ICP
 alone, and Intensity-ICP gated by the odometry motion model of eq. 5 (``gated-icp``).
 The method ``gated`` is the same single hypothesis with the RBPF's scan matcher as its
-front end (:meth:`numeric.slam.rbpf.RbpfConfig.single_hypothesis`); this module keeps
+front end (:meth:`chizu.numeric.slam.rbpf.RbpfConfig.single_hypothesis`); this module keeps
 eq. 5's gate for both.
 
 Every scan gets a pose. A scan is matched when the odometry says the robot moved at
@@ -23,10 +23,10 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, Field
 
-from numeric.geometry import compose, place, relative, wrap_angle
-from numeric.scan import Scan
-from numeric.slam.keyframes import Keyframes, MapConfig, moved
-from numeric.slam.matching.intensity_icp import IcpConfig, IcpResult, Reference, intensity_icp
+from chizu.numeric.geometry import compose, place, relative, wrap_angle
+from chizu.numeric.scan import Scan
+from chizu.numeric.slam.keyframes import Keyframes, MapConfig, moved
+from chizu.numeric.slam.matching.intensity_icp import IcpConfig, IcpResult, Reference, intensity_icp
 
 SingleMethod = Literal["odom", "icp", "gated-icp"]
 

@@ -21,7 +21,7 @@ import numpy as np
 from pydantic import BaseModel, Field
 from scipy import ndimage
 
-from numeric.geometry import place
+from chizu.numeric.geometry import place
 
 
 class MapConfig(BaseModel):

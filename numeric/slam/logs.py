@@ -2,9 +2,10 @@
 
 - CARMEN logs (``.clf``/``.log``): ``FLASER``, ``ROBOTLASER1`` and ``RAWLASER1`` lines
   with their embedded odometry; the format of the Freiburg / Radish SLAM benchmark data.
-- ROS 1 / ROS 2 bags: ``sensor_msgs/LaserScan`` plus ``nav_msgs/Odometry`` (read with the
-  pure-Python ``rosbags`` package), odometry interpolated to each scan's stamp and the
-  laser mount read from ``/tf_static``.
+- ROS 1 / ROS 2 bags (``rosbags``, pure Python): ``sensor_msgs/LaserScan`` with odometry
+  from ``nav_msgs/Odometry`` or, without it, the ``odom`` frame's transforms on ``/tf``,
+  interpolated to each scan's stamp; the laser mount from ``/tf_static``. A log is written
+  as a ROS 2 bag (MCAP) the same way, and a trajectory as a ``nav_msgs/Path`` bag.
 - TUM trajectories (``t x y z qx qy qz qw``), as evo and most SLAM tools read them.
 - Relation files of Kümmerle et al. 2009 (``t1 t2 x y z roll pitch yaw``).
 """
@@ -13,13 +14,13 @@ from __future__ import annotations
 
 import io
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
-from numeric.errors import InvalidInput
-from numeric.geometry import compose, relative, wrap_angle
-from numeric.scan import LaserLog, Scan, beam_angles
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.geometry import compose, relative, wrap_angle
+from chizu.numeric.scan import LaserLog, Scan, beam_angles
 
 #: Usable range cap for the benchmark logs: their no-return codes are 50-82 m and the
 #: SICK LMS beams beyond ~40 m are mostly spurious.
@@ -112,8 +113,10 @@ def read_ros_bag(path: str | Path, scan_topic: str | None = None,
                  odom_topic: str | None = None, max_range_m: float = DEFAULT_MAX_RANGE_M,
                  limit: int | None = None) -> LaserLog:
     """Scans of a ROS 1 bag (file) or ROS 2 bag (directory) with ``sensor_msgs/LaserScan``
-    and ``nav_msgs/Odometry``. Odometry is interpolated to each scan stamp (held at the
-    ends); the laser mount comes from a ``/tf_static`` transform to the scan's frame."""
+    and odometry: ``nav_msgs/Odometry``, or where the bag has none, the transforms from
+    the ``odom`` frame on ``/tf`` (as a robot's base driver broadcasts them). Odometry is
+    interpolated to each scan stamp (held at the ends); the laser mount comes from a
+    ``/tf_static`` transform to the scan's frame."""
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
@@ -135,10 +138,13 @@ def read_ros_bag(path: str | Path, scan_topic: str | None = None,
                                          if v == "nav_msgs/msg/Odometry"), None)
         if scan_topic is None or types.get(scan_topic) != "sensor_msgs/msg/LaserScan":
             raise InvalidInput(f"{path.name}: no sensor_msgs/LaserScan topic", field="scan_topic")
-        if odom_topic is None or types.get(odom_topic) != "nav_msgs/msg/Odometry":
-            raise InvalidInput(f"{path.name}: no nav_msgs/Odometry topic", field="odom_topic")
+        tf_odometry = odom_topic is None and types.get("/tf") == "tf2_msgs/msg/TFMessage"
+        if not tf_odometry and (odom_topic is None
+                                or types.get(odom_topic) != "nav_msgs/msg/Odometry"):
+            raise InvalidInput(f"{path.name}: no nav_msgs/Odometry topic and no /tf",
+                               field="odom_topic")
         wanted = [c for c in reader.connections
-                  if c.topic in (scan_topic, odom_topic, "/tf_static")]
+                  if c.topic in (scan_topic, odom_topic, "/tf_static", "/tf")]
         for con, _t, raw in reader.messages(connections=wanted):
             msg: Any = reader.deserialize(raw, con.msgtype)
             if con.topic == scan_topic:
@@ -148,6 +154,12 @@ def read_ros_bag(path: str | Path, scan_topic: str | None = None,
                 p = msg.pose.pose
                 odo_t.append(_stamp(msg.header))
                 odo_p.append((p.position.x, p.position.y, _yaw(p.orientation)))
+            elif con.topic == "/tf":
+                for tr in msg.transforms:
+                    if tf_odometry and tr.header.frame_id.lstrip("/") == "odom":
+                        tt = tr.transform
+                        odo_t.append(_stamp(tr.header))
+                        odo_p.append((tt.translation.x, tt.translation.y, _yaw(tt.rotation)))
             else:
                 for tr in msg.transforms:
                     tt = tr.transform
@@ -156,7 +168,8 @@ def read_ros_bag(path: str | Path, scan_topic: str | None = None,
     if not raw_scans:
         raise InvalidInput(f"{path.name}: no scans on {scan_topic}", field="log")
     if not odo_t:
-        raise InvalidInput(f"{path.name}: no odometry on {odom_topic}", field="log")
+        raise InvalidInput(f"{path.name}: no odometry on {odom_topic or '/tf'}",
+                           field="odom_topic")
     order = np.argsort(odo_t, kind="stable")
     ot = np.asarray(odo_t)[order]
     op = np.asarray(odo_p)[order]
@@ -260,3 +273,139 @@ def write_carmen(path: str | Path, log: LaserLog) -> None:
         lines.append(" ".join(p for p in parts if p != ""))
     Path(path).write_text("\n".join(lines) + "\n", encoding="ascii")
 
+
+#: ROS 2 bags are written with the message definitions of this distribution
+ROS2_STORE = "ROS2_HUMBLE"
+
+
+def _ros2_types() -> Any:
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(getattr(Stores, ROS2_STORE))
+
+
+def _ros_time(ts: Any, t: float) -> Any:
+    sec = int(np.floor(t))
+    return ts.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=int(round((t - sec) * 1e9)))
+
+
+def _ros_pose(ts: Any, pose: np.ndarray) -> Any:
+    half = 0.5 * float(pose[2])
+    return ts.types["geometry_msgs/msg/Pose"](
+        position=ts.types["geometry_msgs/msg/Point"](x=float(pose[0]), y=float(pose[1]), z=0.0),
+        orientation=ts.types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=np.sin(half),
+                                                             w=np.cos(half)))
+
+
+def _transform(ts: Any, t: float, parent: str, child: str, pose: np.ndarray) -> Any:
+    """A ``geometry_msgs/TransformStamped`` parent -> child of the planar ``pose``."""
+    T = ts.types
+    half = 0.5 * float(pose[2])
+    return T["geometry_msgs/msg/TransformStamped"](
+        header=T["std_msgs/msg/Header"](stamp=_ros_time(ts, t), frame_id=parent),
+        child_frame_id=child,
+        transform=T["geometry_msgs/msg/Transform"](
+            translation=T["geometry_msgs/msg/Vector3"](x=float(pose[0]), y=float(pose[1]),
+                                                       z=0.0),
+            rotation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=np.sin(half),
+                                                       w=np.cos(half))))
+
+
+def _ros2_writer(path: Path) -> Any:
+    """A ROS 2 bag (MCAP storage) at the directory ``path``, which must not exist."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    if path.exists():
+        raise InvalidInput(f"{path}: exists; a ROS 2 bag is written to a new directory",
+                           field="out")
+    return Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+
+
+def write_ros2_bag(path: str | Path, log: LaserLog,
+                   odometry: Literal["topic", "tf"] = "topic") -> None:
+    """``log`` as a ROS 2 bag (MCAP) as a robot's recorder writes one: ``/scan``
+    (``sensor_msgs/LaserScan`` in frame ``laser``; a range past ``range_max`` is no return),
+    the odometry at each scan's stamp as ``/odom`` (``nav_msgs/Odometry``, odom ->
+    base_link) or, with ``odometry="tf"``, as that transform on ``/tf``, and the laser
+    mount on ``/tf_static``. :func:`read_ros_bag` reads it back."""
+    ts = _ros2_types()
+    T = ts.types
+    with _ros2_writer(Path(path)) as w:
+        c_scan = w.add_connection("/scan", "sensor_msgs/msg/LaserScan", typestore=ts)
+        c_odom = w.add_connection(*(("/odom", "nav_msgs/msg/Odometry") if odometry == "topic"
+                                    else ("/tf", "tf2_msgs/msg/TFMessage")), typestore=ts)
+        c_tf = w.add_connection("/tf_static", "tf2_msgs/msg/TFMessage", typestore=ts)
+        first = log.scans[0]
+        tf = T["tf2_msgs/msg/TFMessage"](transforms=[
+            _transform(ts, first.t, "base_link", "laser", first.sensor_pose)])
+        w.write(c_tf, int(round(first.t * 1e9)),
+                ts.serialize_cdr(tf, "tf2_msgs/msg/TFMessage"))
+        zeros36 = np.zeros(36)
+        for s in log.scans:
+            stamp = _ros_time(ts, s.t)
+            n = len(s.ranges)
+            inc = float(s.angles[1] - s.angles[0]) if n > 1 else 0.0
+            scan = T["sensor_msgs/msg/LaserScan"](
+                header=T["std_msgs/msg/Header"](stamp=stamp, frame_id="laser"),
+                angle_min=float(s.angles[0]), angle_max=float(s.angles[-1]),
+                angle_increment=inc, time_increment=0.0, scan_time=0.0,
+                range_min=float(s.min_range_m), range_max=float(s.max_range_m),
+                ranges=s.ranges.astype(np.float32),
+                intensities=(s.intensities if s.intensities is not None
+                             else np.zeros(0)).astype(np.float32))
+            if odometry == "topic":
+                vec = T["geometry_msgs/msg/Vector3"]
+                odom = T["nav_msgs/msg/Odometry"](
+                    header=T["std_msgs/msg/Header"](stamp=stamp, frame_id="odom"),
+                    child_frame_id="base_link",
+                    pose=T["geometry_msgs/msg/PoseWithCovariance"](
+                        pose=_ros_pose(ts, s.odom), covariance=zeros36),
+                    twist=T["geometry_msgs/msg/TwistWithCovariance"](
+                        twist=T["geometry_msgs/msg/Twist"](linear=vec(x=0.0, y=0.0, z=0.0),
+                                                           angular=vec(x=0.0, y=0.0, z=0.0)),
+                        covariance=zeros36))
+            else:
+                odom = T["tf2_msgs/msg/TFMessage"](transforms=[
+                    _transform(ts, s.t, "odom", "base_link", s.odom)])
+            t_ns = int(round(s.t * 1e9))
+            w.write(c_odom, t_ns, ts.serialize_cdr(odom, c_odom.msgtype))
+            w.write(c_scan, t_ns, ts.serialize_cdr(scan, "sensor_msgs/msg/LaserScan"))
+
+
+def write_ros2_path(path: str | Path, times: np.ndarray, poses: np.ndarray,
+                    frame_id: str = "map") -> None:
+    """A trajectory as a ROS 2 bag (MCAP) of one ``nav_msgs/Path`` on ``/trajectory``:
+    every pose stamped with its scan's time, in ``frame_id``; beside the TUM file."""
+    ts = _ros2_types()
+    T = ts.types
+    times = np.asarray(times, dtype=float)
+    poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+    header = T["std_msgs/msg/Header"]
+    msg = T["nav_msgs/msg/Path"](
+        header=header(stamp=_ros_time(ts, float(times[-1]) if len(times) else 0.0),
+                      frame_id=frame_id),
+        poses=[T["geometry_msgs/msg/PoseStamped"](
+            header=header(stamp=_ros_time(ts, float(t)), frame_id=frame_id),
+            pose=_ros_pose(ts, p)) for t, p in zip(times, poses, strict=True)])
+    with _ros2_writer(Path(path)) as w:
+        c = w.add_connection("/trajectory", "nav_msgs/msg/Path", typestore=ts)
+        w.write(c, int(round(float(times[-1]) * 1e9)) if len(times) else 0,
+                ts.serialize_cdr(msg, "nav_msgs/msg/Path"))
+
+
+def read_ros2_path(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """The last ``nav_msgs/Path`` of a bag: (times, poses (N, 3))."""
+    from rosbags.highlevel import AnyReader
+
+    last: Any = None
+    with AnyReader([Path(path)], default_typestore=_ros2_types()) as reader:
+        cons = [c for c in reader.connections if c.msgtype == "nav_msgs/msg/Path"]
+        if not cons:
+            raise InvalidInput(f"{Path(path).name}: no nav_msgs/Path topic", field="path")
+        for con, _t, raw in reader.messages(connections=cons):
+            last = reader.deserialize(raw, con.msgtype)
+    assert last is not None
+    times = np.array([_stamp(p.header) for p in last.poses])
+    poses = np.array([(p.pose.position.x, p.pose.position.y, _yaw(p.pose.orientation))
+                      for p in last.poses]).reshape(-1, 3)
+    return times, poses

@@ -1,6 +1,6 @@
 """Localization only, on a saved map: where the robot is in a map it does not change.
 
-A robot that already has a map (:mod:`numeric.slam.saved_map`) needs its pose in it,
+A robot that already has a map (:mod:`chizu.numeric.slam.saved_map`) needs its pose in it,
 from an unknown start and again after it was carried away, not a new map. The steps
 are Cartographer's pure localization (Hess et al. 2016, §V) on a likelihood field as
 AMCL reads a map (Thrun, Burgard, Fox, *Probabilistic Robotics*, §6.4):
@@ -20,7 +20,7 @@ AMCL reads a map (Thrun, Burgard, Fox, *Probabilistic Robotics*, §6.4):
    scans, and taken only when a second global search, on that later scan, finds the
    same pose.
 3. **Tracking**: each scan is predicted by the odometry since the last one and refined
-   by Gauss-Newton on the field (:func:`~numeric.slam.matching.correlative.refine`);
+   by Gauss-Newton on the field (:func:`~chizu.numeric.slam.matching.correlative.refine`);
    when the refined score is poor, a correlative search of a small window first; then
    point-to-line ICP against the returns of the nearest keyframes, finer than the
    grid's cells. The score counts only the points on cells the map observed: a scan
@@ -48,23 +48,28 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from scipy import ndimage
 
-from numeric.errors import InvalidInput
-from numeric.geometry import compose, place, relative
-from numeric.occupancy import OCCUPIED, UNKNOWN, build_occupancy_fitting
-from numeric.probability_grid import GridConfig, ProbabilityGrid, no_stamps
-from numeric.scan import LaserLog, Scan
-from numeric.slam.alignment import (
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.geometry import compose, place, relative
+from chizu.numeric.occupancy import OCCUPIED, UNKNOWN, build_occupancy_fitting
+from chizu.numeric.probability_grid import GridConfig, ProbabilityGrid, no_stamps
+from chizu.numeric.scan import LaserLog, Scan
+from chizu.numeric.slam.alignment import (
     AlignmentConfig,
     PairwiseMatch,
     align_globally,
     match_pair,
     pairwise_matches,
 )
-from numeric.slam.graph.loop_closure import adaptive_voxel
-from numeric.slam.keyframes import voxel_downsample
-from numeric.slam.matching.correlative import Match, PrecomputedGrid, correlative_search, refine
-from numeric.slam.matching.intensity_icp import IcpConfig, Reference, intensity_icp
-from numeric.slam.saved_map import EDGE_KINDS, Laser, SavedMap
+from chizu.numeric.slam.graph.loop_closure import adaptive_voxel
+from chizu.numeric.slam.keyframes import voxel_downsample
+from chizu.numeric.slam.matching.correlative import (
+    Match,
+    PrecomputedGrid,
+    correlative_search,
+    refine,
+)
+from chizu.numeric.slam.matching.intensity_icp import IcpConfig, Reference, intensity_icp
+from chizu.numeric.slam.saved_map import EDGE_KINDS, Laser, SavedMap
 
 State = Literal["searching", "confirming", "tracking"]
 
@@ -409,7 +414,7 @@ class LocalizationRun:
 def localize_log(saved: SavedMap, log: LaserLog,
                  config: MapLocalizationConfig | None = None) -> LocalizationRun:
     """Localize every scan of ``log`` on ``saved``; raises
-    :class:`~numeric.errors.InvalidInput` (field ``map``) when the log's laser is not
+    :class:`~chizu.numeric.errors.InvalidInput` (field ``map``) when the log's laser is not
     the map's."""
     loc = MapLocalizer(saved, config or MapLocalizationConfig())
     why = loc.check_laser(Laser.of(log))
@@ -441,7 +446,7 @@ def align_on_map(saved: SavedMap, points: list[np.ndarray], odometry: np.ndarray
                  poses: np.ndarray, config: AlignmentConfig, keyframes: int,
                  radius_m: float, move_map: bool = False
                  ) -> tuple[np.ndarray, list[PairwiseMatch], np.ndarray]:
-    """Graph SLAM's global scan alignment (:mod:`numeric.slam.alignment`, Lu & Milios
+    """Graph SLAM's global scan alignment (:mod:`chizu.numeric.slam.alignment`, Lu & Milios
     1997) of each stretch of placed scans (rows of ``poses`` that are finite; robot-frame
     ``points``, ``odometry`` per scan), with the saved map's keyframes among the scans
     and held where the map has them. Online, a scan is placed by matching it to the map

@@ -6,7 +6,7 @@ Both are the same four steps on a first map A and a second run B (a new log mapp
 graph SLAM on its own, or a second saved map):
 
 1. **Where B lies in A** (:func:`frame_transform`): global localization on A
-   (:mod:`numeric.slam.map_localization`, step 2: branch and bound over the whole map and
+   (:mod:`chizu.numeric.slam.map_localization`, step 2: branch and bound over the whole map and
    every heading, with its uniqueness test) of B's keyframes, each with the returns of
    B's keyframes within ``context_m`` of travel around it placed by B's own poses. Each
    unique fix is a transform from B's frame to A's; the one the most fixes agree with
@@ -17,7 +17,7 @@ graph SLAM on its own, or a second saved map):
    (refined on A's likelihood field, then ICP against A's nearest keyframes), and B's
    pose graph (its own constraints) is solved with those matches as Huber-robust priors,
    ``fit_rounds`` times -- each round starts nearer and matches more keyframes.
-3. **One alignment** (:func:`~numeric.slam.map_localization.align_on_map`): B's scans
+3. **One alignment** (:func:`~chizu.numeric.slam.map_localization.align_on_map`): B's scans
    (resume: every scan of the new log; merge: B's keyframes) placed by that transform,
    matched to their neighbours, to A's keyframes they overlap and to A's nearest
    keyframes' returns, and solved for at once with A's keyframes bound by A's own pose
@@ -38,20 +38,20 @@ import gtsam
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from numeric.errors import InvalidInput
-from numeric.geometry import compose, invert, place, relative, wrap_angle
-from numeric.scan import LaserLog
-from numeric.slam.alignment import AlignmentConfig, PairwiseMatch, match_pair
-from numeric.slam.keyframes import voxel_downsample
-from numeric.slam.map_localization import (
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.geometry import compose, invert, place, relative, wrap_angle
+from chizu.numeric.scan import LaserLog
+from chizu.numeric.slam.alignment import AlignmentConfig, PairwiseMatch, match_pair
+from chizu.numeric.slam.keyframes import voxel_downsample
+from chizu.numeric.slam.map_localization import (
     KeyframeClouds,
     MapLocalizationConfig,
     MapLocalizer,
     PreparedMap,
     align_on_map,
 )
-from numeric.slam.pose_graph import as_pose2
-from numeric.slam.saved_map import EDGE_KINDS, Constraints, Laser, SavedMap
+from chizu.numeric.slam.pose_graph import as_pose2
+from chizu.numeric.slam.saved_map import EDGE_KINDS, Constraints, Laser, SavedMap
 
 
 class MergeConfig(BaseModel):

@@ -49,8 +49,8 @@ class GraphConfig(BaseModel):
 @dataclass
 class OdometryCalibration:
     """The motion model's heading sigma, learned from the log itself (the RBPF's eq. 7
-    model, :mod:`numeric.slam.rbpf.odometry`, and graph SLAM's odometry edges and
-    local-match prior, :meth:`~numeric.slam.graph.local_slam.LocalSlam.calibrate_odometry`;
+    model, :mod:`chizu.numeric.slam.rbpf.odometry`, and graph SLAM's odometry edges and
+    local-match prior, :meth:`~chizu.numeric.slam.graph.local_slam.LocalSlam.calibrate_odometry`;
     each feeds it its own residuals: heading changes found by scan matching minus the
     odometry's, each divided by the fixed model's sigma of that change).
 
@@ -167,7 +167,7 @@ class PoseGraph:
                      sigmas: np.ndarray | None = None) -> None:
         """An odometry edge with ``sigmas`` (x, y, theta), by default
         :meth:`odometry_sigmas` (graph SLAM hands its calibrated ones,
-        :meth:`~numeric.slam.graph.GraphSlam.odometry_sigmas`)."""
+        :meth:`~chizu.numeric.slam.graph.GraphSlam.odometry_sigmas`)."""
         self.add_between(a, b, delta, self.odometry_sigmas(delta) if sigmas is None
                          else sigmas)
 

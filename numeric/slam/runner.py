@@ -14,14 +14,14 @@ from typing import Any, Literal, Protocol
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from numeric.occupancy import OccupancyMap, build_occupancy_fitting
-from numeric.scan import LaserLog, Scan
-from numeric.slam.gated import SingleHypothesisSlam
-from numeric.slam.graph import GraphSlam, GraphSlamConfig
-from numeric.slam.keyframes import Keyframes
-from numeric.slam.matching.intensity_icp import IcpConfig
-from numeric.slam.rbpf import Proposal, RbpfConfig, RbpfSlam, Resample
-from numeric.slam.simulate import simulated_log
+from chizu.numeric.occupancy import OccupancyMap, build_occupancy_fitting
+from chizu.numeric.scan import LaserLog, Scan
+from chizu.numeric.slam.gated import SingleHypothesisSlam
+from chizu.numeric.slam.graph import GraphSlam, GraphSlamConfig
+from chizu.numeric.slam.keyframes import Keyframes
+from chizu.numeric.slam.matching.intensity_icp import IcpConfig
+from chizu.numeric.slam.rbpf import Proposal, RbpfConfig, RbpfSlam, Resample
+from chizu.numeric.slam.simulate import simulated_log
 
 Method = Literal["odom", "icp", "gated-icp", "gated", "rbpf", "graph"]
 
@@ -158,5 +158,5 @@ def run_log(log: LaserLog, options: SlamOptions,
 
 def whole_map(slam: Slam, resolution_m: float) -> OccupancyMap:
     """The run's map at ``resolution_m``, or coarser where it would not fit
-    (:func:`~numeric.occupancy.build_occupancy_fitting`)."""
+    (:func:`~chizu.numeric.occupancy.build_occupancy_fitting`)."""
     return build_occupancy_fitting(slam.keyframes.frames, slam.map_poses(), resolution_m)

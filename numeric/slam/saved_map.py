@@ -32,9 +32,9 @@ from typing import Any, Literal
 
 import numpy as np
 
-from numeric.errors import InvalidInput
-from numeric.occupancy import OccupancyMap, build_occupancy
-from numeric.scan import LaserLog, Scan
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.occupancy import OccupancyMap, build_occupancy
+from chizu.numeric.scan import LaserLog, Scan
 
 FORMAT = "chizu-map"
 VERSION = 1
@@ -162,7 +162,7 @@ class SavedMap:
 def saved_map(slam: Any, laser: Laser, odometry: np.ndarray, method: str,
               resolution_m: float, meta: dict[str, Any] | None = None) -> SavedMap:
     """The map of a finished run of ``slam`` (any estimator of
-    :func:`numeric.slam.runner.create`) over scans of ``laser`` with odometry
+    :func:`chizu.numeric.slam.runner.create`) over scans of ``laser`` with odometry
     ``odometry (S, 3)``, one row per scan; the constraints of estimators that keep a
     pose graph (graph SLAM's ``constraints()``), none for the others."""
     edges = getattr(slam, "constraints", None)

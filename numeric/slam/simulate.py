@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from numeric.laser import Laser, LaserConfig, record_log
-from numeric.scan import LaserLog
-from numeric.simulator import OdometryConfig, follow_path, odometry_along
-from numeric.world import World
-from numeric.worlds import from_template, office_world
+from chizu.numeric.laser import Laser, LaserConfig, record_log
+from chizu.numeric.scan import LaserLog
+from chizu.numeric.simulator import OdometryConfig, follow_path, odometry_along
+from chizu.numeric.world import World
+from chizu.numeric.worlds import from_template, office_world
 
 #: Tours (waypoints) and odometry errors per built-in world. The corridor's odometry
 #: under-reads distance by 5 % (slippery floor): only the stripes can correct it.

@@ -11,5 +11,5 @@ observation groups of §4.2 are Prolog rules (prolog/grouping.pl). Local plannin
 :mod:`verification` (eq. 8, the local plan, and §5.3, eqs. 9-10). Global planning
 (§6): :mod:`plan` (eqs. 11-14 and 18-20, the search of §6.4). :mod:`planner` runs one
 planning request end to end (Fig. 2, the values of eqs. 15-17) and :mod:`online` the
-summarisation loop of §7.3 in the simulator; :mod:`numeric.figures` draws them.
+summarisation loop of §7.3 in the simulator; :mod:`chizu.numeric.figures` draws them.
 """

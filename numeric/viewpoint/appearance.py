@@ -11,7 +11,7 @@ and the direction to the robot (Fig. 3). The model is
 
 -- an exponential fit per face over distance and one sigmoid fit over angle shared by
 every object (Fig. 5); faces turned away (``|theta_j| >= pi/2``) give 0. The fits come
-from measurement tables: simulated ones (:mod:`numeric.viewpoint.recognition`) or a
+from measurement tables: simulated ones (:mod:`chizu.numeric.viewpoint.recognition`) or a
 user's own measurements (:meth:`AppearanceModel.fit`).
 
 From the model: the predicted matches z_hat (§3.2), the orientation posterior over
@@ -31,8 +31,8 @@ from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from scipy.optimize import curve_fit
 
-from numeric.errors import InvalidInput
-from numeric.geometry import wrap_angle
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.geometry import wrap_angle
 
 FloatArray = NDArray[np.float64]
 N_FACES = 4

@@ -1,6 +1,6 @@
 """The planner's view of a free / occupied / unknown grid (Masuzawa & Miura, §4.1).
 
-The grid itself is :class:`numeric.occupancy.OccupancyMap` -- the same type a SLAM
+The grid itself is :class:`chizu.numeric.occupancy.OccupancyMap` -- the same type a SLAM
 run commits to a world -- built here from the simulator (the world's true geometry, or
 laser scans from known poses as in the paper, which trusts odometry inside one room) or
 from a ROS ``nav_msgs/OccupancyGrid``-style array a client posts. :class:`PlanningGrid`
@@ -19,10 +19,10 @@ from functools import cached_property
 import numpy as np
 from scipy import ndimage
 
-from numeric.errors import InvalidInput
-from numeric.geometry import point_segment_distance, ray_crossings
-from numeric.laser import Laser
-from numeric.occupancy import (
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.geometry import point_segment_distance, ray_crossings
+from chizu.numeric.laser import Laser
+from chizu.numeric.occupancy import (
     FREE,
     OCCUPIED,
     UNKNOWN,
@@ -32,7 +32,7 @@ from numeric.occupancy import (
     build_occupancy,
     label_unknown,
 )
-from numeric.world import World
+from chizu.numeric.world import World
 
 MAX_CELLS = 4_000_000
 #: The robot looks around in four directions at a stop (the laser covers 240 degrees).

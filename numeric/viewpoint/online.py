@@ -31,11 +31,11 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from skimage.graph import MCP_Geometric
 
-from numeric.geometry import line_of_sight
-from numeric.occupancy import FREE, UNKNOWN
-from numeric.viewpoint.appearance import AppearanceModel
-from numeric.viewpoint.grid import PlanningGrid, look_around, scanned_grid, travel_cost
-from numeric.viewpoint.planner import (
+from chizu.numeric.geometry import line_of_sight
+from chizu.numeric.occupancy import FREE, UNKNOWN
+from chizu.numeric.viewpoint.appearance import AppearanceModel
+from chizu.numeric.viewpoint.grid import PlanningGrid, look_around, scanned_grid, travel_cost
+from chizu.numeric.viewpoint.planner import (
     CandidateIn,
     Grouper,
     ObjectType,
@@ -44,9 +44,9 @@ from numeric.viewpoint.planner import (
     PlanRequest,
     ViewpointPlanner,
 )
-from numeric.viewpoint.recognition import Recogniser
-from numeric.viewpoint.verification import Candidate, Verifier
-from numeric.world import World
+from chizu.numeric.viewpoint.recognition import Recogniser
+from chizu.numeric.viewpoint.verification import Candidate, Verifier
+from chizu.numeric.world import World
 
 
 class SummaryConfig(BaseModel):
@@ -228,7 +228,7 @@ class Summariser:
     # -- motion -----------------------------------------------------------------------
     def _route(self, grid: PlanningGrid, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Shortest path a -> b on the grid (the planner's travel costs,
-        :func:`numeric.viewpoint.grid.travel_cost`); a straight line if none."""
+        :func:`chizu.numeric.viewpoint.grid.travel_cost`); a straight line if none."""
         cost = travel_cost(grid)
         ia, ja, ina = grid.cells(a)
         ib, jb, inb = grid.cells(b)

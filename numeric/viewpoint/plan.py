@@ -34,8 +34,8 @@ import numpy as np
 from numba import njit
 from pydantic import BaseModel, ConfigDict, Field
 
-from numeric.errors import InvalidInput
-from numeric.tours import best_order
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.tours import best_order
 
 MAX_GROUPS_EXACT = 20
 #: the branch and bound bounds this many states at a time between looks at the clock
@@ -549,7 +549,7 @@ def seed_plans(p: Problem, size: int = SEED_GROUPS) -> list[Plan]:
 
 def fastest_order(p: Problem, mask: int) -> tuple[int, ...]:
     """The fastest tour of the groups in ``mask`` from the robot to the exit: exact up
-    to 15 groups, nearest neighbour and 2-opt beyond (:func:`numeric.tours.best_order`)."""
+    to 15 groups, nearest neighbour and 2-opt beyond (:func:`chizu.numeric.tours.best_order`)."""
     members = [j for j in range(p.n) if mask >> j & 1]
     if len(members) <= 1:
         return tuple(members)

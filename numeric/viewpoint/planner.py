@@ -19,11 +19,11 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, model_validator
 
-from numeric.errors import InvalidInput
-from numeric.occupancy import UnknownComponent
-from numeric.viewpoint.appearance import AppearanceModel, AppearanceParams, MeasurementTables
-from numeric.viewpoint.grid import PlanningGrid, TravelMap
-from numeric.viewpoint.plan import (
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.occupancy import UnknownComponent
+from chizu.numeric.viewpoint.appearance import AppearanceModel, AppearanceParams, MeasurementTables
+from chizu.numeric.viewpoint.grid import PlanningGrid, TravelMap
+from chizu.numeric.viewpoint.plan import (
     MAX_GROUPS_EXACT,
     GroupCost,
     Loss,
@@ -33,8 +33,8 @@ from numeric.viewpoint.plan import (
     solve_auto,
     straight,
 )
-from numeric.viewpoint.recognition import OBJECT_KINDS, fitted_models
-from numeric.viewpoint.verification import (
+from chizu.numeric.viewpoint.recognition import OBJECT_KINDS, fitted_models
+from chizu.numeric.viewpoint.verification import (
     Candidate,
     LocalPlan,
     TableCache,
@@ -42,7 +42,7 @@ from numeric.viewpoint.verification import (
     ViewpointSet,
     unknown_region_time,
 )
-from numeric.world import ID_PATTERN
+from chizu.numeric.world import ID_PATTERN
 
 MAX_ENTRIES = 64
 EXHAUSTIVE_MAX_GROUPS = 9

@@ -18,15 +18,15 @@ import functools
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from numeric.geometry import line_of_sight, wrap_angle
-from numeric.viewpoint.appearance import (
+from chizu.numeric.geometry import line_of_sight, wrap_angle
+from chizu.numeric.viewpoint.appearance import (
     N_FACES,
     AngleSample,
     AppearanceModel,
     DistanceSample,
     MeasurementTables,
 )
-from numeric.world import World
+from chizu.numeric.world import World
 
 
 class ObjectKind(BaseModel):

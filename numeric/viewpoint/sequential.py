@@ -6,7 +6,7 @@ to verify the same way. The paper writes both for two objects. For k objects
 :class:`HandoverDP` solves eq. 7 for every subset of the group at once by dynamic
 programming over subsets from the goal backwards, which serves t_seq and all of t_par's
 failure sets; that is exact and takes 2^k k^2 small min-plus products. Past
-:data:`numeric.viewpoint.verification.EXACT_GROUP` objects :class:`PortChain` verifies
+:data:`chizu.numeric.viewpoint.verification.EXACT_GROUP` objects :class:`PortChain` verifies
 them along one chain over every hand-over viewpoint: the time of a policy the robot can
 follow, an upper bound flagged ``exact = False``.
 """
@@ -19,12 +19,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.spatial.distance import cdist
 
-from numeric.tours import best_order
-from numeric.viewpoint.single import min_plus, min_plus_arg
-from numeric.viewpoint.viewpoints import Candidate
+from chizu.numeric.tours import best_order
+from chizu.numeric.viewpoint.single import min_plus, min_plus_arg
+from chizu.numeric.viewpoint.viewpoints import Candidate
 
 if TYPE_CHECKING:
-    from numeric.viewpoint.verification import Verifier
+    from chizu.numeric.viewpoint.verification import Verifier
 
 #: a larger group's chain is the best order by dynamic programming up to this size
 SCALAR_DP_MAX = 12

@@ -10,7 +10,7 @@ most, a few dozen in practice -- instead of over the 24! viewpoint orders; P_rec
 the recursion is eq. 3 conditioned on the remaining set.
 
 Eq. 6's table (:class:`TableCache`): for a viewpoint pattern of Fig. 8
-(:mod:`numeric.viewpoint.viewpoints`) the table holds t_single between every pair of its
+(:mod:`chizu.numeric.viewpoint.viewpoints`) the table holds t_single between every pair of its
 viewpoints, which depends only on the object type, the pattern, the rotation and the
 belief -- not on where the object is -- so one table serves every object of that type and
 every re-plan. Times chain through intermediate viewpoints by min-plus products
@@ -26,8 +26,8 @@ from numba import njit
 from numpy.typing import NDArray
 from scipy.spatial.distance import cdist
 
-from numeric.viewpoint.appearance import AppearanceModel
-from numeric.viewpoint.viewpoints import DIRECTIONS, pattern_indices, viewpoint_circles
+from chizu.numeric.viewpoint.appearance import AppearanceModel
+from chizu.numeric.viewpoint.viewpoints import DIRECTIONS, pattern_indices, viewpoint_circles
 
 
 def min_plus(a: np.ndarray, b: np.ndarray) -> np.ndarray:

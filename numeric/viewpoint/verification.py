@@ -3,11 +3,11 @@
 :class:`Verifier` answers the section's times on a grid, one module per step:
 
 - the viewpoints S_obs (§5.1, Fig. 7), the patterns of Fig. 8 and the joint viewpoints
-  S_par (§5.2, Fig. 9(b)): :mod:`numeric.viewpoint.viewpoints`;
+  S_par (§5.2, Fig. 9(b)): :mod:`chizu.numeric.viewpoint.viewpoints`;
 - t_single (§5.1, eq. 5) exactly by dynamic programming, and eq. 6's pattern tables:
-  :mod:`numeric.viewpoint.single`;
+  :mod:`chizu.numeric.viewpoint.single`;
 - t_seq (§5.2, eq. 7) for every subset of a group, and the expectation over a joint
-  observation's failures that eq. 8 needs: :mod:`numeric.viewpoint.sequential`;
+  observation's failures that eq. 8 needs: :mod:`chizu.numeric.viewpoint.sequential`;
 - t_par (§5.2, eq. 8): observe every object of the group at once from a point of S_par,
   then verify the failures singly (one failure) or sequentially (several) -- written for
   k >= 2 objects over the 2**k outcomes (the paper writes it for two); the better of t_seq
@@ -15,7 +15,7 @@
 - unknown regions (§5.3, eqs. 9-10): :func:`unknown_region_time`.
 
 t_seq and t_par are exact up to EXACT_GROUP objects, an upper bound beyond
-(:class:`numeric.viewpoint.sequential.PortChain`).
+(:class:`chizu.numeric.viewpoint.sequential.PortChain`).
 """
 
 from __future__ import annotations
@@ -27,12 +27,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.distance import cdist
 
-from numeric.errors import InvalidInput
-from numeric.viewpoint.appearance import AppearanceModel
-from numeric.viewpoint.grid import PlanningGrid
-from numeric.viewpoint.sequential import HandoverDP, HandoverTable, PortChain, Unverifiable
-from numeric.viewpoint.single import TableCache, min_plus, single_dp
-from numeric.viewpoint.viewpoints import (
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.viewpoint.appearance import AppearanceModel
+from chizu.numeric.viewpoint.grid import PlanningGrid
+from chizu.numeric.viewpoint.sequential import HandoverDP, HandoverTable, PortChain, Unverifiable
+from chizu.numeric.viewpoint.single import TableCache, min_plus, single_dp
+from chizu.numeric.viewpoint.viewpoints import (
     Candidate,
     ViewpointSet,
     entry_points,
@@ -211,7 +211,7 @@ class Verifier:
 
     # -- t_par (eq. 8, k >= 2) --------------------------------------------------------
     def joint_points(self, cands: Sequence[Candidate]) -> np.ndarray:
-        """S_par (:func:`numeric.viewpoint.viewpoints.joint_points`): free cells from
+        """S_par (:func:`chizu.numeric.viewpoint.viewpoints.joint_points`): free cells from
         which every candidate of the group has P_recog > 0, within each one's r_max
         circle."""
         reach = np.array([self.radii(c)[2] for c in cands])

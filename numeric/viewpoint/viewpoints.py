@@ -25,11 +25,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from numeric.viewpoint.appearance import AppearanceModel
-from numeric.viewpoint.grid import PlanningGrid
+from chizu.numeric.viewpoint.appearance import AppearanceModel
+from chizu.numeric.viewpoint.grid import PlanningGrid
 
 if TYPE_CHECKING:
-    from numeric.viewpoint.single import VerificationTable
+    from chizu.numeric.viewpoint.single import VerificationTable
 
 DIRECTIONS = 8
 RINGS = 3

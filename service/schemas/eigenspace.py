@@ -7,8 +7,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, model_validator
 
-from numeric.camera import CameraConfig
-from service.schemas.common import PoseOut
+from chizu.numeric.camera import CameraConfig
+from chizu.service.schemas.common import PoseOut
 
 # -- eigenspace localization ---------------------------------------------------------------
 MAX_TURN_IMAGES = 360

@@ -13,9 +13,12 @@ class JobError(BaseModel):
 
 
 class JobOut(BaseModel):
-    """A durable job (service.jobs): ``interrupted`` when the server stopped while it
-    was queued or running; ``result`` when done (for a learning job, the analysis
-    summary); ``error`` naming the field when it failed. Times are Unix seconds."""
+    """A durable job (chizu.service.jobs). A job the server was running when it stopped
+    (a crash or a shutdown) is queued again at its next start and runs from the start
+    (``attempts`` counts those starts) if its kind can be re-run from its request (an
+    eigenspace learning); otherwise it is ``interrupted``. ``result`` when done (for a
+    learning job, the analysis summary); ``error`` naming the field when it failed.
+    Times are Unix seconds."""
 
     id: str
     world: str
@@ -27,3 +30,5 @@ class JobOut(BaseModel):
     error: JobError | None = None
     created_at: float
     updated_at: float
+    attempts: int = Field(0, ge=0, description="how many times it was started again "
+                          "after the server stopped")

@@ -6,7 +6,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from service.schemas.common import PoseOut
+from chizu.service.schemas.common import PoseOut
 
 
 class LocalizationRunIn(BaseModel):

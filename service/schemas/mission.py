@@ -6,11 +6,11 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat
 
-from numeric.eigenspace.analysis import EigenspaceConfig
-from numeric.eigenspace.learning import LearningConfig
-from numeric.simulator import ObserverConfig, OdometryConfig
-from numeric.world import Id
-from numeric.worlds import MISSION_DOOR, MISSION_GOAL, MISSION_ROOM
+from chizu.numeric.eigenspace.analysis import EigenspaceConfig
+from chizu.numeric.eigenspace.learning import LearningConfig
+from chizu.numeric.simulator import ObserverConfig, OdometryConfig
+from chizu.numeric.world import Id
+from chizu.numeric.worlds import MISSION_DOOR, MISSION_GOAL, MISSION_ROOM
 
 Point = tuple[FiniteFloat, FiniteFloat]
 

@@ -7,7 +7,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from numeric.world import Id
+from chizu.numeric.world import Id
 
 RelationKind = Literal["rec", "frec", "lr", "align", "rea", "reachable"]
 
@@ -27,15 +27,19 @@ class ObservationOut(BaseModel):
 class ReachedOut(BaseModel):
     """The arc's outcomes so far, this one counted."""
 
+    model_config = ConfigDict(validate_by_name=True)  # from_= here, "from" on the wire
+
     world: str
-    from_: str = Field(serialization_alias="from")
+    from_: str = Field(alias="from")
     to: str
     succeeded: int = Field(ge=0, description="times the robot drove the arc")
     failed: int = Field(ge=0, description="times it set out on the arc and did not arrive")
 
 
 class DrmEdgeOut(BaseModel):
-    from_: str = Field(serialization_alias="from")
+    model_config = ConfigDict(validate_by_name=True)  # from_= here, "from" on the wire
+
+    from_: str = Field(alias="from")
     to: str
     p: float = Field(description="the best derivation's probability weighed with the "
                      "arc's outcomes (prolog/drm.pl)")
@@ -52,7 +56,9 @@ class DrmOut(BaseModel):
 
 
 class StepOut(BaseModel):
-    from_: str = Field(serialization_alias="from")
+    model_config = ConfigDict(validate_by_name=True)  # from_= here, "from" on the wire
+
+    from_: str = Field(alias="from")
     to: str
     method: str
     p: float

@@ -15,8 +15,8 @@ from pydantic import (
     model_validator,
 )
 
-from numeric.slam.runner import SlamOptions
-from service.schemas.common import PoseOut
+from chizu.numeric.slam.runner import SlamOptions
+from chizu.service.schemas.common import PoseOut
 
 
 class SlamRunIn(SlamOptions):
@@ -26,7 +26,7 @@ class SlamRunIn(SlamOptions):
 
     resume: bool = Field(False, description="join the world's committed map: at the "
                          "commit the run is found in it and joined to it (graph SLAM only; "
-                         "numeric.slam.merge), and its trajectory is in the map's frame; "
+                         "chizu.numeric.slam.merge), and its trajectory is in the map's frame; "
                          "a world without a map yet gets this run's")
 
     @field_validator("resume")

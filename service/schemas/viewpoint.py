@@ -1,5 +1,5 @@
 """Viewpoint planning (Masuzawa & Miura): the request, the plan answer and the stored
-scene's groups. The request is the planner's :class:`numeric.viewpoint.planner.PlanRequest`
+scene's groups. The request is the planner's :class:`chizu.numeric.viewpoint.planner.PlanRequest`
 with the API's caps (candidates, object types, name lengths) and an optional grid posted
 in ROS's ``nav_msgs/OccupancyGrid`` layout; the same model reads ``chizu plan``'s
 SCENE.json."""
@@ -10,8 +10,8 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat
 
-from numeric.viewpoint import planner
-from numeric.viewpoint.grid import MAX_CELLS, PlanningGrid, from_occupancy_values
+from chizu.numeric.viewpoint import planner
+from chizu.numeric.viewpoint.grid import MAX_CELLS, PlanningGrid, from_occupancy_values
 
 MAX_CANDIDATES = 200
 MAX_TYPES = 32

@@ -20,31 +20,31 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from numeric.camera import Camera  # noqa: E402
-from numeric.eigenspace.analysis import (  # noqa: E402
+from chizu.numeric.camera import Camera  # noqa: E402
+from chizu.numeric.eigenspace.analysis import (  # noqa: E402
     EigenspaceAnalysis,
     EigenspaceConfig,
     analyse,
 )
-from numeric.eigenspace.learning import LearningConfig, learn, learning_grid  # noqa: E402
-from numeric.eigenspace.learning_strategy import (  # noqa: E402
+from chizu.numeric.eigenspace.learning import LearningConfig, learn, learning_grid  # noqa: E402
+from chizu.numeric.eigenspace.learning_strategy import (  # noqa: E402
     LearningStrategyConfig,
     learn_with_strategy,
     learning_strategy,
 )
-from numeric.eigenspace.localization import Session, Vote, agrees, turn_candidates  # noqa: E402
-from numeric.eigenspace.movement_strategy import (  # noqa: E402
+from chizu.numeric.eigenspace.localization import Session, Vote, agrees, turn_candidates  # noqa: E402
+from chizu.numeric.eigenspace.movement_strategy import (  # noqa: E402
     StateBelief,
     apply_action,
     choose_action,
     initial_samples,
     session_belief,
 )
-from numeric.eigenspace.regions import real_world_distance  # noqa: E402
-from numeric.errors import InvalidInput  # noqa: E402
-from numeric.geometry import relative, wrap_angle  # noqa: E402
-from numeric.world import World, WorldDescription  # noqa: E402
-from numeric.worlds import room_a, room_b, room_c, room_d  # noqa: E402
+from chizu.numeric.eigenspace.regions import real_world_distance  # noqa: E402
+from chizu.numeric.errors import InvalidInput  # noqa: E402
+from chizu.numeric.geometry import relative, wrap_angle  # noqa: E402
+from chizu.numeric.world import World, WorldDescription  # noqa: E402
+from chizu.numeric.worlds import room_a, room_b, room_c, room_d  # noqa: E402
 from tests.bench.results import FULL, write_page  # noqa: E402
 
 OUT = ROOT / "bench-out"
@@ -515,7 +515,7 @@ def unseen_rooms() -> list[tuple[str, WorldDescription, bool]]:
     """Rooms nobody tuned the method on (not built-in templates): other outlines,
     pillars, boxes and wall photographs than rooms A-D; the flag marks a room that no
     camera can localize in (symmetric, its photographs repeating)."""
-    from numeric.worlds import _boxes, _polygon_walls, twin_hexagon
+    from chizu.numeric.worlds import _boxes, _polygon_walls, twin_hexagon
 
     rooms = []
     walls = _polygon_walls([(0, 0), (12, 0), (12, 6), (6, 6), (6, 11), (0, 11)],

@@ -25,21 +25,21 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
-from numeric.camera import Camera  # noqa: E402
-from numeric.eigenspace.analysis import EigenspaceAnalysis, EigenspaceConfig  # noqa: E402
-from numeric.eigenspace.diagnosis import REFUSALS, refusal  # noqa: E402
-from numeric.eigenspace.fourier_signature import FourierMap  # noqa: E402
-from numeric.eigenspace.learning_strategy import learn_with_strategy  # noqa: E402
-from numeric.eigenspace.localization import Session, turn_candidates  # noqa: E402
-from numeric.eigenspace.movement_strategy import (  # noqa: E402
+from chizu.numeric.camera import Camera  # noqa: E402
+from chizu.numeric.eigenspace.analysis import EigenspaceAnalysis, EigenspaceConfig  # noqa: E402
+from chizu.numeric.eigenspace.diagnosis import REFUSALS, refusal  # noqa: E402
+from chizu.numeric.eigenspace.fourier_signature import FourierMap  # noqa: E402
+from chizu.numeric.eigenspace.learning_strategy import learn_with_strategy  # noqa: E402
+from chizu.numeric.eigenspace.localization import Session, turn_candidates  # noqa: E402
+from chizu.numeric.eigenspace.movement_strategy import (  # noqa: E402
     apply_action,
     choose_action,
     initial_samples,
     session_belief,
 )
-from numeric.geometry import relative, wrap_angle  # noqa: E402
-from numeric.world import World  # noqa: E402
-from numeric.worlds import random_camera_room  # noqa: E402
+from chizu.numeric.geometry import relative, wrap_angle  # noqa: E402
+from chizu.numeric.world import World  # noqa: E402
+from chizu.numeric.worlds import random_camera_room  # noqa: E402
 from tests.bench.eigenspace import NOISE, image_baselines  # noqa: E402
 from tests.bench.results import FULL, write_page  # noqa: E402
 
@@ -197,7 +197,7 @@ def main() -> None:
         "| room | answers | proposed | nearest learning image | Fourier signature | "
         "ratio proposed / nearest | Fourier, every first stop: error, wrong |",
         "|---|---|---|---|---|---|---|", *(t[1] for t in table), "",
-        "Why first stops went unanswered (numeric.eigenspace.diagnosis: the first test "
+        "Why first stops went unanswered (chizu.numeric.eigenspace.diagnosis: the first test "
         "that refused).", "",
         "| room | unanswered first stops | " + " | ".join(REFUSALS) + " |",
         "|---" * (len(REFUSALS) + 2) + "|", *(t[2] for t in table)]

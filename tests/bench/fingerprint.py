@@ -42,10 +42,10 @@ TIMING_KEYS = ("seconds", "_s", "_ms", "_at", "elapsed", "duration", "id", "time
 
 def slam_one(log_name: str, label: str, scans: int, out: Path) -> None:
     """One SLAM run in this process: the trajectories before and after finish()."""
-    from numeric.scan import LaserLog
-    from numeric.slam.datasets import slam_data_dir
-    from numeric.slam.logs import read_log
-    from numeric.slam.runner import SlamOptions, create
+    from chizu.numeric.scan import LaserLog
+    from chizu.numeric.slam.datasets import slam_data_dir
+    from chizu.numeric.slam.logs import read_log
+    from chizu.numeric.slam.runner import SlamOptions, create
 
     data = slam_data_dir()
     assert data is not None, "no shared SLAM logs"
@@ -83,8 +83,8 @@ def service_answers() -> dict[str, Any]:
 
     from fastapi.testclient import TestClient
 
-    from service.app import create_app
-    from service.settings import Settings
+    from chizu.service.app import create_app
+    from chizu.service.settings import Settings
     from tests.eigenspace.test_api import SMALL
     from tests.viewpoint.test_api import table1_body
 

@@ -8,7 +8,7 @@ so that time and peak memory are its own), scored with the relation metric of KÃ
 al. 2009:
 
 - ``gated``: the single hypothesis with the RBPF's scan matcher as its front end
-  (:meth:`numeric.slam.rbpf.RbpfConfig.single_hypothesis`);
+  (:meth:`chizu.numeric.slam.rbpf.RbpfConfig.single_hypothesis`);
 - ``gated (icp)``: the paper's own front end, Intensity-ICP against the keyframes;
 - ``karto``: OpenKarto's sequential correlative matcher (:mod:`tests.bench.slam_peers`).
 

@@ -28,11 +28,11 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from numeric.memory import return_large_frees  # noqa: E402
-from numeric.slam.datasets import slam_data_dir  # noqa: E402
-from numeric.slam.evaluation import relation_errors  # noqa: E402
-from numeric.slam.graph import GraphSlam, GraphSlamConfig  # noqa: E402
-from numeric.slam.logs import read_log, read_relations  # noqa: E402
+from chizu.numeric.memory import return_large_frees  # noqa: E402
+from chizu.numeric.slam.datasets import slam_data_dir  # noqa: E402
+from chizu.numeric.slam.evaluation import relation_errors  # noqa: E402
+from chizu.numeric.slam.graph import GraphSlam, GraphSlamConfig  # noqa: E402
+from chizu.numeric.slam.logs import read_log, read_relations  # noqa: E402
 from tests.bench.results import write_page  # noqa: E402
 from tests.bench.slam import LOGS  # noqa: E402
 

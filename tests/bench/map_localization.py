@@ -25,14 +25,14 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
-from numeric.geometry import compose  # noqa: E402
-from numeric.scan import LaserLog  # noqa: E402
-from numeric.slam.datasets import slam_data_dir  # noqa: E402
-from numeric.slam.evaluation import relation_errors  # noqa: E402
-from numeric.slam.logs import read_log, read_relations  # noqa: E402
-from numeric.slam.map_localization import LocalizationRun, localize_log  # noqa: E402
-from numeric.slam.runner import SlamOptions, run_log  # noqa: E402
-from numeric.slam.saved_map import saved_map_of_log  # noqa: E402
+from chizu.numeric.geometry import compose  # noqa: E402
+from chizu.numeric.scan import LaserLog  # noqa: E402
+from chizu.numeric.slam.datasets import slam_data_dir  # noqa: E402
+from chizu.numeric.slam.evaluation import relation_errors  # noqa: E402
+from chizu.numeric.slam.logs import read_log, read_relations  # noqa: E402
+from chizu.numeric.slam.map_localization import LocalizationRun, localize_log  # noqa: E402
+from chizu.numeric.slam.runner import SlamOptions, run_log  # noqa: E402
+from chizu.numeric.slam.saved_map import saved_map_of_log  # noqa: E402
 from tests.bench.results import mode, write_page  # noqa: E402
 
 DATA = slam_data_dir() or Path("../shared/data/slam")

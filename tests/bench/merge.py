@@ -25,12 +25,12 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
-from numeric.scan import LaserLog  # noqa: E402
-from numeric.slam.evaluation import relation_errors  # noqa: E402
-from numeric.slam.logs import read_log, read_relations  # noqa: E402
-from numeric.slam.merge import merge, resume  # noqa: E402
-from numeric.slam.runner import SlamOptions, run_log  # noqa: E402
-from numeric.slam.saved_map import saved_map_of_log  # noqa: E402
+from chizu.numeric.scan import LaserLog  # noqa: E402
+from chizu.numeric.slam.evaluation import relation_errors  # noqa: E402
+from chizu.numeric.slam.logs import read_log, read_relations  # noqa: E402
+from chizu.numeric.slam.merge import merge, resume  # noqa: E402
+from chizu.numeric.slam.runner import SlamOptions, run_log  # noqa: E402
+from chizu.numeric.slam.saved_map import saved_map_of_log  # noqa: E402
 from tests.bench.map_localization import CASES, DATA, LOGS, split  # noqa: E402
 from tests.bench.results import mode, write_page  # noqa: E402
 

@@ -24,11 +24,11 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from numeric.world import WorldDescription  # noqa: E402
-from numeric.worlds import random_mission_world  # noqa: E402
-from service.executors import batch_executor  # noqa: E402
-from service.mission import MissionConfig  # noqa: E402
-from service.mission_batch import run_missions  # noqa: E402
+from chizu.numeric.world import WorldDescription  # noqa: E402
+from chizu.numeric.worlds import random_mission_world  # noqa: E402
+from chizu.service.executors import batch_executor  # noqa: E402
+from chizu.service.mission import MissionConfig  # noqa: E402
+from chizu.service.mission_batch import run_missions  # noqa: E402
 from tests.bench.results import FULL, write_page  # noqa: E402
 
 OUT = ROOT / "bench-out"

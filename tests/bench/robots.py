@@ -35,12 +35,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from numeric.geometry import compose  # noqa: E402
-from numeric.scan import LaserLog  # noqa: E402
-from numeric.slam.evaluation import relation_errors  # noqa: E402
-from numeric.slam.logs import read_log, read_relations  # noqa: E402
-from numeric.slam.runner import SlamOptions, run_log  # noqa: E402
-from numeric.slam.saved_map import from_bytes  # noqa: E402
+from chizu.numeric.geometry import compose  # noqa: E402
+from chizu.numeric.scan import LaserLog  # noqa: E402
+from chizu.numeric.slam.evaluation import relation_errors  # noqa: E402
+from chizu.numeric.slam.logs import read_log, read_relations  # noqa: E402
+from chizu.numeric.slam.runner import SlamOptions, run_log  # noqa: E402
+from chizu.numeric.slam.saved_map import from_bytes  # noqa: E402
 from tests.bench.map_localization import DATA, LOGS  # noqa: E402
 from tests.bench.results import mode, write_page  # noqa: E402
 from tests.bench.slam_stream import Server, pct, scan_dict  # noqa: E402

@@ -22,8 +22,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from numeric.qualitative.drm import build_drm, edges_from_records, max_probability_path  # noqa: E402
-from numeric.qualitative.navigation import (  # noqa: E402
+from chizu.numeric.qualitative.drm import build_drm, edges_from_records, max_probability_path  # noqa: E402
+from chizu.numeric.qualitative.navigation import (  # noqa: E402
     NavConfig,
     estimate_landmark_positions,
     execute_drm_path,
@@ -31,13 +31,13 @@ from numeric.qualitative.navigation import (  # noqa: E402
     execute_quantitative_tracked,
     quantitative_route,
 )
-from numeric.qualitative.survey import survey  # noqa: E402
-from numeric.simulator import LandmarkObserver, ObserverConfig, OdometryConfig, Robot  # noqa: E402
-from numeric.world import World  # noqa: E402
-from numeric.worlds import office_world  # noqa: E402
-from service.kb import KnowledgeBase  # noqa: E402
-from service.settings import PROLOG_DIR  # noqa: E402
-from service.worlds import WorldService  # noqa: E402
+from chizu.numeric.qualitative.survey import survey  # noqa: E402
+from chizu.numeric.simulator import LandmarkObserver, ObserverConfig, OdometryConfig, Robot  # noqa: E402
+from chizu.numeric.world import World  # noqa: E402
+from chizu.numeric.worlds import office_world  # noqa: E402
+from chizu.service.kb import KnowledgeBase  # noqa: E402
+from chizu.service.settings import PROLOG_DIR  # noqa: E402
+from chizu.service.worlds import WorldService  # noqa: E402
 from tests.bench.results import FULL, write_page  # noqa: E402
 from tests.conftest import LiveServer  # noqa: E402
 

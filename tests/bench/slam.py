@@ -29,20 +29,20 @@ from typing import Any
 
 import numpy as np
 
-from numeric.geometry import compose, invert, relative, wrap_angle
-from numeric.scan import LaserLog
-from numeric.slam.datasets import slam_data_dir
-from numeric.slam.evaluation import (
+from chizu.numeric.geometry import compose, invert, relative, wrap_angle
+from chizu.numeric.scan import LaserLog
+from chizu.numeric.slam.datasets import slam_data_dir
+from chizu.numeric.slam.evaluation import (
     LOCAL_MAX_GAP_S,
     LOCAL_ODOM_OK_M,
     LOCAL_OFF_M,
     local_failures,
     relation_errors,
 )
-from numeric.slam.logs import read_log, read_relations
-from numeric.slam.matching.intensity_icp import IcpConfig, Reference, intensity_icp
-from numeric.slam.runner import SlamOptions, SlamResult, run_log
-from numeric.slam.simulate import simulated_log
+from chizu.numeric.slam.logs import read_log, read_relations
+from chizu.numeric.slam.matching.intensity_icp import IcpConfig, Reference, intensity_icp
+from chizu.numeric.slam.runner import SlamOptions, SlamResult, run_log
+from chizu.numeric.slam.simulate import simulated_log
 
 DATA = slam_data_dir() or Path("../shared/data/slam")
 LOGS = [("aces", "aces.recon.clf"), ("mit-csail", "mit-csail.clf"),
@@ -94,7 +94,7 @@ def one_run(name: str, label: str, quick: bool, out: Path,
     memory of this process; writes the trajectory and (seed 0) the map under ``out``."""
     import resource
 
-    from numeric.slam.logs import write_tum
+    from chizu.numeric.slam.logs import write_tum
 
     f = dict(LOGS)[name]
     log = read_log(DATA / name / f)
@@ -186,7 +186,7 @@ def accuracy(quick: bool, out: Path, names: list[str], labels: list[str],
              lines: list[str], executor: Executor | None = None, seeds: tuple[int, ...] = (0,),
              ) -> list[Row]:
     """Every (log, method) run, each in a fresh process: one after the other here, or
-    all at once on ``executor`` (a Dask cluster's, :mod:`service.executors`; its
+    all at once on ``executor`` (a Dask cluster's, :mod:`chizu.service.executors`; its
     workers need this repository at the same path). Runs side by side share the cores:
     their times and real-time factors are then not the figures of a run alone. The
     particle filters run once per seed of ``seeds``, the others once."""
@@ -354,9 +354,9 @@ def reference_scan_fit(lines: list[str]) -> None:
     correcting it by at least 0.1 m or 2°; one that *improves* on it scores 0.05 more.
     Where references are contradicted in stretches, every method's relation error there
     (chizu's and the published ones alike) carries the references' own error."""
-    from numeric.probability_grid import GridConfig, ProbabilityGrid
-    from numeric.slam.keyframes import connect_returns
-    from numeric.slam.matching.correlative import PrecomputedGrid
+    from chizu.numeric.probability_grid import GridConfig, ProbabilityGrid
+    from chizu.numeric.slam.keyframes import connect_returns
+    from chizu.numeric.slam.matching.correlative import PrecomputedGrid
 
     lines += ["", "## Reference relations against the scans (relations under 5 s)", "",
               "| log | relations | mean score: reference / odometry | reference improves "
@@ -463,7 +463,7 @@ EXPLAIN = {"quick": "the first 1500 scans of each log (relations inside that spa
 
 
 def main() -> None:
-    from service.executors import batch_executor
+    from chizu.service.executors import batch_executor
     from tests.bench.results import mode, write_page
 
     ap = parser()

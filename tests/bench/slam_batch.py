@@ -18,9 +18,9 @@ import numpy as np
 
 
 def main() -> None:
-    from numeric.slam.batch import run_batch, tasks_for
-    from numeric.slam.datasets import slam_data_dir
-    from service.executors import batch_executor
+    from chizu.numeric.slam.batch import run_batch, tasks_for
+    from chizu.numeric.slam.datasets import slam_data_dir
+    from chizu.service.executors import batch_executor
     from tests.bench.results import mode, write_page
 
     ap = argparse.ArgumentParser()

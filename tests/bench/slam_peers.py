@@ -38,11 +38,11 @@ from typing import Any
 
 import numpy as np
 
-from numeric.geometry import compose, invert, place, relative
-from numeric.scan import LaserLog, Scan
-from numeric.slam.datasets import slam_data_dir
-from numeric.slam.evaluation import poses_at, relation_errors
-from numeric.slam.logs import read_log, read_relations
+from chizu.numeric.geometry import compose, invert, place, relative
+from chizu.numeric.scan import LaserLog, Scan
+from chizu.numeric.slam.datasets import slam_data_dir
+from chizu.numeric.slam.evaluation import poses_at, relation_errors
+from chizu.numeric.slam.logs import read_log, read_relations
 
 DATA = slam_data_dir() or Path("../shared/data/slam")
 LOGS = [("aces", "aces.recon.clf"), ("mit-csail", "mit-csail.clf"),

@@ -49,9 +49,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from numeric.scan import Scan  # noqa: E402
-from numeric.slam.datasets import slam_data_dir  # noqa: E402
-from numeric.slam.logs import read_log  # noqa: E402
+from chizu.numeric.scan import Scan  # noqa: E402
+from chizu.numeric.slam.datasets import slam_data_dir  # noqa: E402
+from chizu.numeric.slam.logs import read_log  # noqa: E402
 from tests.conftest import LiveServer  # noqa: E402
 
 WORLD = "stream"
@@ -549,7 +549,7 @@ def report(results: list[Stream], size_rows: list[list[str]], intro: str,
 
 
 def main() -> None:
-    from service.settings import Settings
+    from chizu.service.settings import Settings
     from tests.bench.results import mode, write_page
 
     ap = parser()

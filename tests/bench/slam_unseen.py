@@ -4,8 +4,8 @@
                                                 [--methods odom,karto,graph,rbpf]
 
 Every parameter of chizu's SLAM was chosen on the four Freiburg logs. This bench drives
-the simulator (one world model, one laser model, one odometry model: ``numeric.worlds``,
-``numeric.laser``, ``numeric.simulator``) through office floors made from a seed -- 3 to
+the simulator (one world model, one laser model, one odometry model: ``chizu.numeric.worlds``,
+``chizu.numeric.laser``, ``chizu.numeric.simulator``) through office floors made from a seed -- 3 to
 5 rooms a side of random width and depth, a corridor of random width -- on a tour that
 visits every room's doorway and centre on the way down the corridor and back, then
 re-enters the first room (so the last part of the tour returns to places seen 2-5
@@ -31,11 +31,11 @@ from pathlib import Path
 
 import numpy as np
 
-from numeric.geometry import relative, wrap_angle
-from numeric.scan import LaserLog
-from numeric.slam.evaluation import RelationErrors, relation_errors
-from numeric.slam.runner import SlamOptions, run_log
-from numeric.slam.simulate import office_log
+from chizu.numeric.geometry import relative, wrap_angle
+from chizu.numeric.scan import LaserLog
+from chizu.numeric.slam.evaluation import RelationErrors, relation_errors
+from chizu.numeric.slam.runner import SlamOptions, run_log
+from chizu.numeric.slam.simulate import office_log
 
 LOOP_GAP_S = 60.0
 

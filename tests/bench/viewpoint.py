@@ -23,10 +23,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from numeric.figures import plan_figure, run_figure  # noqa: E402
-from numeric.viewpoint.grid import TravelMap, look_around, scanned_grid, true_grid  # noqa: E402
-from numeric.viewpoint.online import Summariser, SummaryConfig  # noqa: E402
-from numeric.viewpoint.plan import (  # noqa: E402
+from chizu.numeric.figures import plan_figure, run_figure  # noqa: E402
+from chizu.numeric.viewpoint.grid import TravelMap, look_around, scanned_grid, true_grid  # noqa: E402
+from chizu.numeric.viewpoint.online import Summariser, SummaryConfig  # noqa: E402
+from chizu.numeric.viewpoint.plan import (  # noqa: E402
     DP_AUTO_MAX,
     GroupCost,
     Loss,
@@ -36,12 +36,12 @@ from numeric.viewpoint.plan import (  # noqa: E402
     solve_bnb,
     solve_exhaustive,
 )
-from numeric.viewpoint.planner import PlanRequest, ViewpointPlanner, geodesic  # noqa: E402
-from numeric.viewpoint.verification import TableCache  # noqa: E402
-from numeric.world import World  # noqa: E402
-from numeric.worlds import SUMMARY_DOOR, summary_room  # noqa: E402
-from service.cli import DEFAULT_TYPES  # noqa: E402
-from service.viewpoint import local_grouper  # noqa: E402
+from chizu.numeric.viewpoint.planner import PlanRequest, ViewpointPlanner, geodesic  # noqa: E402
+from chizu.numeric.viewpoint.verification import TableCache  # noqa: E402
+from chizu.numeric.world import World  # noqa: E402
+from chizu.numeric.worlds import SUMMARY_DOOR, summary_room  # noqa: E402
+from chizu.service.cli import DEFAULT_TYPES  # noqa: E402
+from chizu.service.viewpoint import local_grouper  # noqa: E402
 from tests.bench.results import FULL, write_page  # noqa: E402
 
 OUT = ROOT / "bench-out"
@@ -287,7 +287,7 @@ def branch_and_bound(lines: list[str], quick: bool) -> None:
 def cluster_scene(k: int, seed: int = 0) -> tuple[PlanRequest, Any]:
     """A 10 m x 10 m room with one cluster of k objects of type A (one group) in its
     middle, the robot at the door; the true map."""
-    from numeric.world import Wall, WorldDescription, WorldObject
+    from chizu.numeric.world import Wall, WorldDescription, WorldObject
 
     rng = np.random.default_rng(seed)
     side = 1.2 + 0.5 * np.sqrt(k)  # ~1 m between neighbours: one group
@@ -314,7 +314,7 @@ def cluster_scene(k: int, seed: int = 0) -> tuple[PlanRequest, Any]:
 def group_size(grouper: Any, lines: list[str], quick: bool) -> None:
     """Planning time against objects per group, 1-16: exact local plans up to
     ``EXACT_GROUP`` objects, a bound beyond, and how far the bound is from exact."""
-    from numeric.viewpoint import verification as ver
+    from chizu.numeric.viewpoint import verification as ver
 
     lines += ["## Planning time vs objects per group (local plan: t_seq, t_par)", "",
               "One cluster of k objects of type A (one group) in a 10 m room, the true map; "
@@ -368,7 +368,7 @@ def group_size_figure(ks: list[int], first: list[float], again: list[float]) -> 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from numeric.viewpoint import verification as ver
+    from chizu.numeric.viewpoint import verification as ver
 
     fig, ax = plt.subplots(figsize=(5, 3.5))
     ax.plot(ks, first, "o-", label="first plan")
@@ -390,7 +390,7 @@ def online(grouper: Any, lines: list[str]) -> None:
               "| loss | t_limit (s) | took (s) | verified | rejected | explored | re-plans |",
               "|---|---|---|---|---|---|---|"]
     w = World(summary_room())
-    from numeric.viewpoint.planner import ObjectType
+    from chizu.numeric.viewpoint.planner import ObjectType
 
     types = [ObjectType.model_validate(t) for t in TYPES]
     for loss, limit in (("L3", 300.0), ("L2", 55.0), ("L1", 55.0), ("L2", 40.0),
@@ -410,8 +410,8 @@ def online_random(grouper: Any, lines: list[str], quick: bool) -> None:
     """The online loop in rooms nobody tuned on, with cabinets in the way: does
     it keep L1's time limit, with travel along shortest paths vs straight lines; and the
     re-plan times over the whole runs."""
-    from numeric.viewpoint.planner import ObjectType, ViewpointPlanner
-    from numeric.worlds import random_summary_room
+    from chizu.numeric.viewpoint.planner import ObjectType, ViewpointPlanner
+    from chizu.numeric.worlds import random_summary_room
 
     rooms = 6 if quick else 20
     limit = 40.0
@@ -464,8 +464,8 @@ def estimates(grouper: Any, lines: list[str], quick: bool) -> None:
     plus the expected verification time of §5, eq. 6's tables with straight legs
     between the viewpoints of a group) matches what the executed verification took, in
     the random rooms without a time limit (L3)."""
-    from numeric.viewpoint.planner import ObjectType, PlanReport, ViewpointPlanner
-    from numeric.worlds import random_summary_room
+    from chizu.numeric.viewpoint.planner import ObjectType, PlanReport, ViewpointPlanner
+    from chizu.numeric.worlds import random_summary_room
 
     rooms = 6 if quick else 20
     types = [ObjectType.model_validate(t) for t in TYPES]

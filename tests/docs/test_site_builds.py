@@ -61,7 +61,7 @@ def modules_without_a_page(site: Path) -> list[str]:
 
 
 def routes_not_on_the_http_page(site: Path) -> list[str]:
-    from service.app import create_app
+    from chizu.service.app import create_app
 
     page = (site / "http-api" / "index.html").read_text()
     paths = list(create_app().openapi()["paths"])
@@ -88,7 +88,7 @@ def test_the_site_builds_strict_with_every_module_route_and_nothing_remote(
 
 
 def test_sphinx_roles_become_code() -> None:
-    text = "see :func:`run_log`, :class:`~numeric.scan.Scan` and :py:mod:`numeric`"
+    text = "see :func:`run_log`, :class:`~chizu.numeric.scan.Scan` and :py:mod:`numeric`"
     assert hooks.ROLE.sub(hooks.role_to_code, text) == "see `run_log`, `Scan` and `numeric`"
 
 

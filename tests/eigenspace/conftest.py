@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import pytest
 
-from numeric.eigenspace.analysis import EigenspaceAnalysis, EigenspaceConfig, analyse
-from numeric.world import World
-from numeric.worlds import room_a
+from chizu.numeric.eigenspace.analysis import EigenspaceAnalysis, EigenspaceConfig, analyse
+from chizu.numeric.world import World
+from chizu.numeric.worlds import room_a
 
 SMALL = {"camera": {"width_px": 32, "height_px": 16}, "learning": {"k": 12},
          "entry": {"samples": 30}, "regions": {"calibration_per_triplet": 2}}

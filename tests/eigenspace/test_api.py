@@ -12,9 +12,9 @@ import pytest
 from fastapi.testclient import TestClient
 from PIL import Image
 
-from numeric.geometry import wrap_angle
-from service.app import create_app
-from service.settings import Settings
+from chizu.numeric.geometry import wrap_angle
+from chizu.service.app import create_app
+from chizu.service.settings import Settings
 
 SMALL = {"camera": {"width_px": 32, "height_px": 16}, "learning": {"k": 12},
          "entry": {"samples": 30}, "regions": {"calibration_per_triplet": 2},

@@ -6,12 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from numeric.camera import Camera
-from numeric.eigenspace.analysis import EigenspaceAnalysis
-from numeric.eigenspace.diagnosis import refusal
-from numeric.eigenspace.localization import LocalizationConfig, Session, TurnCandidates
-from numeric.world import World
-from numeric.worlds import CAMERA_ROOM_SHAPES, random_camera_room
+from chizu.numeric.camera import Camera
+from chizu.numeric.eigenspace.analysis import EigenspaceAnalysis
+from chizu.numeric.eigenspace.diagnosis import refusal
+from chizu.numeric.eigenspace.localization import LocalizationConfig, Session, TurnCandidates
+from chizu.numeric.world import World
+from chizu.numeric.worlds import CAMERA_ROOM_SHAPES, random_camera_room
 
 
 def no_hits() -> TurnCandidates:

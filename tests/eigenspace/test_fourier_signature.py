@@ -6,12 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from numeric.camera import Camera, CameraConfig
-from numeric.eigenspace.fourier_signature import FourierMap, panorama, phase_lag, signature
-from numeric.errors import InvalidInput
-from numeric.geometry import wrap_angle
-from numeric.world import World
-from numeric.worlds import room_a
+from chizu.numeric.camera import Camera, CameraConfig
+from chizu.numeric.eigenspace.fourier_signature import FourierMap, panorama, phase_lag, signature
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.geometry import wrap_angle
+from chizu.numeric.world import World
+from chizu.numeric.worlds import room_a
 
 N = 72
 

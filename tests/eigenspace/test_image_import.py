@@ -19,14 +19,14 @@ import pytest
 from fastapi.testclient import TestClient
 from PIL import Image
 
-from numeric.camera import Camera
-from numeric.eigenspace.analysis import (
+from chizu.numeric.camera import Camera
+from chizu.numeric.eigenspace.analysis import (
     EigenspaceAnalysis,
     EigenspaceConfig,
     analyse_images,
     render_image_set,
 )
-from numeric.eigenspace.image_sets import (
+from chizu.numeric.eigenspace.image_sets import (
     POSES_FILE,
     ImageSet,
     decode_image,
@@ -35,10 +35,10 @@ from numeric.eigenspace.image_sets import (
     read_image_set,
     write_image_folder,
 )
-from numeric.eigenspace.localization import Session, turn_candidates
-from numeric.errors import InvalidInput
-from numeric.world import World
-from numeric.worlds import room_a
+from chizu.numeric.eigenspace.localization import Session, turn_candidates
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.world import World
+from chizu.numeric.worlds import room_a
 
 # the simulator drops triplets whose regions place its probe turns wrong (a folder
 # has no turns of known pose to probe with): off, so both learn the same triplets
@@ -294,7 +294,7 @@ def test_cli_export_learn_localize(tmp_path: Path) -> None:
     env = {**os.environ, "CHIZU_DATA_DIR": str(tmp_path / "var"), "CHIZU_DEMO_WORLD": ""}
 
     def run(*args: str) -> subprocess.CompletedProcess[str]:
-        return subprocess.run([sys.executable, "-m", "service.cli", "eigenspace", *args],
+        return subprocess.run([sys.executable, "-m", "chizu.service.cli", "eigenspace", *args],
                               env=env, capture_output=True, text=True, timeout=300)
 
     cfg = tmp_path / "small.json"

@@ -7,12 +7,17 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from numeric.camera import Camera, CameraConfig
-from numeric.eigenspace.analysis import EigenspaceAnalysis, EigenspaceConfig, analyse, free_grid
-from numeric.eigenspace.interpolation import affine_weights, interpolate_pose
-from numeric.eigenspace.learning import LearningStrategyConfig, f_d, learning_grid
-from numeric.eigenspace.learning_strategy import hypothetical_gain
-from numeric.eigenspace.localization import (
+from chizu.numeric.camera import Camera, CameraConfig
+from chizu.numeric.eigenspace.analysis import (
+    EigenspaceAnalysis,
+    EigenspaceConfig,
+    analyse,
+    free_grid,
+)
+from chizu.numeric.eigenspace.interpolation import affine_weights, interpolate_pose
+from chizu.numeric.eigenspace.learning import LearningStrategyConfig, f_d, learning_grid
+from chizu.numeric.eigenspace.learning_strategy import hypothetical_gain
+from chizu.numeric.eigenspace.localization import (
     LocalizationConfig,
     Session,
     TurnCandidates,
@@ -22,7 +27,7 @@ from numeric.eigenspace.localization import (
     turn_candidates,
     whole_turn_interpolation,
 )
-from numeric.eigenspace.movement_strategy import (
+from chizu.numeric.eigenspace.movement_strategy import (
     RegionLayout,
     StateBelief,
     StrategyConfig,
@@ -32,17 +37,17 @@ from numeric.eigenspace.movement_strategy import (
     session_belief,
     transition,
 )
-from numeric.eigenspace.regions import (
+from chizu.numeric.eigenspace.regions import (
     EntryModel,
     RegionConfig,
     false_admissions,
     fit_c_a,
     fit_entry_model,
 )
-from numeric.eigenspace.triplets import TripletConfig, Triplets
-from numeric.geometry import compose, invert, relative, wrap_angle
-from numeric.world import Wall, World, WorldDescription
-from numeric.worlds import room_a, room_b, room_c, room_d, twin_hexagon
+from chizu.numeric.eigenspace.triplets import TripletConfig, Triplets
+from chizu.numeric.geometry import compose, invert, relative, wrap_angle
+from chizu.numeric.world import Wall, World, WorldDescription
+from chizu.numeric.worlds import room_a, room_b, room_c, room_d, twin_hexagon
 from tests.eigenspace.conftest import SMALL
 
 
@@ -164,7 +169,7 @@ def test_learning_image_of_a_triplet_lies_in_its_region(analysis: EigenspaceAnal
     m, t = analysis.model, analysis.triplets
     w, j = t.point_idx[0, 1], t.dir_idx[0, 1]
     imgs_proj = m.projections[w]  # the learning turn at w
-    from numeric.eigenspace.regions import region_candidates
+    from chizu.numeric.eigenspace.regions import region_candidates
 
     c = region_candidates(m, t, imgs_proj, analysis.c_a, analysis.config.regions.d_thd_m)
     hit = (c.t == 0) & (c.m == j)
@@ -228,7 +233,7 @@ def test_the_learned_turns_show_a_rooms_symmetry(hexagon: tuple[World, Eigenspac
     """The twin hexagon is symmetric under a half turn about (5, 4): its grid points'
     turns are matched by far points' turns turned by 180 deg, and those pairs agree on
     that motion. Room A has no twins."""
-    from numeric.eigenspace.twins import twin_transform
+    from chizu.numeric.eigenspace.twins import twin_transform
 
     t = twin_transform(hexagon[1].model)
     assert t is not None and t.pairs >= 8
@@ -243,8 +248,8 @@ def test_the_learning_strategy_learns_an_added_points_twin_in_a_symmetric_room(
     candidate-multiple set, and a turn at its twin place enters them and is placed on
     the wrong side. Learned with its twin, the added triplets are grouped with the
     twin's (§3.3): no hit outside a set is placed wrong, and no turn there is answered."""
-    from numeric.eigenspace.learning_strategy import learning_strategy
-    from numeric.eigenspace.twins import twin_transform
+    from chizu.numeric.eigenspace.learning_strategy import learning_strategy
+    from chizu.numeric.eigenspace.twins import twin_transform
 
     w, base = hexagon
     cfg = base.config
@@ -549,7 +554,7 @@ def test_learning_strategy_does_not_learn_where_a_point_is(
         analysis: EigenspaceAnalysis, room: World, monkeypatch: pytest.MonkeyPatch) -> None:
     """A candidate that already has a learning point is no candidate: when its triplets
     are all rejected it gains nothing, stays the best, and was learned again and again."""
-    import numeric.eigenspace.learning_strategy as ls
+    import chizu.numeric.eigenspace.learning_strategy as ls
 
     cfg = ls.LearningStrategyConfig()
     spot = free_grid(room, cfg.candidate_spacing_m)[40]
@@ -565,7 +570,7 @@ def test_learning_strategy_does_not_learn_where_a_point_is(
 
 
 def test_learn_with_strategy_adds_points_and_keeps_the_trace(room: World) -> None:
-    from numeric.eigenspace.learning_strategy import learn_with_strategy
+    from chizu.numeric.eigenspace.learning_strategy import learn_with_strategy
 
     cfg = EigenspaceConfig.model_validate({
         **SMALL, "strategy": {"n_samples": 40},
@@ -593,7 +598,7 @@ def test_a_region_that_places_near_probes_wrong_is_rejected(
     """A probe turn 1.3 m from a triplet (not far: the far test lets it pass) that the
     region admits and eq. 5 places 1.3 m off makes the triplet imprecise: it goes
     with ``max_wrong_share``, and stays with it off."""
-    from numeric.eigenspace.analysis import (
+    from chizu.numeric.eigenspace.analysis import (
         EntryObservations,
         far_admissions,
         probe_validated,
@@ -632,7 +637,7 @@ def test_probes_from_far_away_reject_a_region_that_admits_them(
     """A turn of known pose that looks like a triplet's own images but is taken far from
     it is a look-alike place: the triplet goes, unless a candidate-multiple set covers
     it (state Y), or it is not among the triplets to test."""
-    from numeric.eigenspace.analysis import EntryObservations, far_admissions, probe_validated
+    from chizu.numeric.eigenspace.analysis import EntryObservations, far_admissions, probe_validated
 
     a, cfg = analysis, analysis.config
     t = 0

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from numeric.world import World
-from numeric.worlds import MISSION_ROOM, mission_world, office_world
+from chizu.numeric.world import World
+from chizu.numeric.worlds import MISSION_ROOM, mission_world, office_world
 
 #: a coarse eigenspace: small images, 36 directions, the mission's 1 m grid
 SMALL = {"eigenspace": {"camera": {"width_px": 32, "height_px": 16, "supersample": 1},
@@ -90,22 +90,24 @@ def test_record_survives_a_restart(tmp_path_factory: pytest.TempPathFactory) -> 
     """A second app on a fresh data dir, one quick mission that stops early (a start
     region with no free space is refused; a goal far away is not): the record is stored
     and comes back after a restart."""
-    from service.app import create_app
-    from service.settings import Settings
+    from chizu.service.app import create_app
+    from chizu.service.client import Client
+    from chizu.service.settings import Settings
 
     settings = Settings(data_dir=tmp_path_factory.mktemp("mission_restart"), demo_world=None)
+    with TestClient(create_app(settings)) as c:  # through the typed client
+        chizu = Client(http=c)
+        chizu.worlds.create_world({"name": "m", "template": "mission"})
+        job = chizu.mission.post_mission("m", {**SMALL, "seed": 5, "max_stops": 1})
+        assert chizu.wait_job(job, timeout_s=300).status == "done"
+        steps = chizu.mission.get_mission("m").steps
+        assert steps and steps[-1].what == "evaluation"
     with TestClient(create_app(settings)) as c:
-        assert c.post("/worlds", json={"name": "m", "template": "mission"}).status_code == 201
-        r = c.post("/worlds/m/missions", json={**SMALL, "seed": 5, "max_stops": 1})
-        job = wait_job(c, r.headers["location"])
-        assert job["status"] == "done", job
-        steps = c.get("/worlds/m/mission").json()["steps"]
-        assert steps and steps[-1]["what"] == "evaluation"
-    with TestClient(create_app(settings)) as c:
-        assert c.get("/worlds/m/mission").json()["steps"] == steps
-        r = c.post("/worlds/m/query", json={"goal": "mission_step(S, W, R)",
-                                            "max_solutions": 100})
-        assert len(r.json()["solutions"]) == len(steps)
+        chizu = Client(http=c)
+        assert chizu.mission.get_mission("m").steps == steps
+        q = chizu.qualitative.post_query("m", {"goal": "mission_step(S, W, R)",
+                                               "max_solutions": 100})
+        assert len(q.solutions) == len(steps)
 
 
 @pytest.mark.parametrize(("body", "status", "field"), [
@@ -167,7 +169,7 @@ def test_inside_gapped_and_huge_worlds() -> None:
     """A room with a doorway in its outer wall encloses nothing: the even-odd rule decides
     (its floor stays free); walls millions of metres long rasterise coarsely, not into
     gigabytes."""
-    from numeric.world import Wall, WorldDescription
+    from chizu.numeric.world import Wall, WorldDescription
 
     gap = [Wall(a=(0, 0), b=(10, 0)), Wall(a=(10, 0), b=(10, 10)),
            Wall(a=(10, 10), b=(6, 10)), Wall(a=(5, 10), b=(0, 10)), Wall(a=(0, 10), b=(0, 0))]
@@ -214,9 +216,9 @@ def test_one_mission_per_world(client: TestClient, mission_run: dict[str, Any]) 
 def test_the_evaluation_judges_a_trace_against_the_truth(tmp_path: Any) -> None:
     """numeric.mission.evaluate without a run: the anchored pose's errors (0.5 m and
     30 degrees at most), the objects verified, a false one; and the figure of the trace."""
-    from numeric.figures import mission_figure
-    from numeric.mission import MissionTrace, evaluate
-    from numeric.viewpoint.online import SummaryRun
+    from chizu.numeric.figures import mission_figure
+    from chizu.numeric.mission import MissionTrace, evaluate
+    from chizu.numeric.viewpoint.online import SummaryRun
 
     w = World(mission_world())
     trace = MissionTrace(truth_path=[np.array([1.0, 1.0, 0.0]), np.array([3.0, 1.0, 0.0])],

@@ -11,14 +11,14 @@ from typing import Any
 
 import pytest
 
-import service.mission as mission_module
-from numeric.slam.merge import runs_of
-from numeric.slam.saved_map import from_bytes
-from numeric.world import WorldDescription
-from service.container import Services, open_services
-from service.mission import MissionConfig, MissionRun
-from service.settings import Settings
-from service.slam import SAVED_MAP_ARTIFACT
+import chizu.service.mission as mission_module
+from chizu.numeric.slam.merge import runs_of
+from chizu.numeric.slam.saved_map import from_bytes
+from chizu.numeric.world import WorldDescription
+from chizu.service.container import Services, open_services
+from chizu.service.mission import MissionConfig, MissionRun
+from chizu.service.settings import Settings
+from chizu.service.slam import SAVED_MAP_ARTIFACT
 from tests.mission.test_end_to_end import SMALL
 
 

@@ -51,7 +51,7 @@ def test_chizu_repl_loads_world(tmp_path: Path) -> None:
 
     env = {**os.environ, "CHIZU_DATA_DIR": str(tmp_path)}
     q = "forall(reachable(c0, X, P, M), (write(X-M), nl)).\nhalt.\n"
-    r = subprocess.run([sys.executable, "-m", "service.cli", "repl", "demo"], input=q,
+    r = subprocess.run([sys.executable, "-m", "chizu.service.cli", "repl", "demo"], input=q,
                        capture_output=True, text=True, timeout=120, env=env,
                        cwd=PROLOG.parent)
     assert "world demo loaded" in r.stdout, r.stdout + r.stderr
@@ -62,13 +62,13 @@ def test_chizu_path_cli(tmp_path: Path) -> None:
     import os
 
     env = {**os.environ, "CHIZU_DATA_DIR": str(tmp_path), "COLUMNS": "120"}
-    r = subprocess.run([sys.executable, "-m", "service.cli", "path", "demo", "rn0a", "c1"],
+    r = subprocess.run([sys.executable, "-m", "chizu.service.cli", "path", "demo", "rn0a", "c1"],
                        capture_output=True, text=True, timeout=120, env=env, cwd=PROLOG.parent)
     assert r.returncode == 0, r.stdout + r.stderr
     assert "rn0a" in r.stdout and "move1" in r.stdout
     # the engine's exit says nothing (it said "Failed to stop Prolog threads")
     assert "Prolog" not in r.stderr, r.stderr
-    r = subprocess.run([sys.executable, "-m", "service.cli", "path", "demo", "rn0a", "zz"],
+    r = subprocess.run([sys.executable, "-m", "chizu.service.cli", "path", "demo", "rn0a", "zz"],
                        capture_output=True, text=True, timeout=120, env=env, cwd=PROLOG.parent)
     assert r.returncode == 2 and "zz" in r.stdout and "Prolog" not in r.stderr
 

@@ -8,26 +8,26 @@ import networkx as nx
 import numpy as np
 import pytest
 
-from numeric.geometry import (
+from chizu.numeric.geometry import (
     circular_mean,
     line_of_sight,
     ray_cast,
     segments_cross,
     wrap_angle,
 )
-from numeric.observation import Observation, observation_quantities
-from numeric.qualitative.drm import DrmEdge, build_drm, max_probability_path
-from numeric.qualitative.navigation import (
+from chizu.numeric.observation import Observation, observation_quantities
+from chizu.numeric.qualitative.drm import DrmEdge, build_drm, max_probability_path
+from chizu.numeric.qualitative.navigation import (
     NavConfig,
     estimate_landmark_positions,
     execute_drm_path,
     home_on,
     pass_between,
 )
-from numeric.qualitative.survey import survey
-from numeric.simulator import LandmarkObserver, ObserverConfig, OdometryConfig, Robot
-from numeric.world import Landmark, Wall, World, WorldDescription
-from numeric.worlds import office_world
+from chizu.numeric.qualitative.survey import survey
+from chizu.numeric.simulator import LandmarkObserver, ObserverConfig, OdometryConfig, Robot
+from chizu.numeric.world import Landmark, Wall, World, WorldDescription
+from chizu.numeric.worlds import office_world
 
 
 def test_wrap_angle_range() -> None:
@@ -201,7 +201,7 @@ def test_estimate_positions_recovers_map() -> None:
 
 
 def test_reach_any_landmark_from_unknown_pose() -> None:
-    from numeric.qualitative.navigation import reach_any_landmark
+    from chizu.numeric.qualitative.navigation import reach_any_landmark
 
     w = World(office_world())
     rng = np.random.default_rng(11)
@@ -215,7 +215,7 @@ def test_reach_any_landmark_from_unknown_pose() -> None:
 
 
 def test_tracked_metric_baseline_follows_route() -> None:
-    from numeric.qualitative.navigation import (
+    from chizu.numeric.qualitative.navigation import (
         execute_quantitative_tracked,
         localise,
         quantitative_route,

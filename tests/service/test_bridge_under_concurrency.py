@@ -103,8 +103,8 @@ def test_calls_after_close_fail_at_once(tmp_path: Path) -> None:
     import threading
     import time
 
-    from service.kb import KbError, KnowledgeBase
-    from service.settings import Settings
+    from chizu.service.kb import KbError, KnowledgeBase
+    from chizu.service.settings import Settings
 
     kb = KnowledgeBase(Settings(data_dir=tmp_path).prolog_dir, time_limit_s=2.0)
     kb.call("create_world", world="w", landmarks=[f"l{i}" for i in range(60)])

@@ -10,7 +10,7 @@ from typing import Any
 
 from fastapi.testclient import TestClient
 
-from service.kb import KbError, KnowledgeBase
+from chizu.service.kb import KbError, KnowledgeBase
 from tests.service.test_malformed_requests import is_problem
 
 
@@ -70,7 +70,7 @@ def test_a_query_whose_client_left_is_dropped(client: TestClient) -> None:
     import threading
     import time
 
-    from service.disconnect import ClientGone, unless_disconnected
+    from chizu.service.disconnect import ClientGone, unless_disconnected
 
     kb = client.app.state.services.kb  # type: ignore[attr-defined]
     slow = "reachable(A, B, P, M), reachable(C, D, Q, N), reachable(E, F, R, O), fail"

@@ -13,10 +13,10 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from numeric.errors import InvalidInput
-from service.app import create_app
-from service.compute import BudgetExceeded, Cached, ComputePool, WorkerLost, blob_key
-from service.settings import Settings
+from chizu.numeric.errors import InvalidInput
+from chizu.service.app import create_app
+from chizu.service.compute import BudgetExceeded, Cached, ComputePool, WorkerLost, blob_key
+from chizu.service.settings import Settings
 
 
 # -- tasks (module level: the workers import them by name) --------------------------------

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from service.app import create_app
-from service.settings import Settings
+from chizu.service.app import create_app
+from chizu.service.settings import Settings
 from tests.eigenspace.test_api import SMALL, wait_job
 from tests.slam.test_api import scan_json
 
@@ -73,7 +73,7 @@ def test_every_artifact_survives_a_restart_and_reaches_the_repl(tmp_path: Path) 
          "explored_fraction(F), aggregate_all(count, observation_group(_, _, _), NG), "
          "aggregate_all(count, plan_step(_, _, _, _), NS), "
          "format('counts ~w ~w ~w~n', [NT, NG, NS]), F > 0.\nhalt.\n")
-    r = subprocess.run([sys.executable, "-m", "service.cli", "repl", "kb"], input=q,
+    r = subprocess.run([sys.executable, "-m", "chizu.service.cli", "repl", "kb"], input=q,
                        capture_output=True, text=True, timeout=180, env=env, cwd=ROOT)
     assert "world kb loaded" in r.stdout, r.stdout + r.stderr
     assert (f"counts {before['eig_triplet']} {before['vp_group']} {before['vp_plan_step']}"

@@ -1,6 +1,7 @@
-"""Durable jobs: listed, polled and cancelled under /jobs; a job that a shutdown or a
-kill -9 ends is reported ``interrupted`` after the restart; writes acknowledged before
-a kill -9 are all there after it."""
+"""Durable jobs: listed, polled and cancelled under /jobs; a learning job that a shutdown
+or a kill -9 cuts off is queued again at the restart and runs to its end (a kind that
+cannot be re-run is reported ``interrupted``); writes acknowledged before a kill -9 are
+all there after it."""
 
 from __future__ import annotations
 
@@ -14,9 +15,9 @@ from typing import Any
 import httpx
 from fastapi.testclient import TestClient
 
-from service.app import create_app
-from service.schemas.jobs import JobOut
-from service.settings import Settings
+from chizu.service.app import create_app
+from chizu.service.schemas.jobs import JobOut
+from chizu.service.settings import Settings
 from tests.conftest import make_fig1_world, observation
 
 #: a learning long enough to be caught running: full-size images, the learning strategy
@@ -62,17 +63,18 @@ def test_cancel_list_and_bad_ids(tmp_path: Path) -> None:
         assert c.get("/jobs", params={"status": "sleeping"}).status_code == 422
 
 
-def test_a_shutdown_interrupts_running_jobs(tmp_path: Path) -> None:
+def test_a_shutdown_leaves_a_learning_job_for_the_next_start(tmp_path: Path) -> None:
     settings = Settings(data_dir=tmp_path, demo_world="")
     with TestClient(create_app(settings)) as c:
         c.post("/worlds", json={"name": "w", "template": "room_a"})
         jid = c.post("/worlds/w/eigenspace", json=LONG).json()["id"]
         wait_status(lambda: c.get(f"/jobs/{jid}").json(), ("running",))
     with TestClient(create_app(settings)) as c:
-        j = c.get(f"/worlds/w/eigenspace/jobs/{jid}").json()
-        assert j["status"] == "interrupted" and j["result"] is None
-        # and the world can learn again
-        assert c.post("/worlds/w/eigenspace", json=LONG).status_code == 202
+        j = wait_status(lambda: c.get(f"/worlds/w/eigenspace/jobs/{jid}").json(),
+                        ("done", "failed", "interrupted"), timeout_s=600)
+        assert j["status"] == "done" and j["attempts"] == 1, j
+        assert c.get("/worlds/w/eigenspace").json()["learning_points"] == \
+            j["result"]["learning_points"]
 
 
 def test_kill_9_during_a_job_and_a_write_loop(tmp_path: Path,
@@ -111,10 +113,60 @@ def test_kill_9_during_a_job_and_a_write_loop(tmp_path: Path,
     writer.join()
     srv2 = live_server_factory(data)
     with httpx.Client(base_url=srv2.url, timeout=30) as c:
-        assert c.get(f"/jobs/{jid}").json()["status"] == "interrupted"
         n = events(c, "fig") - base
         assert n >= len(acked)  # every acknowledged write is there
         assert n <= len(acked) + 1  # at most the one in flight at the kill
+        # the learning the kill cut off runs again from its stored request
+        j = wait_status(lambda: c.get(f"/jobs/{jid}").json(),
+                        ("done", "failed", "interrupted"), timeout_s=600)
+        assert j["status"] == "done" and j["attempts"] == 1, j
+        assert c.get("/worlds/w/eigenspace").status_code == 200
+
+
+def test_jobs_queued_again_after_a_restart(tmp_path: Path) -> None:
+    """Rows left queued or running by a process that ended: a resumable kind with its
+    request runs again from it (attempts counted); past MAX_ATTEMPTS, without a
+    request, or of a kind that cannot be re-run, the job is interrupted."""
+    import asyncio
+
+    from chizu.service.jobs import MAX_ATTEMPTS, Jobs
+    from chizu.service.store import Store
+
+    store = Store(tmp_path / "s.sqlite3")
+    with store.transaction() as conn:
+        store.insert_world(conn, "w", {"name": "w"})
+    store.insert_job("a", "w", "learn", b"3")
+    store.insert_job("b", "w", "learn", b"4")
+    store.update_job("b", status="running", attempts=MAX_ATTEMPTS)
+    store.insert_job("c", "w", "learn", None)
+    store.insert_job("d", "w", "mission", b"{}")
+    store.update_job("a", status="running", stage="learning", progress=0.5)
+    made: list[tuple[str, bytes]] = []
+
+    def remake(world: str, request: bytes) -> Any:
+        made.append((world, request))
+
+        async def work(progress: Any) -> dict[str, Any]:
+            return {"n": int(request) * 2}
+
+        return work
+
+    jobs = Jobs(store)
+    jobs.resumable("learn", remake)
+
+    async def scenario() -> tuple[int, int]:
+        counts = jobs.resume_unfinished()
+        while jobs.get("a").status in ("queued", "running"):
+            await asyncio.sleep(0.01)
+        return counts
+
+    assert asyncio.run(scenario()) == (1, 3)
+    assert made == [("w", b"3")]
+    a = jobs.get("a")
+    assert (a.status, a.result, a.attempts) == ("done", {"n": 6}, 1)
+    assert [jobs.get(j).status for j in "bcd"] == ["interrupted"] * 3
+    assert jobs.get("b").stage == f"interrupted by {MAX_ATTEMPTS + 1} restarts"
+    store.close()
 
 
 def test_a_job_cancelled_before_it_starts_is_cancelled(tmp_path: Path) -> None:
@@ -122,8 +174,8 @@ def test_a_job_cancelled_before_it_starts_is_cancelled(tmp_path: Path) -> None:
     of that world was a 409; now it ends cancelled and the world can learn again."""
     import asyncio
 
-    from service.jobs import Jobs
-    from service.store import Store
+    from chizu.service.jobs import Jobs
+    from chizu.service.store import Store
 
     store = Store(tmp_path / "s.sqlite3")
     with store.transaction() as conn:
@@ -149,8 +201,8 @@ def test_a_job_past_its_budget_fails_and_says_why(tmp_path: Path) -> None:
     failed with the reason, and the world can start another."""
     import asyncio
 
-    from service.jobs import Jobs
-    from service.store import Store
+    from chizu.service.jobs import Jobs
+    from chizu.service.store import Store
 
     store = Store(tmp_path / "s.sqlite3")
     with store.transaction() as conn:

@@ -7,7 +7,7 @@ from urllib.parse import quote
 import pytest
 from fastapi.testclient import TestClient
 
-from service.kb import KbError
+from chizu.service.kb import KbError
 from tests.conftest import make_fig1_world, observation
 
 PAYLOADS = [

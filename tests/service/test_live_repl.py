@@ -13,7 +13,7 @@ import httpx
 import pytest
 from fastapi.testclient import TestClient
 
-from service.live_repl import LiveRepl, ReplError, check_local
+from chizu.service.live_repl import LiveRepl, ReplError, check_local
 from tests.conftest import LiveServer
 
 
@@ -101,7 +101,7 @@ def test_the_cli_finds_the_service_where_chizu_port_says(tmp_path: Path) -> None
     try:
         env = {**os.environ, "CHIZU_PORT": str(srv.port), "CHIZU_HOST": "127.0.0.1",
                "CHIZU_DATA_DIR": str(tmp_path / "other")}
-        r = subprocess.run([sys.executable, "-m", "service.cli", "repl", "demo", "--live"],
+        r = subprocess.run([sys.executable, "-m", "chizu.service.cli", "repl", "demo", "--live"],
                            input="landmark(rn0a).\n", capture_output=True, text=True,
                            timeout=120, env=env)
         assert r.returncode == 0, r.stdout + r.stderr

@@ -32,8 +32,8 @@ from hypothesis import HealthCheck, settings
 from schemathesis.checks import positive_data_acceptance
 from schemathesis.config import SchemathesisConfig
 
-from service.app import create_app
-from service.settings import Settings
+from chizu.service.app import create_app
+from chizu.service.settings import Settings
 from tests.conftest import LiveServer
 
 EXAMPLES = int(os.environ.get("CHIZU_CONTRACT_EXAMPLES", "15"))

@@ -16,9 +16,9 @@ def test_start_up_loads_a_snapshot_instead_of_replaying(tmp_path: Path) -> None:
     before the restart and as a full replay from the events alone."""
     import sqlite3
 
-    from service.app import create_app
-    from service.settings import Settings
-    from service.worlds import SNAPSHOT_EVERY
+    from chizu.service.app import create_app
+    from chizu.service.settings import Settings
+    from chizu.service.worlds import SNAPSHOT_EVERY
     from tests.conftest import make_fig1_world, observation
 
     settings = Settings(data_dir=tmp_path, demo_world="")
@@ -62,7 +62,7 @@ def test_a_snapshot_is_read_as_data(client: TestClient) -> None:
     """load_snapshot asserts only ground qualitative facts: a goal, a variable or a
     fact of another kind is refused naming it."""
     kb = client.app.state.services.kb  # type: ignore[attr-defined]
-    from service.kb import KbError
+    from chizu.service.kb import KbError
 
     for bad in ("halt", "lr(a, X, c)", "landmark(z)", "lr(a, b", "map_pose(r1, 0, 0, 0, 0)"):
         try:
@@ -76,8 +76,8 @@ def test_a_snapshot_is_read_as_data(client: TestClient) -> None:
 def test_stored_state_from_earlier_versions_still_loads(tmp_path: Path) -> None:
     """A snapshot in the first format (a bare list) or unreadable, and an analysis whose
     config a later bound refuses, do not stop a world from loading."""
-    from numeric.eigenspace.analysis import stored_config
-    from service.store import Store
+    from chizu.numeric.eigenspace.analysis import stored_config
+    from chizu.service.store import Store
 
     store = Store(tmp_path / "s.sqlite3")
     with store.transaction() as conn:

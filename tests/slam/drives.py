@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from numeric.laser import LaserConfig
-from numeric.scan import LaserLog
-from numeric.simulator import OdometryConfig
-from numeric.slam.simulate import drive
-from numeric.world import World
+from chizu.numeric.laser import LaserConfig
+from chizu.numeric.scan import LaserLog
+from chizu.numeric.simulator import OdometryConfig
+from chizu.numeric.slam.simulate import drive
+from chizu.numeric.world import World
 
 #: once around room_a, clear of its boxes
 ROOM_A_TOUR = np.array([(1.5, 1.5), (9.2, 1.5), (9.2, 9.2), (1.0, 9.2), (1.0, 1.5)])

@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from numeric.scan import LaserLog
-from numeric.slam import saved_map as sm
-from numeric.slam.simulate import simulated_log
-from service.app import create_app
-from service.kb import KbError
-from service.settings import Settings
-from service.slam import FACTS_ARTIFACT
+from chizu.numeric.scan import LaserLog
+from chizu.numeric.slam import saved_map as sm
+from chizu.numeric.slam.simulate import simulated_log
+from chizu.service.app import create_app
+from chizu.service.kb import KbError
+from chizu.service.settings import Settings
+from chizu.service.slam import FACTS_ARTIFACT
 
 LOG = simulated_log("room_a", seed=0)
 
@@ -330,8 +330,8 @@ def test_old_facts_artifact_without_closures_restores(tmp_path: Any) -> None:
 def test_run_options_take_the_estimators_bounds(client: TestClient, world: str) -> None:
     """SlamRunIn declares no bound of its own: particles, alpha, sigma_z and seed are
     RbpfConfig's, and the API refuses what the estimator would."""
-    from numeric.slam.rbpf import RbpfConfig
-    from service.schemas.slam import SlamRunIn
+    from chizu.numeric.slam.rbpf import RbpfConfig
+    from chizu.service.schemas.slam import SlamRunIn
 
     ours = SlamRunIn.model_json_schema()["properties"]
     theirs = RbpfConfig.model_json_schema()["properties"]
@@ -379,9 +379,9 @@ def test_a_cancelled_batch_keeps_store_and_memory_in_step(tmp_path: Any) -> None
     goes on from there (the filter never ran in two threads at once)."""
     import asyncio
 
-    from numeric.world import WorldDescription
-    from service.container import open_services
-    from service.schemas.slam import ScanIn, SlamRunIn
+    from chizu.numeric.world import WorldDescription
+    from chizu.service.container import open_services
+    from chizu.service.schemas.slam import ScanIn, SlamRunIn
 
     svc = open_services(Settings(data_dir=tmp_path, demo_world=None, workers=0), demo=False)
     log = loop_log()

@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from numeric.errors import InvalidInput
-from numeric.slam.batch import expand_grid, run_batch, tasks_for
-from numeric.slam.logs import write_carmen
-from numeric.slam.simulate import simulated_log
-from service.executors import batch_executor
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.slam.batch import expand_grid, run_batch, tasks_for
+from chizu.numeric.slam.logs import write_carmen
+from chizu.numeric.slam.simulate import simulated_log
+from chizu.service.executors import batch_executor
 
 
 def test_the_grid_expands_and_is_checked() -> None:

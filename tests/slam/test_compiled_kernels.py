@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from numeric.geometry import compose, place, relative, wrap_angle
-from numeric.laser import Laser
-from numeric.slam.alignment import AlignmentConfig, match_pair
-from numeric.slam.matching.intensity_icp import IcpConfig, Reference, intensity_icp
-from numeric.world import World
-from numeric.worlds import from_template
+from chizu.numeric.geometry import compose, place, relative, wrap_angle
+from chizu.numeric.laser import Laser
+from chizu.numeric.slam.alignment import AlignmentConfig, match_pair
+from chizu.numeric.slam.matching.intensity_icp import IcpConfig, Reference, intensity_icp
+from chizu.numeric.world import World
+from chizu.numeric.worlds import from_template
 
 
 def _tree(ref: Reference) -> cKDTree:

@@ -7,19 +7,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from numeric.geometry import compose, relative, wrap_angle
-from numeric.slam.alignment import (
+from chizu.numeric.geometry import compose, relative, wrap_angle
+from chizu.numeric.slam.alignment import (
     AlignmentConfig,
     align_scans,
     candidate_pairs,
     estimate_closures,
     match_pair,
 )
-from numeric.slam.graph import GraphSlam, GraphSlamConfig
-from numeric.slam.keyframes import voxel_downsample
-from numeric.slam.matching.intensity_icp import Reference
-from numeric.slam.runner import SlamOptions, run_log
-from numeric.slam.simulate import simulated_log
+from chizu.numeric.slam.graph import GraphSlam, GraphSlamConfig
+from chizu.numeric.slam.keyframes import voxel_downsample
+from chizu.numeric.slam.matching.intensity_icp import Reference
+from chizu.numeric.slam.runner import SlamOptions, run_log
+from chizu.numeric.slam.simulate import simulated_log
 from tests.slam.test_graph_slam import CORRIDOR, scan_at
 
 

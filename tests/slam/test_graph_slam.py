@@ -6,19 +6,23 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from numeric.geometry import compose, place, point_segment_distance, ray_cast, relative
-from numeric.probability_grid import GridConfig, ProbabilityGrid
-from numeric.slam.graph import GraphSlam, GraphSlamConfig, Submap, tie
-from numeric.slam.keyframes import collinear_grazing_segments, connect_returns, grazing_returns
-from numeric.slam.matching.correlative import (
+from chizu.numeric.geometry import compose, place, point_segment_distance, ray_cast, relative
+from chizu.numeric.probability_grid import GridConfig, ProbabilityGrid
+from chizu.numeric.slam.graph import GraphSlam, GraphSlamConfig, Submap, tie
+from chizu.numeric.slam.keyframes import (
+    collinear_grazing_segments,
+    connect_returns,
+    grazing_returns,
+)
+from chizu.numeric.slam.matching.correlative import (
     PrecomputedGrid,
     branch_and_bound,
     brute_force,
     correlative_search,
     refine,
 )
-from numeric.slam.pose_graph import PoseGraph
-from numeric.slam.simulate import office_log, simulated_log
+from chizu.numeric.slam.pose_graph import PoseGraph
+from chizu.numeric.slam.simulate import office_log, simulated_log
 
 ANGLES = np.linspace(-np.pi, np.pi, 360, endpoint=False)
 #: a 10 m x 6 m room with a pillar, and a plain 2 m corridor 30 m long
@@ -149,7 +153,7 @@ def test_branch_and_bound_equals_brute_force_on_random_cases() -> None:
         assert bb[3] == pytest.approx(bf[3], abs=1e-12), case
         # the pose it names scores what it says
         a, dx, dy, s = bb
-        from numeric.slam.matching.correlative import _score
+        from chizu.numeric.slam.matching.correlative import _score
         assert _score(pre.stack, 0, cells, a, dx, dy) == pytest.approx(s)
         # a threshold above the best finds nothing
         assert branch_and_bound(pre.stack, cells, 2 * w + 1, 2 * w + 1, bf[3] + 1e-9)[0] == -1
@@ -232,7 +236,7 @@ def test_the_local_search_scores_every_offset_as_written() -> None:
     angle and offset, with the same score, as scoring each candidate on its own:
     the mean probability of the points' cells (outside the grid: 0) times the cost
     term. Random grids, scans partly off the grid, windows of 0-6 cells."""
-    from numeric.slam.matching.correlative import _search_window
+    from chizu.numeric.slam.matching.correlative import _search_window
 
     rng = np.random.default_rng(5)
     for _ in range(25):
@@ -353,7 +357,7 @@ def test_graph_slam_closes_simulated_loops() -> None:
     assert before.mean() > 4 * after.mean(), (before, after)
     assert err.sum() < odom.sum() / 3, (err, odom)
     # the map of the optimised poses: walls where the world has them
-    from numeric.occupancy import OCCUPIED, build_occupancy
+    from chizu.numeric.occupancy import OCCUPIED, build_occupancy
     s = runs[0][4]
     grid = build_occupancy(s.keyframes.frames, s.map_poses(), 0.05)
     occ = grid.centres(*np.nonzero(grid.state == OCCUPIED))
@@ -592,7 +596,7 @@ def test_two_closures_agree_when_they_move_the_node_alike_far_from_the_origin() 
     that turn the node by 0.02 and 0.05 rad about it agree (0.03 rad apart, within
     ``loop_verify_rad``) although, compared at the origin, their corrections would be
     1.5 m apart; matches 0.5 m apart at the node do not agree."""
-    from numeric.slam.graph import LoopClosure
+    from chizu.numeric.slam.graph import LoopClosure
 
     s = GraphSlam()
     s._global = np.array([[50.0, 0.0, 0.0], [52.0, 0.0, 0.0], [52.1, 0.0, 0.0]])
@@ -628,8 +632,8 @@ def test_the_odometry_heading_sigma_learned_follows_the_odometrys_quality() -> N
     whose heading random-walks 0.2 rad per sqrt(m) with 10 % turn noise. The heading
     changes the scan matches find against the odometry's put the first's heading sigma
     well below the fixed model's and leave the second's at it."""
-    from numeric.world import World
-    from numeric.worlds import from_template
+    from chizu.numeric.world import World
+    from chizu.numeric.worlds import from_template
     from tests.slam.drives import room_a_drives
 
     scales = {}
@@ -655,9 +659,9 @@ def test_a_room_driven_again_trims_its_submaps_and_keeps_its_accuracy() -> None:
     trimmed submaps hold), and localized on the run's saved map."""
     from dataclasses import replace
 
-    from numeric.scan import LaserLog
-    from numeric.slam.map_localization import localize_log
-    from numeric.slam.saved_map import from_bytes, saved_map_of_log, to_bytes
+    from chizu.numeric.scan import LaserLog
+    from chizu.numeric.slam.map_localization import localize_log
+    from chizu.numeric.slam.saved_map import from_bytes, saved_map_of_log, to_bytes
 
     log = simulated_log("room_a", seed=0)
     last, n = log.scans[-1].t, len(log)

@@ -14,15 +14,15 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from numeric.geometry import compose
-from numeric.scan import LaserLog
-from numeric.slam import saved_map as sm
-from numeric.slam.runner import SlamOptions, run_log
-from numeric.slam.simulate import drive, simulated_log
-from numeric.world import World
-from numeric.worlds import room_a
-from service.app import create_app
-from service.settings import Settings
+from chizu.numeric.geometry import compose
+from chizu.numeric.scan import LaserLog
+from chizu.numeric.slam import saved_map as sm
+from chizu.numeric.slam.runner import SlamOptions, run_log
+from chizu.numeric.slam.simulate import drive, simulated_log
+from chizu.numeric.world import World
+from chizu.numeric.worlds import room_a
+from chizu.service.app import create_app
+from chizu.service.settings import Settings
 from tests.service.test_worlds import assert_problem
 from tests.slam.drives import MODERATE_ODOMETRY, ROOM_A_TOUR
 from tests.slam.test_api import scan_json

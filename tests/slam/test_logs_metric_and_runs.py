@@ -11,15 +11,15 @@ import pytest
 from PIL import Image
 from typer.testing import CliRunner
 
-from numeric.errors import InvalidInput
-from numeric.geometry import compose, place, relative
-from numeric.laser import Laser, LaserConfig
-from numeric.occupancy import FREE, OCCUPIED, UNKNOWN, OccupancyMap, build_occupancy
-from numeric.scan import Scan
-from numeric.slam.datasets import slam_data_dir
-from numeric.slam.evaluation import local_failures, relation_errors
-from numeric.slam.gated import GateConfig, SingleHypothesisSlam, inside_gate
-from numeric.slam.logs import (
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.geometry import compose, place, relative
+from chizu.numeric.laser import Laser, LaserConfig
+from chizu.numeric.occupancy import FREE, OCCUPIED, UNKNOWN, OccupancyMap, build_occupancy
+from chizu.numeric.scan import Scan
+from chizu.numeric.slam.datasets import slam_data_dir
+from chizu.numeric.slam.evaluation import local_failures, relation_errors
+from chizu.numeric.slam.gated import GateConfig, SingleHypothesisSlam, inside_gate
+from chizu.numeric.slam.logs import (
     read_carmen,
     read_log,
     read_relations,
@@ -27,12 +27,12 @@ from numeric.slam.logs import (
     write_carmen,
     write_tum,
 )
-from numeric.slam.matching.intensity_icp import IcpConfig, Reference, intensity_icp
-from numeric.slam.rbpf import RbpfConfig, RbpfSlam, systematic_resample
-from numeric.slam.simulate import simulated_log
-from numeric.world import World, WorldDescription
-from numeric.worlds import from_template
-from service.cli import app as cli
+from chizu.numeric.slam.matching.intensity_icp import IcpConfig, Reference, intensity_icp
+from chizu.numeric.slam.rbpf import RbpfConfig, RbpfSlam, systematic_resample
+from chizu.numeric.slam.simulate import simulated_log
+from chizu.numeric.world import World, WorldDescription
+from chizu.numeric.worlds import from_template
+from chizu.service.cli import app as cli
 
 _DATA = slam_data_dir()
 DATA = _DATA or Path("/nonexistent")
@@ -230,8 +230,8 @@ def test_gated_slam_beats_odometry_in_the_room(room_log) -> None:  # type: ignor
 def test_gated_slam_with_the_rbpf_matcher_is_one_deterministic_hypothesis(room_log) -> None:  # type: ignore[no-untyped-def]
     """Method ``gated``: one particle whose pose is the match's mean (no draw: two seeds
     give one trajectory), well below the odometry's error in the room."""
-    from numeric.slam.rbpf import RbpfSlam
-    from numeric.slam.runner import SlamOptions, run_log
+    from chizu.numeric.slam.rbpf import RbpfSlam
+    from chizu.numeric.slam.runner import SlamOptions, run_log
 
     odo = _mean_err(room_log.odometry, room_log.truth)
     runs = []
@@ -246,8 +246,8 @@ def test_gated_slam_with_the_rbpf_matcher_is_one_deterministic_hypothesis(room_l
 def test_the_single_hypothesis_keeps_its_start_when_eq5_refuses_the_match() -> None:
     """Eq. 5 around the increment the front end started from: a match inside the box is
     taken, one outside it (or a failed one) leaves the start."""
-    from numeric.slam.rbpf import RbpfConfig, RbpfSlam
-    from numeric.slam.rbpf.improved import _single
+    from chizu.numeric.slam.rbpf import RbpfConfig, RbpfSlam
+    from chizu.numeric.slam.rbpf.improved import _single
 
     slam = RbpfSlam(RbpfConfig.single_hypothesis())
     slam.x = np.array([[1.0, 2.0, 0.5]])
@@ -348,8 +348,8 @@ def test_cli_slam_and_eval(tmp_path: Path) -> None:
 def test_a_method_is_warmed_up_once_per_process(monkeypatch: pytest.MonkeyPatch) -> None:
     """warm_up runs a throwaway estimator of the method (its kernels loaded before a
     robot's first scan), once per method and proposal; the next asks cost nothing."""
-    import numeric.slam.runner as runner
-    from numeric.slam.runner import SlamOptions
+    import chizu.numeric.slam.runner as runner
+    from chizu.numeric.slam.runner import SlamOptions
 
     monkeypatch.setattr(runner, "_WARM", set())
     opts = SlamOptions(method="rbpf", particles=64)

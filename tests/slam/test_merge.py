@@ -11,16 +11,16 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from numeric.errors import InvalidInput
-from numeric.geometry import compose
-from numeric.scan import LaserLog
-from numeric.slam import saved_map as sm
-from numeric.slam.merge import merge, resume
-from numeric.slam.runner import SlamOptions, run_log
-from numeric.slam.simulate import drive, simulated_log
-from numeric.world import World
-from numeric.worlds import room_a
-from service.cli import app as cli
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.geometry import compose
+from chizu.numeric.scan import LaserLog
+from chizu.numeric.slam import saved_map as sm
+from chizu.numeric.slam.merge import merge, resume
+from chizu.numeric.slam.runner import SlamOptions, run_log
+from chizu.numeric.slam.simulate import drive, simulated_log
+from chizu.numeric.world import World
+from chizu.numeric.worlds import room_a
+from chizu.service.cli import app as cli
 from tests.slam.drives import MODERATE_ODOMETRY, ROOM_A_TOUR
 
 CLIP = Path(__file__).resolve().parents[2] / "examples" / "aces-clip.clf"

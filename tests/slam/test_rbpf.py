@@ -9,12 +9,12 @@ import math
 import numpy as np
 import pytest
 
-import numeric.slam.rbpf.improved as rbpf_module
-from numeric.geometry import compose, relative
-from numeric.laser import Laser, LaserConfig, record_log
-from numeric.scan import LaserLog, Scan
-from numeric.simulator import OdometryConfig, follow_path, odometry_along
-from numeric.slam.keyframes import (
+import chizu.numeric.slam.rbpf.improved as rbpf_module
+from chizu.numeric.geometry import compose, relative
+from chizu.numeric.laser import Laser, LaserConfig, record_log
+from chizu.numeric.scan import LaserLog, Scan
+from chizu.numeric.simulator import OdometryConfig, follow_path, odometry_along
+from chizu.numeric.slam.keyframes import (
     FieldConfig,
     Keyframe,
     Keyframes,
@@ -22,7 +22,7 @@ from numeric.slam.keyframes import (
     MapConfig,
     moved,
 )
-from numeric.slam.matching.likelihood_field import (
+from chizu.numeric.slam.matching.likelihood_field import (
     Beams,
     FieldPack,
     LoopGrid,
@@ -30,12 +30,12 @@ from numeric.slam.matching.likelihood_field import (
     count_inliers,
     loop_search,
 )
-from numeric.slam.pose_graph import OdometryCalibration
-from numeric.slam.rbpf import ImprovedConfig, MotionNoise, RbpfConfig, RbpfSlam
-from numeric.slam.rbpf.loop_start import Persistence, free_space_share
-from numeric.slam.rbpf.proposal import gaussian_fit
-from numeric.world import World
-from numeric.worlds import from_template, office_world
+from chizu.numeric.slam.pose_graph import OdometryCalibration
+from chizu.numeric.slam.rbpf import ImprovedConfig, MotionNoise, RbpfConfig, RbpfSlam
+from chizu.numeric.slam.rbpf.loop_start import Persistence, free_space_share
+from chizu.numeric.slam.rbpf.proposal import gaussian_fit
+from chizu.numeric.world import World
+from chizu.numeric.worlds import from_template, office_world
 from tests.slam.drives import MODERATE_ODOMETRY, ODOMETRY_QUALITIES, room_a_drives
 
 #: a 12 m laser sees the whole 10 m room: the scans pin the pose down
@@ -296,7 +296,7 @@ def test_lookup_is_the_bilinear_minimum_over_intensity_bands() -> None:
     """The per-beam residual of the likelihood field with the intensity term: bilinear in
     each band's squared-distance grid (values at cell centres) plus alpha (l - li)^2 with
     the nearest cell's intensity, the minimum over bands, capped; checked by hand."""
-    from numeric.slam.matching.likelihood_field import _lookup
+    from chizu.numeric.slam.matching.likelihood_field import _lookup
 
     rng = np.random.default_rng(0)
     nb, nx, ny, res, cut2, alpha = 2, 6, 5, 0.1, 0.09, 0.02
@@ -340,7 +340,7 @@ def test_the_sample_scores_are_the_matchers_scores_pose_by_pose(bands: int,
                                                                 alpha: float) -> None:
     """:func:`score_offsets` (the 27 samples of the proposal, scored beam by beam) gives,
     to the bit, what :func:`score` gives for each pose on the candidates it recorded."""
-    from numeric.slam.matching.likelihood_field import Workspace, score, score_offsets
+    from chizu.numeric.slam.matching.likelihood_field import Workspace, score, score_offsets
 
     rng = np.random.default_rng(3)
     res, cut2, n_k, n_b = 0.05, 0.09, 6, 40
@@ -485,7 +485,7 @@ def test_copies_are_told_apart_by_pose_and_map() -> None:
     """The particles matched once each are the distinct (pose, map) pairs: after a
     resampling (copies), particles with one pose and different maps stay apart, and
     particles whose poses all differ are each their own."""
-    from numeric.slam.rbpf.improved import copies as _copies
+    from chizu.numeric.slam.rbpf.improved import copies as _copies
 
     rng = np.random.default_rng(4)
     x = rng.normal(size=(40, 3))
@@ -520,8 +520,8 @@ def test_step_reports_what_the_filter_did(loop_log: LaserLog) -> None:
 
 
 def test_the_loop_search_finds_a_place_beyond_the_matchers_reach(room: World) -> None:
-    """The loop-aware start (:mod:`numeric.slam.rbpf.loop_start`): a scan 0.7 m and 0.05 rad off
-    its keyframe's place -- beyond the likelihood field's 0.3 m cutoff, where the scan
+    """The loop-aware start (:mod:`chizu.numeric.slam.rbpf.loop_start`): a scan 0.7 m and
+    0.05 rad off its keyframe's place -- beyond the likelihood field's 0.3 m cutoff, where the scan
     matcher alone stays -- is found by the correlative grid and its refinement, with
     most beams within 5 cm of the keyframe there and few at the offset start."""
     p0 = np.array([4.0, 3.0, 0.3])
@@ -669,10 +669,10 @@ def _relocalise(slam: RbpfSlam, laser: Laser, truth: np.ndarray, estimate: np.nd
 
 
 def test_relocalisation_brings_back_an_estimate_beyond_the_loop_search() -> None:
-    """The wide relocalisation (:mod:`numeric.slam.rbpf.relocalisation`): in room_a, with keyframes
-    of 0-10 s, a scan 300 s later whose estimate has drifted 3.2 m and 0.2 rad -- beyond
-    the loop start's ±2 m / ±0.1 rad -- is found by branch and bound in the old map and
-    refined to within 5 cm and 0.01 rad of its true pose; a scan whose estimate is right
+    """The wide relocalisation (:mod:`chizu.numeric.slam.rbpf.relocalisation`): in room_a,
+    with keyframes of 0-10 s, a scan 300 s later whose estimate has drifted 3.2 m and
+    0.2 rad -- beyond the loop start's ±2 m / ±0.1 rad -- is found by branch and bound in the old
+    map and refined to within 5 cm and 0.01 rad of its true pose; a scan whose estimate is right
     is left alone, and so is a drifted one while the old map is younger than
     ``reloc.min_age_s``."""
     room = World(from_template("room_a", "room_a"))

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from numeric.slam import saved_map as sm
-from numeric.slam.logs import read_log
-from numeric.slam.runner import SlamOptions, run_log
-from numeric.slam.simulate import simulated_log
-from service.cli import app as cli
+from chizu.numeric.slam import saved_map as sm
+from chizu.numeric.slam.logs import read_log
+from chizu.numeric.slam.runner import SlamOptions, run_log
+from chizu.numeric.slam.simulate import simulated_log
+from chizu.service.cli import app as cli
 
 CLIP = Path(__file__).resolve().parents[2] / "examples" / "aces-clip.clf"
 
@@ -189,7 +189,7 @@ def test_the_cli_commits_its_map_into_a_world(tmp_path: Path) -> None:
     env = {**os.environ, "CHIZU_DATA_DIR": str(tmp_path / "var"), "CHIZU_DEMO_WORLD": "demo"}
 
     def run(*args: str) -> subprocess.CompletedProcess[str]:
-        return subprocess.run([sys.executable, "-m", "service.cli", "slam", str(CLIP),
+        return subprocess.run([sys.executable, "-m", "chizu.service.cli", "slam", str(CLIP),
                                "--limit", "120", *args], env=env, capture_output=True,
                               text=True, timeout=600)
 
@@ -199,8 +199,8 @@ def test_the_cli_commits_its_map_into_a_world(tmp_path: Path) -> None:
     r = run("--out", str(tmp_path / "run"), "--world", "demo")
     assert r.returncode == 0, r.stdout + r.stderr
     assert "committed into world demo" in r.stdout
-    from service.container import open_services
-    from service.settings import Settings
+    from chizu.service.container import open_services
+    from chizu.service.settings import Settings
 
     svc = open_services(Settings(data_dir=tmp_path / "var", demo_world="", workers=0),
                         demo=False)

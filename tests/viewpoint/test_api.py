@@ -15,13 +15,13 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from numeric.viewpoint.online import Summariser, SummaryConfig
-from numeric.viewpoint.planner import ObjectType
-from numeric.world import World
-from numeric.worlds import SUMMARY_DOOR, random_summary_room, summary_room
-from service.app import create_app
-from service.settings import Settings
-from service.viewpoint import local_grouper
+from chizu.numeric.viewpoint.online import Summariser, SummaryConfig
+from chizu.numeric.viewpoint.planner import ObjectType
+from chizu.numeric.world import World
+from chizu.numeric.worlds import SUMMARY_DOOR, random_summary_room, summary_room
+from chizu.service.app import create_app
+from chizu.service.settings import Settings
+from chizu.service.viewpoint import local_grouper
 
 ROOT = Path(__file__).resolve().parents[2]
 DOOR = list(SUMMARY_DOOR)
@@ -380,7 +380,7 @@ def test_online_summary_verifies_both_objects(grouper: Any) -> None:
 def test_cli_plan_and_summarise(tmp_path: Path) -> None:
     scene = tmp_path / "scene.json"
     scene.write_text(json.dumps(table1_body("L2")))
-    env_cmd = [sys.executable, "-m", "service.cli"]
+    env_cmd = [sys.executable, "-m", "chizu.service.cli"]
     r = subprocess.run([*env_cmd, "plan", str(scene), "--world", "fig11a",
                         "--png", str(tmp_path / "plan.png")],
                        cwd=ROOT, capture_output=True, text=True, timeout=300)

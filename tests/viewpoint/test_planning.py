@@ -9,8 +9,8 @@ import itertools
 import numpy as np
 import pytest
 
-from numeric.errors import InvalidInput
-from numeric.viewpoint.appearance import (
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.viewpoint.appearance import (
     AngleSample,
     AppearanceModel,
     DistanceSample,
@@ -18,8 +18,8 @@ from numeric.viewpoint.appearance import (
     exp_distance,
     sigmoid_angle,
 )
-from numeric.viewpoint.grid import from_occupancy_values, true_grid
-from numeric.viewpoint.plan import (
+from chizu.numeric.viewpoint.grid import from_occupancy_values, true_grid
+from chizu.numeric.viewpoint.plan import (
     GroupCost,
     Loss,
     Problem,
@@ -27,11 +27,11 @@ from numeric.viewpoint.plan import (
     solve_bnb,
     solve_exhaustive,
 )
-from numeric.viewpoint.recognition import OBJECT_KINDS, fitted_models
-from numeric.viewpoint.single import min_plus, single_dp
-from numeric.viewpoint.verification import Candidate, Verifier, unknown_region_time
-from numeric.viewpoint.viewpoints import PATTERNS, viewpoint_circles
-from numeric.world import Wall, World, WorldDescription
+from chizu.numeric.viewpoint.recognition import OBJECT_KINDS, fitted_models
+from chizu.numeric.viewpoint.single import min_plus, single_dp
+from chizu.numeric.viewpoint.verification import Candidate, Verifier, unknown_region_time
+from chizu.numeric.viewpoint.viewpoints import PATTERNS, viewpoint_circles
+from chizu.numeric.world import Wall, World, WorldDescription
 
 
 @pytest.fixture(scope="module")
@@ -184,8 +184,8 @@ def test_a_turned_pattern_table_is_the_unturned_one_with_the_belief_rolled(
     """Every rotation's table, built from rotation 0 with the belief rolled, equals the
     DP of eq. 5 run directly on the turned viewpoints with the original belief; a
     uniform belief builds one table for all eight rotations."""
-    from numeric.viewpoint.single import TableCache
-    from numeric.viewpoint.viewpoints import pattern_indices
+    from chizu.numeric.viewpoint.single import TableCache
+    from chizu.numeric.viewpoint.viewpoints import pattern_indices
 
     rng = np.random.default_rng(3)
     m = models["B"]
@@ -294,8 +294,8 @@ def test_large_groups_are_bounded_and_fast(models: dict[str, AppearanceModel],
     """Past EXACT_GROUP objects every object hands over at one viewpoint: the time of a
     policy the robot can follow, never below the exact minimum; its t_par expectation
     in closed form equals the sum over the failure sets for that fixed order."""
-    import numeric.viewpoint.verification as ver
-    from numeric.viewpoint.sequential import PortChain
+    import chizu.numeric.viewpoint.verification as ver
+    from chizu.numeric.viewpoint.sequential import PortChain
 
     cands = cluster(models, 4)
     s, g = np.array([[0.0, 0.0]]), np.array([[7.0, 1.0]])
@@ -402,7 +402,7 @@ def test_state_bounds_hold_every_plan_through_the_state(kind: str) -> None:
     """The branch and bound's bound of a partial tour is at least the utility of every
     plan that starts with it (every order of every set of the other groups, by
     enumeration)."""
-    from numeric.viewpoint.plan import evaluate, state_bounds
+    from chizu.numeric.viewpoint.plan import evaluate, state_bounds
 
     for seed in range(4):
         p = random_problem(7, kind, 10 + seed)
@@ -467,7 +467,7 @@ def test_unknown_components_and_entry_points() -> None:
 
 
 def test_a_requests_own_appearance_does_not_leak_into_the_next() -> None:
-    from numeric.viewpoint.planner import PlanRequest, ViewpointPlanner
+    from chizu.numeric.viewpoint.planner import PlanRequest, ViewpointPlanner
 
     planner = ViewpointPlanner()
     own = {"a": (9.0, 9.0, 9.0, 9.0), "b": (1.0, 1.0, 1.0, 1.0), "k": 5.0, "theta_half": 0.8}
@@ -483,8 +483,8 @@ def test_replanning_recomputes_only_the_groups_whose_surroundings_changed() -> N
     """Local plans are cached by the group and the grid near it: the same scene again
     reuses all of them, an obstacle next to one group recomputes that one only, and the
     answer equals a fresh planner's."""
-    from numeric.viewpoint.grid import from_occupancy_values
-    from numeric.viewpoint.planner import GroupSpec, PlanRequest, ViewpointPlanner
+    from chizu.numeric.viewpoint.grid import from_occupancy_values
+    from chizu.numeric.viewpoint.planner import GroupSpec, PlanRequest, ViewpointPlanner
 
     def one_each(cands, regions, min_area):  # type: ignore[no-untyped-def]
         return [GroupSpec(i, "objects", (c["id"],)) for i, c in enumerate(cands)]
@@ -523,8 +523,8 @@ def test_replanning_recomputes_only_the_groups_whose_surroundings_changed() -> N
 def test_travel_goes_around_walls() -> None:
     """Geodesic travel (eqs. 18-20 along shortest paths): a wall with a door at one end
     makes the way round the door, not through the wall."""
-    from numeric.viewpoint.grid import TravelMap
-    from numeric.viewpoint.planner import geodesic
+    from chizu.numeric.viewpoint.grid import TravelMap
+    from chizu.numeric.viewpoint.planner import geodesic
 
     cells = np.zeros((100, 100), dtype=int)              # 10 m x 10 m at 0.1 m, [y, x]
     cells[0, :] = cells[-1, :] = cells[:, 0] = cells[:, -1] = 100
@@ -547,7 +547,7 @@ def test_travel_fields_equal_skimage_minimum_cost_paths() -> None:
     MCP_Geometric on the same costs, including sources on impassable cells."""
     from skimage.graph import MCP_Geometric
 
-    from numeric.viewpoint.grid import TravelMap
+    from chizu.numeric.viewpoint.grid import TravelMap
 
     rng = np.random.default_rng(4)
     for _ in range(3):
@@ -569,8 +569,13 @@ def test_travel_fields_equal_skimage_minimum_cost_paths() -> None:
 
 
 def test_random_rooms_are_valid_and_repeatable() -> None:
-    from numeric.geometry import point_segment_distance
-    from numeric.worlds import ROOM_TEXTURES, SUMMARY_ROOM_M, _polygon_walls, random_summary_room
+    from chizu.numeric.geometry import point_segment_distance
+    from chizu.numeric.worlds import (
+        ROOM_TEXTURES,
+        SUMMARY_ROOM_M,
+        _polygon_walls,
+        random_summary_room,
+    )
 
     w, h = SUMMARY_ROOM_M
     outline = len(_polygon_walls([(0.0, 0.0), (w, 0.0), (w, h), (0.0, h)], ROOM_TEXTURES, 2.0))

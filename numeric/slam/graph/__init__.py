@@ -3,27 +3,27 @@ in 2D LIDAR SLAM" (ICRA 2016, Cartographer), beyond the paper of Hara et al.
 
 One module per stage:
 
-- :mod:`~numeric.slam.graph.local_slam`: local SLAM (§IV), scan-to-submap matching by
+- :mod:`~chizu.numeric.slam.graph.local_slam`: local SLAM (§IV), scan-to-submap matching by
   correlative search and Gauss-Newton refinement, held near a learned odometry model;
-- :mod:`~numeric.slam.graph.submaps`: the submaps (§III-B), two always active, stitched
+- :mod:`~chizu.numeric.slam.graph.submaps`: the submaps (§III-B), two always active, stitched
   with their neighbours for loop closure;
-- :mod:`~numeric.slam.graph.loop_closure`: loop closure by branch and bound (§V,
+- :mod:`~chizu.numeric.slam.graph.loop_closure`: loop closure by branch and bound (§V,
   Algorithms 2-3), with uniqueness, confirmation and a drift bound on the window;
-- :mod:`~numeric.slam.graph.slam`: the estimator, the pose graph on GTSAM's iSAM2
-  (:mod:`numeric.slam.pose_graph`) and its outputs;
-- :mod:`~numeric.slam.graph.config`: the parameters, one nested model per stage.
+- :mod:`~chizu.numeric.slam.graph.slam`: the estimator, the pose graph on GTSAM's iSAM2
+  (:mod:`chizu.numeric.slam.pose_graph`) and its outputs;
+- :mod:`~chizu.numeric.slam.graph.config`: the parameters, one nested model per stage.
 """
 
-from numeric.slam.graph.config import (
+from chizu.numeric.slam.graph.config import (
     GraphSlamConfig,
     LocalSlamConfig,
     LoopClosureConfig,
     OdometryModelConfig,
     SubmapConfig,
 )
-from numeric.slam.graph.loop_closure import LoopClosure, adaptive_voxel, tie
-from numeric.slam.graph.slam import GraphSlam
-from numeric.slam.graph.submaps import LoopMap, Submap
+from chizu.numeric.slam.graph.loop_closure import LoopClosure, adaptive_voxel, tie
+from chizu.numeric.slam.graph.slam import GraphSlam
+from chizu.numeric.slam.graph.submaps import LoopMap, Submap
 
 __all__ = ["GraphSlam", "GraphSlamConfig", "LocalSlamConfig", "LoopClosure",
            "LoopClosureConfig", "LoopMap", "OdometryModelConfig", "Submap", "SubmapConfig",

@@ -7,13 +7,13 @@ from __future__ import annotations
 import numpy as np
 from pydantic import BaseModel, Field
 
-from numeric.probability_grid import GridConfig
-from numeric.slam.alignment import AlignmentConfig
-from numeric.slam.gated import GateConfig
-from numeric.slam.keyframes import MapConfig
-from numeric.slam.matching.intensity_icp import IcpConfig
-from numeric.slam.pose_graph import GraphConfig
-from numeric.threads import default_threads
+from chizu.numeric.probability_grid import GridConfig
+from chizu.numeric.slam.alignment import AlignmentConfig
+from chizu.numeric.slam.gated import GateConfig
+from chizu.numeric.slam.keyframes import MapConfig
+from chizu.numeric.slam.matching.intensity_icp import IcpConfig
+from chizu.numeric.slam.pose_graph import GraphConfig
+from chizu.numeric.threads import default_threads
 
 
 def _submap_grid() -> GridConfig:

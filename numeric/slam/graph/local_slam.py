@@ -19,14 +19,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from numeric.geometry import compose, relative, wrap_angle
-from numeric.slam.gated import inside_gate
-from numeric.slam.graph.config import GraphSlamConfig
-from numeric.slam.graph.submaps import Submap
-from numeric.slam.keyframes import voxel_downsample
-from numeric.slam.matching.correlative import correlative_search, refine, window_cells
-from numeric.slam.matching.intensity_icp import Reference, intensity_icp
-from numeric.slam.pose_graph import OdometryCalibration, PoseGraph
+from chizu.numeric.geometry import compose, relative, wrap_angle
+from chizu.numeric.slam.gated import inside_gate
+from chizu.numeric.slam.graph.config import GraphSlamConfig
+from chizu.numeric.slam.graph.submaps import Submap
+from chizu.numeric.slam.keyframes import voxel_downsample
+from chizu.numeric.slam.matching.correlative import correlative_search, refine, window_cells
+from chizu.numeric.slam.matching.intensity_icp import Reference, intensity_icp
+from chizu.numeric.slam.pose_graph import OdometryCalibration, PoseGraph
 
 
 def rotate_xy(v: np.ndarray, angle: float) -> np.ndarray:
@@ -35,7 +35,7 @@ def rotate_xy(v: np.ndarray, angle: float) -> np.ndarray:
 
 
 class LocalSlam:
-    """The local-SLAM steps of :class:`~numeric.slam.graph.slam.GraphSlam`."""
+    """The local-SLAM steps of :class:`~chizu.numeric.slam.graph.slam.GraphSlam`."""
 
     config: GraphSlamConfig
     submaps: list[Submap]

@@ -21,13 +21,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from numeric.geometry import compose, invert, relative
-from numeric.slam.graph.config import GraphSlamConfig
-from numeric.slam.graph.submaps import LoopMap, Submap
-from numeric.slam.keyframes import voxel_downsample
-from numeric.slam.matching.correlative import Match, refine
-from numeric.slam.pose_graph import PoseGraph
-from numeric.threads import thread_map
+from chizu.numeric.geometry import compose, invert, relative
+from chizu.numeric.slam.graph.config import GraphSlamConfig
+from chizu.numeric.slam.graph.submaps import LoopMap, Submap
+from chizu.numeric.slam.keyframes import voxel_downsample
+from chizu.numeric.slam.matching.correlative import Match, refine
+from chizu.numeric.slam.pose_graph import PoseGraph
+from chizu.numeric.threads import thread_map
 
 
 @dataclass
@@ -63,7 +63,7 @@ def tie(tied_at: np.ndarray, span_lo: np.ndarray, span_hi: np.ndarray, k: int,
 
 
 class LoopClosing:
-    """The loop-closure steps of :class:`~numeric.slam.graph.slam.GraphSlam`."""
+    """The loop-closure steps of :class:`~chizu.numeric.slam.graph.slam.GraphSlam`."""
 
     config: GraphSlamConfig
     submaps: list[Submap]

@@ -1,14 +1,14 @@
 """Graph SLAM with loop closure, beyond the paper: Hess, Kohler, Rapp, Andor, "Real-Time
 Loop Closure in 2D LIDAR SLAM" (ICRA 2016, Cartographer) -- the estimator that runs the
-steps of :mod:`~numeric.slam.graph.local_slam`, :mod:`~numeric.slam.graph.submaps` and
-:mod:`~numeric.slam.graph.loop_closure` scan by scan.
+steps of :mod:`~chizu.numeric.slam.graph.local_slam`, :mod:`~chizu.numeric.slam.graph.submaps` and
+:mod:`~chizu.numeric.slam.graph.loop_closure` scan by scan.
 
 The nodes and edges (local matches, odometry, closures) form a pose graph optimised
-incrementally by iSAM2 (:mod:`numeric.slam.pose_graph`); after a closure the whole
+incrementally by iSAM2 (:mod:`chizu.numeric.slam.pose_graph`); after a closure the whole
 trajectory moves. Submaps keep their grids in the local-SLAM frame; a submap's place in
 the world is its anchor node's optimised pose. The end of a run
-(:meth:`~numeric.slam.alignment.AlignedOutputs.finish`) refines every scan's pose by the
-global scan alignment both estimators share (:mod:`numeric.slam.alignment`).
+(:meth:`~chizu.numeric.slam.alignment.AlignedOutputs.finish`) refines every scan's pose by the
+global scan alignment both estimators share (:mod:`chizu.numeric.slam.alignment`).
 """
 
 from __future__ import annotations
@@ -18,16 +18,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from numeric.geometry import compose, place, relative
-from numeric.scan import Scan
-from numeric.slam.alignment import AlignedOutputs, AlignmentConfig, ScanStore
-from numeric.slam.graph.config import GraphSlamConfig
-from numeric.slam.graph.local_slam import LocalSlam, rotate_xy
-from numeric.slam.graph.loop_closure import LoopClosing, LoopClosure
-from numeric.slam.graph.submaps import LoopMap, Submap, Submaps
-from numeric.slam.keyframes import Keyframes, moved, voxel_downsample
-from numeric.slam.pose_graph import GraphConfig, OdometryCalibration, PoseGraph
-from numeric.slam.saved_map import Constraints
+from chizu.numeric.geometry import compose, place, relative
+from chizu.numeric.scan import Scan
+from chizu.numeric.slam.alignment import AlignedOutputs, AlignmentConfig, ScanStore
+from chizu.numeric.slam.graph.config import GraphSlamConfig
+from chizu.numeric.slam.graph.local_slam import LocalSlam, rotate_xy
+from chizu.numeric.slam.graph.loop_closure import LoopClosing, LoopClosure
+from chizu.numeric.slam.graph.submaps import LoopMap, Submap, Submaps
+from chizu.numeric.slam.keyframes import Keyframes, moved, voxel_downsample
+from chizu.numeric.slam.pose_graph import GraphConfig, OdometryCalibration, PoseGraph
+from chizu.numeric.slam.saved_map import Constraints
 
 
 @dataclass

@@ -25,11 +25,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from numeric.geometry import compose, invert, place
-from numeric.probability_grid import ProbabilityGrid
-from numeric.slam.graph.config import GraphSlamConfig
-from numeric.slam.keyframes import connect_returns
-from numeric.slam.matching.correlative import PrecomputedGrid
+from chizu.numeric.geometry import compose, invert, place
+from chizu.numeric.probability_grid import ProbabilityGrid
+from chizu.numeric.slam.graph.config import GraphSlamConfig
+from chizu.numeric.slam.keyframes import connect_returns
+from chizu.numeric.slam.matching.correlative import PrecomputedGrid
 
 
 @dataclass
@@ -62,7 +62,7 @@ class LoopMap:
 
 
 class Submaps:
-    """The submap steps of :class:`~numeric.slam.graph.slam.GraphSlam`."""
+    """The submap steps of :class:`~chizu.numeric.slam.graph.slam.GraphSlam`."""
 
     config: GraphSlamConfig
     submaps: list[Submap]
@@ -134,7 +134,7 @@ class Submaps:
         time (a submap always overlaps the one before it by half, and a robot turning in
         a room fills the next with the same cells): its grid is dropped, loop closure
         skips it, and on a long run the returns of its nodes no kept submap holds are
-        forgotten (:meth:`~numeric.slam.graph.slam.GraphSlam.forget`). Else its cells join the
+        forgotten (:meth:`~chizu.numeric.slam.graph.slam.GraphSlam.forget`). Else its cells join the
         cover."""
         cfg = self.config.submaps
         keys = self.observed_cells(k)

@@ -27,8 +27,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from numeric.geometry import wrap_angle
-from numeric.probability_grid import ProbabilityGrid, bilinear
+from chizu.numeric.geometry import wrap_angle
+from chizu.numeric.probability_grid import ProbabilityGrid, bilinear
 
 
 def angular_step(points: np.ndarray, resolution_m: float) -> float:

@@ -33,8 +33,8 @@ from numba import njit
 from pydantic import BaseModel, Field
 from scipy.spatial import cKDTree
 
-from numeric.errors import InvalidInput
-from numeric.geometry import compose, compose_into, place_into, relative, wrap_scalar
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.geometry import compose, compose_into, place_into, relative, wrap_scalar
 
 
 class IcpConfig(BaseModel):

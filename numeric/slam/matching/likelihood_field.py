@@ -6,7 +6,7 @@ share.
 (d_k,band(T s_b)² + alpha (l_k,band - l_b)²))``: for each beam b of the scan, the squared
 distance to the nearest map point in the sense of eq. 1 of Hara et al. (intensity term
 included when ``alpha > 0``), bilinearly interpolated in each chosen keyframe's
-precomputed squared-distance grid (:class:`~numeric.slam.keyframes.LikelihoodField`),
+precomputed squared-distance grid (:class:`~chizu.numeric.slam.keyframes.LikelihoodField`),
 the minimum over the keyframes (each placed at the pose the particle holds for it) and
 capped.
 
@@ -35,9 +35,9 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from numeric.geometry import wrap_scalar
-from numeric.slam.keyframes import LikelihoodField
-from numeric.threads import thread_map
+from chizu.numeric.geometry import wrap_scalar
+from chizu.numeric.slam.keyframes import LikelihoodField
+from chizu.numeric.threads import thread_map
 
 _MAX_STEP_M = 0.05  # largest Levenberg-Marquardt step (trust region)
 _MAX_STEP_RAD = 0.025

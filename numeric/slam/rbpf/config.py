@@ -11,12 +11,12 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, Field, model_validator
 
-from numeric.slam.alignment import AlignmentConfig
-from numeric.slam.gated import GateConfig
-from numeric.slam.keyframes import FieldConfig, MapConfig
-from numeric.slam.matching.intensity_icp import IcpConfig
-from numeric.slam.matching.likelihood_field import LoopGrid, MatchModel
-from numeric.threads import default_threads
+from chizu.numeric.slam.alignment import AlignmentConfig
+from chizu.numeric.slam.gated import GateConfig
+from chizu.numeric.slam.keyframes import FieldConfig, MapConfig
+from chizu.numeric.slam.matching.intensity_icp import IcpConfig
+from chizu.numeric.slam.matching.likelihood_field import LoopGrid, MatchModel
+from chizu.numeric.threads import default_threads
 
 Proposal = Literal["improved", "odometry", "gated-icp"]
 Resample = Literal["always", "ess"]
@@ -40,10 +40,10 @@ class MotionNoise(BaseModel):
 
 class OdometryCalibrationConfig(BaseModel):
     """The motion model's heading sigma learned from the log
-    (:mod:`numeric.slam.rbpf.odometry`)."""
+    (:mod:`chizu.numeric.slam.rbpf.odometry`)."""
 
     window: int = Field(200, ge=0, description="learned from the last this many updates "
-                        "(:class:`~numeric.slam.pose_graph.OdometryCalibration`); 0: fixed")
+                        "(:class:`~chizu.numeric.slam.pose_graph.OdometryCalibration`); 0: fixed")
     lag_m: float = Field(3.0, gt=0, description="each residual is the heading change since "
                          "the newest keyframe at least this much odometry path back, "
                          "matched against that keyframe alone, minus the odometry's")
@@ -59,7 +59,7 @@ class OdometryCalibrationConfig(BaseModel):
 
 
 class LoopStartConfig(BaseModel):
-    """The loop-aware start (:mod:`numeric.slam.rbpf.loop_start`): a wide search of the
+    """The loop-aware start (:mod:`chizu.numeric.slam.rbpf.loop_start`): a wide search of the
     scan against the best particle's old keyframes every ``every`` updates."""
 
     every: int = Field(1, ge=1, description="updates between two searches")
@@ -104,7 +104,7 @@ class LoopStartConfig(BaseModel):
 
 
 class RelocalisationConfig(BaseModel):
-    """The relocalisation against the whole old map (:mod:`numeric.slam.rbpf.relocalisation`):
+    """The relocalisation against the whole old map (:mod:`chizu.numeric.slam.rbpf.relocalisation`):
     a return from a loop farther off than the loop start's window."""
 
     every: int = Field(5, ge=1, description="updates between two searches")
@@ -147,7 +147,7 @@ class RelocalisationConfig(BaseModel):
 
 
 class ImprovedConfig(BaseModel):
-    """The improved proposal (Grisetti et al. 2007, §IV; :mod:`numeric.slam.rbpf.improved`).
+    """The improved proposal (Grisetti et al. 2007, §IV; :mod:`chizu.numeric.slam.rbpf.improved`).
 
     ``sigma_m`` is the σ of the likelihood field; ``cutoff_m`` caps each beam's
     residual (a return farther than that from every map point counts the same wherever
@@ -200,7 +200,7 @@ class RbpfConfig(BaseModel):
     within ``nearby_radius_m`` (an open scan reaches ``open_points_m``); the paper's
     proposals keep the reference their figures were made with (8 + 8 within 6 m) unless
     ``map`` is given. ``alignment``: the end of a run refines the best particle's
-    trajectory by graph SLAM's global scan alignment (:mod:`numeric.slam.alignment`,
+    trajectory by graph SLAM's global scan alignment (:mod:`chizu.numeric.slam.alignment`,
     after Lu & Milios 1997) -- a correction of centimetres that never re-decides a
     loop; the paper's proposals leave their estimate as it is unless it is given."""
 
@@ -245,7 +245,7 @@ class RbpfConfig(BaseModel):
     def single_hypothesis(cls, alpha: float = 0.0, seed: int = 0) -> RbpfConfig:
         """The paper's single-hypothesis SLAM (Hara et al. §6) with the improved
         proposal's scan matcher as its front end: one particle, whose pose is the
-        match's mean gated by eq. 5 (:func:`~numeric.slam.rbpf.improved.improved_update`);
+        match's mean gated by eq. 5 (:func:`~chizu.numeric.slam.rbpf.improved.improved_update`);
         the loop start every sixth update (its wide search is most of an update's time),
         no relocalisation and no learned odometry sigma (a particle cloud's spread; one
         hypothesis has none), the scans between updates on odometry, as §6 has them, and

@@ -17,7 +17,7 @@ trajectory (one map per particle). Per matched scan (§7.3):
    stores its own pose for it (:meth:`RbpfSlam.update_maps`).
 
 ``proposal="improved"`` (the default) replaces steps 1-2 by Grisetti et al.'s improved
-proposal (:mod:`numeric.slam.rbpf.improved`).
+proposal (:mod:`chizu.numeric.slam.rbpf.improved`).
 
 Maps are never copied: the keyframe scans are shared and each particle's map is its
 keyframe poses, kept as one pose array per keyframe plus a lineage matrix of indices
@@ -33,24 +33,24 @@ from typing import Literal
 
 import numpy as np
 
-from numeric.geometry import compose, relative
-from numeric.scan import Scan
-from numeric.slam.alignment import (
+from chizu.numeric.geometry import compose, relative
+from chizu.numeric.scan import Scan
+from chizu.numeric.slam.alignment import (
     AlignedOutputs,
     AlignmentConfig,
     ScanStore,
     estimate_closures,
 )
-from numeric.slam.gated import inside_gate
-from numeric.slam.keyframes import FieldCache, Keyframes, moved, voxel_downsample
-from numeric.slam.matching.intensity_icp import Reference, intensity_icp
-from numeric.slam.matching.likelihood_field import Beams, FieldPack
-from numeric.slam.pose_graph import GraphConfig
-from numeric.slam.rbpf.config import RbpfConfig
-from numeric.slam.rbpf.improved import improved_update, robust_start
-from numeric.slam.rbpf.loop_start import LoopStart
-from numeric.slam.rbpf.odometry import HeadingCalibration
-from numeric.slam.rbpf.relocalisation import Relocalisation
+from chizu.numeric.slam.gated import inside_gate
+from chizu.numeric.slam.keyframes import FieldCache, Keyframes, moved, voxel_downsample
+from chizu.numeric.slam.matching.intensity_icp import Reference, intensity_icp
+from chizu.numeric.slam.matching.likelihood_field import Beams, FieldPack
+from chizu.numeric.slam.pose_graph import GraphConfig
+from chizu.numeric.slam.rbpf.config import RbpfConfig
+from chizu.numeric.slam.rbpf.improved import improved_update, robust_start
+from chizu.numeric.slam.rbpf.loop_start import LoopStart
+from chizu.numeric.slam.rbpf.odometry import HeadingCalibration
+from chizu.numeric.slam.rbpf.relocalisation import Relocalisation
 
 
 def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -124,7 +124,8 @@ class RbpfSlam(AlignedOutputs):
 
     @property
     def odometry(self):  # type: ignore[no-untyped-def]
-        """The learned heading sigma (:class:`~numeric.slam.pose_graph.OdometryCalibration`)."""
+        """The learned heading sigma
+        (:class:`~chizu.numeric.slam.pose_graph.OdometryCalibration`)."""
         return self.calibration.learned
 
     def sigmas(self, u: np.ndarray) -> np.ndarray:
@@ -306,7 +307,7 @@ class RbpfSlam(AlignedOutputs):
 
     def track(self, u: np.ndarray, xy: np.ndarray, inten: np.ndarray | None) -> np.ndarray:
         """A scan between two updates: its increment from the last update, found as each
-        update finds its start (:func:`~numeric.slam.rbpf.improved.robust_start`: the
+        update finds its start (:func:`~chizu.numeric.slam.rbpf.improved.robust_start`: the
         best particle's map, the odometry prediction turned and shifted). Only the
         scan's own pose uses it -- the filter's updates stay every ``update_linear_m``,
         and the particles are not touched."""

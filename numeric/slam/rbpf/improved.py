@@ -2,7 +2,7 @@
 replacing the paper's steps 1-2: the start every particle is matched from (the
 odometry, corrected by a multi-start match of the best particle, or a loop start or a
 relocalisation), then every particle's match, samples and Gaussian fit
-(:func:`~numeric.slam.rbpf.proposal.propose_all`), its draw and its weight.
+(:func:`~chizu.numeric.slam.rbpf.proposal.propose_all`), its draw and its weight.
 """
 
 from __future__ import annotations
@@ -11,14 +11,20 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from numeric.geometry import compose, wrap_angle
-from numeric.slam.gated import inside_gate
-from numeric.slam.matching.likelihood_field import Beams, FieldPack
-from numeric.slam.rbpf.proposal import Sampling, Starts, loglik_all, propose_all, robust_increment
-from numeric.threads import thread_map
+from chizu.numeric.geometry import compose, wrap_angle
+from chizu.numeric.slam.gated import inside_gate
+from chizu.numeric.slam.matching.likelihood_field import Beams, FieldPack
+from chizu.numeric.slam.rbpf.proposal import (
+    Sampling,
+    Starts,
+    loglik_all,
+    propose_all,
+    robust_increment,
+)
+from chizu.numeric.threads import thread_map
 
 if TYPE_CHECKING:
-    from numeric.slam.rbpf.filter import RbpfSlam
+    from chizu.numeric.slam.rbpf.filter import RbpfSlam
 
 
 def copies(x: np.ndarray, kf_pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -37,7 +43,7 @@ def copies(x: np.ndarray, kf_pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def robust_start(slam: RbpfSlam, u: np.ndarray, beams: Beams, fields: FieldPack,
                  kf_best: np.ndarray) -> tuple[np.ndarray, int]:
-    """:func:`~numeric.slam.rbpf.proposal.robust_increment` of the best particle (its
+    """:func:`~chizu.numeric.slam.rbpf.proposal.robust_increment` of the best particle (its
     map ``kf_best (K, 1, 3)``) from ``x_best (+) u``. It scores the starts with the fixed
     motion model, not the learned one: it is what finds the odometry's failures, the
     tail a spread learned from the core does not cover. Returns the increment and

@@ -6,7 +6,7 @@ a long loop the place seen before can be farther off than the likelihood field's
 cutoff, and then no particle is pulled back (the paper relies on enough particles
 having drifted the right way). When the best particle's reference holds old keyframes
 (not among the recent ones), the scan is searched for against them alone
-(:func:`~numeric.slam.matching.likelihood_field.loop_search`) and a clearly better,
+(:func:`~chizu.numeric.slam.matching.likelihood_field.loop_search`) and a clearly better,
 well-constrained, persistent alignment becomes every particle's start and motion prior.
 Why each test is there: ``docs/notes/slam-rbpf.md``.
 """
@@ -19,14 +19,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy import ndimage
 
-from numeric.geometry import compose, invert, place, relative, wrap_angle
-from numeric.occupancy import FREE, UNKNOWN, build_occupancy
-from numeric.slam.keyframes import Keyframe
-from numeric.slam.matching.likelihood_field import Beams, count_inliers, loop_search
-from numeric.slam.rbpf.config import LoopStartConfig
+from chizu.numeric.geometry import compose, invert, place, relative, wrap_angle
+from chizu.numeric.occupancy import FREE, UNKNOWN, build_occupancy
+from chizu.numeric.slam.keyframes import Keyframe
+from chizu.numeric.slam.matching.likelihood_field import Beams, count_inliers, loop_search
+from chizu.numeric.slam.rbpf.config import LoopStartConfig
 
 if TYPE_CHECKING:
-    from numeric.slam.rbpf.filter import RbpfSlam
+    from chizu.numeric.slam.rbpf.filter import RbpfSlam
 
 
 def world_shift(frm: np.ndarray, to: np.ndarray) -> np.ndarray:

@@ -1,5 +1,5 @@
 """Odometry calibration from scan matching: the heading sigma of eq. 7's motion model
-learned from the log (:class:`~numeric.slam.pose_graph.OdometryCalibration`).
+learned from the log (:class:`~chizu.numeric.slam.pose_graph.OdometryCalibration`).
 
 A robot's odometry can be far better than the fixed Σ_w says; with the fixed sigma the
 scan match decides the heading alone, also where the scan hardly constrains it, and
@@ -19,14 +19,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from numeric.geometry import compose, wrap_angle
-from numeric.slam.matching.likelihood_field import Beams, count_inliers
-from numeric.slam.pose_graph import OdometryCalibration
-from numeric.slam.rbpf.config import OdometryCalibrationConfig
-from numeric.slam.rbpf.proposal import Starts, robust_increment
+from chizu.numeric.geometry import compose, wrap_angle
+from chizu.numeric.slam.matching.likelihood_field import Beams, count_inliers
+from chizu.numeric.slam.pose_graph import OdometryCalibration
+from chizu.numeric.slam.rbpf.config import OdometryCalibrationConfig
+from chizu.numeric.slam.rbpf.proposal import Starts, robust_increment
 
 if TYPE_CHECKING:
-    from numeric.slam.rbpf.filter import RbpfSlam
+    from chizu.numeric.slam.rbpf.filter import RbpfSlam
 
 
 @dataclass

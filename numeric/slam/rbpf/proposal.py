@@ -1,13 +1,13 @@
 """The improved proposal of Grisetti, Stachniss & Burgard, "Improved Techniques for Grid
 Mapping with Rao-Blackwellized Particle Filters", IEEE T-RO 23(1), 2007 (GMapping), on
-chizu's keyframe likelihood fields (:mod:`numeric.slam.matching.likelihood_field`).
+chizu's keyframe likelihood fields (:mod:`chizu.numeric.slam.matching.likelihood_field`).
 
 Per particle i, with x_{t-1} its pose, u_t the odometry increment and m its own map (its
 keyframe poses; the scans and their likelihood fields are shared):
 
 1. **scan matching** (§IV-A): from the odometry prediction ``x' = x_{t-1} (+) u_t`` to
    the mode x̂ of τ = ``p(z_t|m,x) p(x|x_{t-1},u_t)``
-   (:func:`~numeric.slam.matching.likelihood_field.scan_match`). The paper matches
+   (:func:`~chizu.numeric.slam.matching.likelihood_field.scan_match`). The paper matches
    ``argmax_x p(z_t | m, x)``; with the motion model in the objective (``match_prior``)
    the mode is the same wherever the scan constrains the pose, but it stays at the
    odometry along a corridor's axis instead of wandering on the likelihood's flat,
@@ -43,8 +43,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from numeric.geometry import compose_into, wrap_scalar
-from numeric.slam.matching.likelihood_field import (
+from chizu.numeric.geometry import compose_into, wrap_scalar
+from chizu.numeric.slam.matching.likelihood_field import (
     Beams,
     FieldPack,
     MatchModel,

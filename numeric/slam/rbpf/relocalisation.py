@@ -3,9 +3,9 @@ estimate drifted beyond the loop start's window.
 
 Every ``every`` updates, the keyframes at least ``min_age_s`` old that the best particle
 placed within ``radius_m`` of its estimate are ray-cast into one probability grid
-(:func:`~numeric.occupancy.build_probability_grid`), and the scan is matched in it by
+(:func:`~chizu.numeric.occupancy.build_probability_grid`), and the scan is matched in it by
 branch and bound (Hess et al. 2016, §V, Algorithms 2-3:
-:class:`~numeric.slam.matching.correlative.PrecomputedGrid`) within ``window_m`` /
+:class:`~chizu.numeric.slam.matching.correlative.PrecomputedGrid`) within ``window_m`` /
 ``angle_rad``. The score is the mean probability of the cells the returns fall in, so
 free space the old map saw counts against a pose. A match is taken when it is unique
 (no pose ``unique_m`` away scores ``unique_ratio`` of it: a corridor's repeated
@@ -24,15 +24,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from numeric.geometry import compose, relative
-from numeric.occupancy import build_probability_grid
-from numeric.slam.matching.correlative import Match, PrecomputedGrid
-from numeric.slam.matching.likelihood_field import Beams, LoopGrid, loop_search
-from numeric.slam.rbpf.config import LoopStartConfig, RelocalisationConfig
-from numeric.slam.rbpf.loop_start import Persistence, free_space_share, world_shift
+from chizu.numeric.geometry import compose, relative
+from chizu.numeric.occupancy import build_probability_grid
+from chizu.numeric.slam.matching.correlative import Match, PrecomputedGrid
+from chizu.numeric.slam.matching.likelihood_field import Beams, LoopGrid, loop_search
+from chizu.numeric.slam.rbpf.config import LoopStartConfig, RelocalisationConfig
+from chizu.numeric.slam.rbpf.loop_start import Persistence, free_space_share, world_shift
 
 if TYPE_CHECKING:
-    from numeric.slam.rbpf.filter import RbpfSlam
+    from chizu.numeric.slam.rbpf.filter import RbpfSlam
 
 
 @dataclass

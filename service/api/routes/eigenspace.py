@@ -9,8 +9,8 @@ import numpy as np
 from fastapi import APIRouter, File, Form, Path, Query, Request, Response, UploadFile, status
 from pydantic import ValidationError
 
-from numeric.eigenspace.analysis import EigenspaceConfig
-from numeric.eigenspace.image_sets import (
+from chizu.numeric.eigenspace.analysis import EigenspaceConfig
+from chizu.numeric.eigenspace.image_sets import (
     MAX_IMAGES,
     POSES_FILE,
     decode_image,
@@ -18,13 +18,13 @@ from numeric.eigenspace.image_sets import (
     read_image_set,
     read_image_zip,
 )
-from numeric.errors import InvalidInput
-from service.api.strict import StrictJsonRoute
-from service.compute import stack_turn
-from service.deps import EigenspaceDep, WorldDep
-from service.disconnect import unless_disconnected
-from service.eigenspace import check_source
-from service.schemas.eigenspace import (
+from chizu.numeric.errors import InvalidInput
+from chizu.service.api.strict import StrictJsonRoute
+from chizu.service.compute import stack_turn
+from chizu.service.deps import EigenspaceDep, WorldDep
+from chizu.service.disconnect import unless_disconnected
+from chizu.service.eigenspace import check_source
+from chizu.service.schemas.eigenspace import (
     MAX_TURN_IMAGES,
     CameraIn,
     CameraOut,
@@ -38,7 +38,7 @@ from service.schemas.eigenspace import (
     StopIn,
     TurnIn,
 )
-from service.schemas.jobs import JobOut
+from chizu.service.schemas.jobs import JobOut
 
 router = APIRouter(prefix="/worlds/{world}", tags=["eigenspace localization"],
                    route_class=StrictJsonRoute)

@@ -2,9 +2,9 @@ import asyncio
 
 from fastapi import APIRouter
 
-from service.api.strict import StrictJsonRoute
-from service.deps import ComputeDep, KbDep, WorldsDep
-from service.schemas.common import Health
+from chizu.service.api.strict import StrictJsonRoute
+from chizu.service.deps import ComputeDep, KbDep, WorldsDep
+from chizu.service.schemas.common import Health
 
 router = APIRouter(tags=["health"], route_class=StrictJsonRoute)
 

@@ -6,10 +6,10 @@ from typing import Annotated, Literal
 
 from fastapi import APIRouter, Path, Query
 
-from numeric.world import ID_PATTERN
-from service.api.strict import StrictJsonRoute
-from service.deps import JobsDep
-from service.schemas.jobs import JobOut
+from chizu.numeric.world import ID_PATTERN
+from chizu.service.api.strict import StrictJsonRoute
+from chizu.service.deps import JobsDep
+from chizu.service.schemas.jobs import JobOut
 
 router = APIRouter(prefix="/jobs", tags=["jobs"], route_class=StrictJsonRoute)
 JobId = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$", description="job id")]

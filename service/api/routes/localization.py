@@ -8,16 +8,16 @@ from typing import Annotated, Any
 import numpy as np
 from fastapi import APIRouter, Path, Response, status
 
-from numeric.slam.logs import format_tum
-from service.api.strict import StrictJsonRoute
-from service.deps import LocalizationDep, WorldDep
-from service.schemas.localization import (
+from chizu.numeric.slam.logs import format_tum
+from chizu.service.api.strict import StrictJsonRoute
+from chizu.service.deps import LocalizationDep, WorldDep
+from chizu.service.schemas.localization import (
     LocalizationRunIn,
     LocalizationRunListed,
     LocalizationRunOut,
     LocalizedTrajectoryOut,
 )
-from service.schemas.slam import ScansIn
+from chizu.service.schemas.slam import ScansIn
 
 router = APIRouter(prefix="/worlds/{world}", tags=["Localization"],
                    route_class=StrictJsonRoute)

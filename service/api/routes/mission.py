@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Response, status
 
-from service.api.strict import StrictJsonRoute
-from service.deps import MissionDep, WorldDep
-from service.schemas.jobs import JobOut
-from service.schemas.mission import MissionConfig, MissionRecordOut
+from chizu.service.api.strict import StrictJsonRoute
+from chizu.service.deps import MissionDep, WorldDep
+from chizu.service.schemas.jobs import JobOut
+from chizu.service.schemas.mission import MissionConfig, MissionRecordOut
 
 router = APIRouter(prefix="/worlds/{world}", tags=["mission"], route_class=StrictJsonRoute)
 

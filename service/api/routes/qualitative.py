@@ -4,14 +4,14 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request, status
 
-from numeric.errors import InvalidInput
-from numeric.observation import Observation
-from numeric.world import ID_PATTERN
-from service.api.strict import StrictJsonRoute
-from service.deps import WorldDep, WorldsDep
-from service.disconnect import unless_disconnected
-from service.kb import KbError
-from service.schemas.qualitative import (
+from chizu.numeric.errors import InvalidInput
+from chizu.numeric.observation import Observation
+from chizu.numeric.world import ID_PATTERN
+from chizu.service.api.strict import StrictJsonRoute
+from chizu.service.deps import WorldDep, WorldsDep
+from chizu.service.disconnect import unless_disconnected
+from chizu.service.kb import KbError
+from chizu.service.schemas.qualitative import (
     DrmEdgeOut,
     DrmOut,
     ObservationOut,

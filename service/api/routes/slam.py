@@ -7,10 +7,10 @@ from typing import Annotated, Any
 import numpy as np
 from fastapi import APIRouter, Path, Query, Request, Response, status
 
-from numeric.slam.logs import format_tum
-from service.api.strict import StrictJsonRoute
-from service.deps import SlamDep, WorldDep
-from service.schemas.slam import (
+from chizu.numeric.slam.logs import format_tum
+from chizu.service.api.strict import StrictJsonRoute
+from chizu.service.deps import SlamDep, WorldDep
+from chizu.service.schemas.slam import (
     CommitOut,
     NearRegionOut,
     ScansIn,

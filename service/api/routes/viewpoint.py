@@ -6,9 +6,9 @@ from typing import Any
 
 from fastapi import APIRouter
 
-from service.api.strict import StrictJsonRoute
-from service.deps import ViewpointDep, WorldDep
-from service.schemas.viewpoint import ViewpointGroupsOut, ViewpointPlanIn, ViewpointPlanOut
+from chizu.service.api.strict import StrictJsonRoute
+from chizu.service.deps import ViewpointDep, WorldDep
+from chizu.service.schemas.viewpoint import ViewpointGroupsOut, ViewpointPlanIn, ViewpointPlanOut
 
 router = APIRouter(prefix="/worlds/{world}", tags=["viewpoint planning"],
                    route_class=StrictJsonRoute)

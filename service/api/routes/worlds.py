@@ -1,9 +1,9 @@
 from fastapi import APIRouter, status
 
-from numeric.world import WorldDescription
-from service.api.strict import StrictJsonRoute
-from service.deps import WorldDep, WorldsDep
-from service.schemas.common import WorldSummary
+from chizu.numeric.world import WorldDescription
+from chizu.service.api.strict import StrictJsonRoute
+from chizu.service.deps import WorldDep, WorldsDep
+from chizu.service.schemas.common import WorldSummary
 
 router = APIRouter(prefix="/worlds", tags=["worlds"], route_class=StrictJsonRoute)
 

@@ -1,0 +1,169 @@
+"""What the typed client (:mod:`chizu.service.client`, generated from the OpenAPI) stands
+on: how a call is encoded and its answer decoded, the problem+json error, and the sync and
+async transports (httpx) with job polling. Written once here; the generated module only
+lists the operations."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+from urllib.parse import quote
+
+import httpx
+from pydantic import BaseModel, TypeAdapter
+
+from chizu.service.schemas.jobs import JobOut
+
+#: a job's statuses that will not change any more
+FINAL = ("done", "failed", "cancelled", "interrupted")
+
+
+class ProblemError(Exception):
+    """A 4xx or 5xx answer: its RFC 9457 problem document (``type``, ``title``,
+    ``status``, ``detail``, ``field``, ``instance``) as :attr:`problem`."""
+
+    def __init__(self, status: int, problem: dict[str, Any]) -> None:
+        self.status, self.problem = status, problem
+        self.field: str | None = problem.get("field")
+        self.detail: str = str(problem.get("detail") or problem.get("title") or status)
+        where = f" (field {self.field})" if self.field else ""
+        super().__init__(f"{status} {problem.get('title', '')}: {self.detail}{where}")
+
+
+class JobError(Exception):
+    """A job that ended other than done (failed, cancelled, interrupted): :attr:`job`."""
+
+    def __init__(self, job: JobOut) -> None:
+        self.job = job
+        why = f": {job.error.detail}" if job.error is not None else ""
+        super().__init__(f"job {job.id} ({job.kind}) {job.status}{why}")
+
+
+@dataclass
+class Request:
+    """One operation's call: method, path (its parameters quoted in), query, body."""
+
+    method: str
+    path: str
+    params: dict[str, Any] = field(default_factory=dict)
+    json: Any = None
+    content: bytes | None = None
+    files: Any = None
+    data: Mapping[str, str] | None = None
+
+    def kwargs(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"params": {k: v for k, v in self.params.items()
+                                          if v is not None}}
+        if self.json is not None:
+            out["json"] = encode(self.json)
+        if self.content is not None:
+            out["content"] = self.content
+        if self.files is not None:
+            out["files"] = self.files
+        if self.data is not None:
+            out["data"] = dict(self.data)
+        return out
+
+
+def segment(value: str) -> str:
+    """A path parameter, quoted (a name never changes the path's shape)."""
+    return quote(str(value), safe="")
+
+
+def encode(body: Any) -> Any:
+    """A request body: a pydantic model as its JSON (by alias, unset fields left out) or a
+    plain mapping as it is."""
+    if isinstance(body, BaseModel):
+        return body.model_dump(mode="json", by_alias=True, exclude_unset=True)
+    return body
+
+
+def decode(response: httpx.Response, out: Any) -> Any:
+    """The answer: raises :class:`ProblemError` for a 4xx/5xx; else ``None`` (no
+    content), bytes (``out`` is bytes), text (a text answer), or the JSON validated as
+    ``out`` (a model, a ``list[...]``, or ``Any``)."""
+    if response.status_code >= 400:
+        try:
+            problem = response.json()
+            if not isinstance(problem, dict):
+                raise ValueError
+        except ValueError:
+            problem = {"status": response.status_code, "title": response.reason_phrase,
+                       "detail": response.text[:500]}
+        raise ProblemError(response.status_code, problem)
+    if response.status_code == 204 or out is None:
+        return None
+    if out is bytes:
+        return response.content
+    media = response.headers.get("content-type", "").split(";")[0].strip()
+    if media.startswith("text/") or media == "application/yaml":
+        return response.text
+    return TypeAdapter(out).validate_python(response.json())
+
+
+class SyncTransport:
+    """Calls over an ``httpx.Client`` (a ``fastapi.testclient.TestClient`` too)."""
+
+    def __init__(self, base_url: str = "http://127.0.0.1:8000", timeout_s: float = 60.0,
+                 http: httpx.Client | None = None) -> None:
+        self.http = http or httpx.Client(base_url=base_url, timeout=timeout_s)
+        self._own = http is None
+
+    def call(self, request: Request, out: Any) -> Any:
+        return decode(self.http.request(request.method, request.path, **request.kwargs()),
+                      out)
+
+    def wait_job(self, job: JobOut | str, timeout_s: float = 600.0,
+                 poll_s: float = 0.2) -> JobOut:
+        """Poll ``GET /jobs/{id}`` until the job ends: the job when done, else
+        :class:`JobError`; ``TimeoutError`` past ``timeout_s``."""
+        jid = job if isinstance(job, str) else job.id
+        deadline = time.monotonic() + timeout_s
+        while True:
+            j = self.call(Request("GET", f"/jobs/{segment(jid)}"), JobOut)
+            if j.status in FINAL:
+                if j.status != "done":
+                    raise JobError(j)
+                return j  # type: ignore[no-any-return]
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"job {jid} still {j.status} after {timeout_s:g} s")
+            time.sleep(poll_s)
+
+    def close(self) -> None:
+        if self._own:
+            self.http.close()
+
+
+class AsyncTransport:
+    """Calls over an ``httpx.AsyncClient``."""
+
+    def __init__(self, base_url: str = "http://127.0.0.1:8000", timeout_s: float = 60.0,
+                 http: httpx.AsyncClient | None = None) -> None:
+        self.http = http or httpx.AsyncClient(base_url=base_url, timeout=timeout_s)
+        self._own = http is None
+
+    async def call(self, request: Request, out: Any) -> Any:
+        return decode(await self.http.request(request.method, request.path,
+                                              **request.kwargs()), out)
+
+    async def wait_job(self, job: JobOut | str, timeout_s: float = 600.0,
+                       poll_s: float = 0.2) -> JobOut:
+        """As :meth:`SyncTransport.wait_job`, without blocking the event loop."""
+        jid = job if isinstance(job, str) else job.id
+        deadline = time.monotonic() + timeout_s
+        while True:
+            j = await self.call(Request("GET", f"/jobs/{segment(jid)}"), JobOut)
+            if j.status in FINAL:
+                if j.status != "done":
+                    raise JobError(j)
+                return j  # type: ignore[no-any-return]
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"job {jid} still {j.status} after {timeout_s:g} s")
+            await asyncio.sleep(poll_s)
+
+    async def aclose(self) -> None:
+        if self._own:
+            await self.http.aclose()
