@@ -28,6 +28,7 @@ import hashlib
 import logging
 import multiprocessing
 import os
+import threading
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -55,7 +56,8 @@ T = TypeVar("T")
 
 MISS = "chizu-compute-cache-miss"  #: a task's answer when its worker lacks the cached bytes
 _CACHE_ENTRIES = 4
-_cache: OrderedDict[str, Any] = OrderedDict()  # per worker process
+_cache: OrderedDict[str, Any] = OrderedDict()  # per worker process (or the CLI's)
+_cache_lock = threading.Lock()  # without workers, tasks run in threads of one process
 
 
 class BudgetExceeded(ChizuError):
@@ -84,15 +86,16 @@ class Cached:
 def _cached(key: str, blob: bytes | None, load: Callable[[bytes], Any]) -> Any:
     """The object for ``key`` in this worker, built from ``blob`` on first use; MISS if
     the worker has not seen it and no bytes came with the task."""
-    if key in _cache:
-        _cache.move_to_end(key)
-        return _cache[key]
-    if blob is None:
-        return MISS
-    obj = _cache[key] = load(blob)
-    while len(_cache) > _CACHE_ENTRIES:
-        _cache.popitem(last=False)
-    return obj
+    with _cache_lock:
+        if key in _cache:
+            _cache.move_to_end(key)
+            return _cache[key]
+        if blob is None:
+            return MISS
+        obj = _cache[key] = load(blob)
+        while len(_cache) > _CACHE_ENTRIES:
+            _cache.popitem(last=False)
+        return obj
 
 
 def _run_cached(fn: Callable[..., Any], keys: tuple[str, ...],
@@ -189,9 +192,10 @@ class ComputePool:
         """``fn(*objs, *args)`` where each ``obj = c.load(c.blob)`` of ``cached`` is built
         once per worker: the bytes travel only to a worker that has not seen them."""
         cs = cached if isinstance(cached, tuple) else (cached,)
-        if self._pool is None:
-            return await asyncio.to_thread(fn, *(c.load(c.blob) for c in cs), *args)
         keys, loads = tuple(c.key for c in cs), tuple(c.load for c in cs)
+        if self._pool is None:  # in this process, with the workers' own cache
+            return await asyncio.to_thread(_run_cached, fn, keys, tuple(c.blob for c in cs),
+                                           loads, args)  # type: ignore[return-value]
         r = await self.run(_run_cached, fn, keys, None, loads, args, budget_s=budget_s)
         if isinstance(r, str) and r == MISS:
             r = await self.run(_run_cached, fn, keys, tuple(c.blob for c in cs), loads, args,

@@ -37,7 +37,7 @@ from chizu.numeric.worlds import TEMPLATES, from_template
 from chizu.service.compute import Cached, blob_key, load_world
 from chizu.service.kb import KbError, KnowledgeBase
 from chizu.service.schemas.common import WorldSummary
-from chizu.service.store import Store
+from chizu.service.store import Event, Store
 
 log = logging.getLogger(__name__)
 
@@ -182,9 +182,7 @@ class WorldService:
         await self._kb("create_world", self.create_call(desc))
         after = await self._load_snapshot(desc)
         events = self.store.events(name, after)
-        for ev in events:
-            op, args = self.event_call(name, ev.kind, ev.payload)
-            await self._kb(op, args)
+        await asyncio.to_thread(self._replay, name, events)  # off the event loop, in order
         self._since_snapshot[name] = len(events)
         for kind in self.artifacts.values():
             blob = self.store.artifact(name, kind.name)
@@ -193,6 +191,13 @@ class WorldService:
         self._models[name] = World(desc)
         if version is not None:
             self._loaded[name] = version
+
+    def _replay(self, name: str, events: list[Event]) -> None:
+        """Apply stored events to the world's facts, one blocking engine call each (from
+        a worker thread: an awaited call per event would cost a loop round trip each)."""
+        for ev in events:
+            op, args = self.event_call(name, ev.kind, ev.payload)
+            self.kb.call(op, **args)
 
     @contextmanager
     def _own_write(self, world: str) -> Iterator[sqlite3.Connection]:
