@@ -292,7 +292,7 @@ run_field(Text, Field, Run) :-
 
 %   The world's committed SLAM run; a world without one has no map to read.
 committed_map_run(W, Run) :-
-    (   committed_run(W, Run) -> true ; throw(chizu_error(unknown_map(W), world)) ).
+    (   committed_run(W, Run) -> true ; throw(chizu_error(unknown_map(W), map)) ).
 
 %   Pose indices are list positions.
 slam_pose_item(Run, P, map_pose(Run, I, X, Y, Th), I, I1) :-

@@ -265,7 +265,7 @@ test(summary_op, [nondet, cleanup(drop_world(s16))]) :-
 test(summary_without_map, [nondet, cleanup(drop_world(s17))]) :-
     call_api(create_world, _{world:"s17", landmarks:[]}, _),
     call_api(slam_summary, _{world:"s17"}, R),
-    R.ok == false, R.error.type == "unknown_map", R.error.field == "world",
+    R.ok == false, R.error.type == "unknown_map", R.error.field == "map",
     R.error.value == "s17",
     call_api(slam_summary, _{world:"nope"}, R2), R2.error.type == "unknown_world".
 test(regions_near_sorted, [nondet, cleanup(drop_world(s19))]) :-

@@ -224,6 +224,27 @@ def decode_png_turn(images_png: list[str], shape: tuple[int, int] | None) -> np.
     return stack_turn(out, "images_png")
 
 
+@dataclass(frozen=True)
+class TurnPng:
+    """A turn as one base64 PNG, its images side by side (``TurnIn.turn_png``)."""
+
+    b64: str
+
+
+def decode_turn_png(turn: TurnPng, shape: tuple[int, int], n: int) -> np.ndarray:
+    """The turn ``(n, H, W)`` of one base64 PNG holding its n images of ``shape`` (H, W)
+    side by side, left to right: one file decoded instead of n (its header checked
+    first: exactly n x W by H px); 422 naming ``turn_png``."""
+    try:
+        raw = base64.b64decode(turn.b64, validate=True)
+    except (binascii.Error, ValueError) as e:
+        raise InvalidInput(f"not base64: {e}", field="turn_png") from e
+    h, w = shape
+    strip = decode_image("turn_png", raw, formats=("PNG",), expect=(n * w, h),
+                         max_side_px=max(n * w, h))
+    return np.ascontiguousarray(strip.reshape(h, n, w).transpose(1, 0, 2))
+
+
 def stack_turn(images: list[np.ndarray], field: str) -> np.ndarray:
     """One turn ``(n, H, W)`` from decoded images, which must share one size."""
     if len({a.shape for a in images}) != 1:
@@ -251,11 +272,15 @@ class FirstStop:
     vote: Vote
 
 
-def turn_task(a: EigenspaceAnalysis, turn: list[str] | np.ndarray,
+def turn_task(a: EigenspaceAnalysis, turn: list[str] | TurnPng | np.ndarray,
               first_stop: bool) -> TurnCandidates | FirstStop:
     """One turn's region hits (Ohta et al. §3.4: project, region test); for a first
-    stop, the new session and its vote. ``turn``: base64 PNGs, or images."""
-    imgs = decode_png_turn(turn, a.model.image_shape) if isinstance(turn, list) else turn
+    stop, the new session and its vote. ``turn``: base64 PNGs, one PNG of the whole
+    turn, or images."""
+    if isinstance(turn, TurnPng):
+        imgs = decode_turn_png(turn, a.model.image_shape, len(a.model.directions))
+    else:
+        imgs = decode_png_turn(turn, a.model.image_shape) if isinstance(turn, list) else turn
     cands = turn_candidates(a.regions, check_turn(a, imgs))
     if not first_stop:
         return cands
@@ -314,6 +339,8 @@ def camera_task(world: World, config: CameraConfig, pose: np.ndarray, turn: int 
                                                                        float(pose[2]), turn)
     if fmt == "png":
         return {"images_png": [png_b64(i) for i in imgs]}
+    if fmt == "turn_png":
+        return {"turn_png": png_b64(np.concatenate(list(imgs), axis=1))}
     return {"images": np.round(imgs, 4).tolist()}
 
 

@@ -45,6 +45,7 @@ from chizu.service.compute import (
     Cached,
     ComputePool,
     FirstStop,
+    TurnPng,
     blob_key,
     camera_task,
     next_move_task,
@@ -289,7 +290,7 @@ class EigenspaceService:
                 "unique": report["unique"], "candidates": report["candidates"],
                 "refused_by": report["refused_by"]}
 
-    async def localize(self, world: str, turn: list[str] | np.ndarray) -> LocalizationOut:
+    async def localize(self, world: str, turn: list[str] | TurnPng | np.ndarray) -> LocalizationOut:
         """One stop from state X: state, pose (when Z) and candidates. The turn is
         decoded, matched, voted on and reported in a compute worker; the Fig. 4 rules
         decide the state."""
@@ -325,7 +326,7 @@ class EigenspaceService:
             st.state, st.history[-1]["outcome"] if st.history else "none",
             self._report(world, st.session, vote)))
 
-    async def add_stop(self, world: str, sid: str, turn: list[str] | np.ndarray,
+    async def add_stop(self, world: str, sid: str, turn: list[str] | TurnPng | np.ndarray,
                        motion: np.ndarray | None) -> SessionLocalizationOut:
         """A stop: images of one full turn and the odometry (dx, dy, dtheta) since the
         previous stop's start, in that stop's frame."""

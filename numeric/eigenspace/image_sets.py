@@ -79,20 +79,22 @@ def parse_size(text: str | None) -> tuple[int, int] | None:
 
 def decode_image(name: str, data: bytes, size: tuple[int, int] | None = None,
                  formats: tuple[str, ...] = FORMATS,
-                 expect: tuple[int, int] | None = None) -> np.ndarray:
+                 expect: tuple[int, int] | None = None,
+                 max_side_px: int = MAX_SIDE_PX) -> np.ndarray:
     """A grey image ``(H, W)`` in [0, 1] from the bytes of a file in one of ``formats``
     (PNG or JPEG), resized to ``size`` (width, height) when given; the file's size is
     checked from its header before any pixel is decoded: at most MAX_FILE_SIDE_PX a
     side, and exactly ``expect`` (width, height) when given without ``size`` (an
-    eigenspace's own image size: a larger image is refused unread). Errors name the
-    file."""
+    eigenspace's own image size: a larger image is refused unread); the decoded image
+    is at most ``max_side_px`` a side (a turn's images side by side may be wider).
+    Errors name the file."""
     try:
         with Image.open(io.BytesIO(data)) as im:
             if im.format not in formats:
                 raise InvalidInput(f"{name}: {im.format or 'unknown'} image; "
                                    f"{' or '.join(formats)} expected", field=name)
             w, h = im.size
-            if max(w, h) > MAX_FILE_SIDE_PX:
+            if max(w, h) > max(MAX_FILE_SIDE_PX, max_side_px):
                 raise InvalidInput(f"{name}: {w} x {h} px; at most {MAX_FILE_SIDE_PX} px a "
                                    "side", field=name)
             if expect is not None and size is None and (w, h) != tuple(expect):
@@ -108,8 +110,8 @@ def decode_image(name: str, data: bytes, size: tuple[int, int] | None = None,
     except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as e:
         raise InvalidInput(f"{name}: not a readable PNG or JPEG image ({e})",
                            field=name) from e
-    if max(a.shape) > MAX_SIDE_PX:
-        raise InvalidInput(f"{name}: {a.shape[1]} x {a.shape[0]} px; at most {MAX_SIDE_PX} "
+    if max(a.shape) > max_side_px:
+        raise InvalidInput(f"{name}: {a.shape[1]} x {a.shape[0]} px; at most {max_side_px} "
                            "px a side: give a size to resize to (e.g. 64 x 32)", field=name)
     return np.clip(a, 0.0, 1.0)
 

@@ -28,22 +28,27 @@ Image = Annotated[list[Row], Field(min_length=1, max_length=MAX_IMAGE_SIDE)]
 
 class TurnIn(BaseModel):
     """One full turn of grey images in [0, 1], in order of relative heading 2*pi*j/n
-    (counter-clockwise from the robot's heading): as nested lists ``images[n][H][W]``
-    or as base64 PNG files ``images_png`` (8-bit grey), exactly one of the two."""
+    (counter-clockwise from the robot's heading), exactly one of: nested lists
+    ``images[n][H][W]``; base64 PNG files ``images_png`` (grey, 8 or 16 bit), one per
+    image; or ``turn_png``, one base64 PNG of the whole turn, its n images side by side
+    from left to right (n x W wide; one file to decode, the cheapest to localize from)."""
 
-    # exactly one of the two, and neither is null: so the schema says (oneOf)
+    # exactly one of the three, and none is null: so the schema says (oneOf)
     model_config = ConfigDict(extra="forbid", json_schema_extra={
-        "oneOf": [{"required": ["images"]}, {"required": ["images_png"]}]})
+        "oneOf": [{"required": ["images"]}, {"required": ["images_png"]},
+                  {"required": ["turn_png"]}]})
     images: Annotated[list[Image], Field(min_length=1, max_length=MAX_TURN_IMAGES)] = Field(
         default=None)  # type: ignore[assignment,arg-type]
     images_png: Annotated[list[Annotated[str, Field(max_length=1_000_000)]],
                           Field(min_length=1, max_length=MAX_TURN_IMAGES)] = Field(
         default=None)  # type: ignore[assignment,arg-type]
+    turn_png: Annotated[str, Field(min_length=1, max_length=10_000_000)] = Field(
+        default=None)  # type: ignore[assignment]
 
     @model_validator(mode="after")
     def _exactly_one(self) -> TurnIn:
-        if (self.images is None) == (self.images_png is None):
-            raise ValueError("give exactly one of images or images_png")
+        if sum(v is not None for v in (self.images, self.images_png, self.turn_png)) != 1:
+            raise ValueError("give exactly one of images, images_png or turn_png")
         return self
 
 
@@ -65,8 +70,10 @@ class CameraIn(BaseModel):
     pose: PoseIn
     turn: Annotated[int, Field(ge=1, le=MAX_TURN_IMAGES)] | None = Field(
         None, description="render a full turn of this many images instead of one")
-    format: Literal["list", "png"] = Field(
-        "png", description="png: base64 PNG images (`images_png`, ~10x smaller and faster "
+    format: Literal["list", "png", "turn_png"] = Field(
+        "png", description="turn_png: a turn as one base64 PNG, its images side by side "
+                           "(`turn_png`, the cheapest to localize from); "
+                           "png: base64 PNG images (`images_png`, ~10x smaller and faster "
                            "to localize from); list: nested lists in [0, 1] (`images`)")
     camera: CameraConfig | None = None
 
@@ -248,3 +255,5 @@ class CameraOut(BaseModel):
 
     images_png: list[str] | None = None
     images: list[list[list[float]]] | None = None
+    turn_png: str | None = Field(None, description="the turn's images side by side, left "
+                                 "to right (format turn_png)")

@@ -124,7 +124,11 @@ def serve_and_measure(workers: int, n: int) -> list[Row]:
                     raise SystemExit(f"learning ended {status}: {c.get(loc).json()}")
                 turn = c.post("/worlds/bench/camera", json={"pose": {"x": 3.0, "y": 5.0},
                                                             "turn": 72}).json()
+                strip = c.post("/worlds/bench/camera", json={
+                    "pose": {"x": 3.0, "y": 5.0}, "turn": 72, "format": "turn_png"}).json()
             body = json.dumps({"images_png": turn["images_png"]}).encode()
+            bodies = {"images_png (72 PNGs)": body,
+                      "turn_png (one PNG)": json.dumps({"turn_png": strip["turn_png"]}).encode()}
             run(srv.url, body, 2, 20)  # warm up (every worker caches the analysis)
             for clients in (1, 2, 4):
                 c0, s0, w0 = time.process_time(), *cpu_s(srv.proc.pid)
@@ -135,6 +139,16 @@ def serve_and_measure(workers: int, n: int) -> list[Row]:
                 cpu = tuple(1e3 * v / len(lat) for v in (s1 - s0, w1 - w0, c1 - c0))
                 rows.append((clients, rps, lat, cpu))
                 print(f"workers {workers} clients {clients}: {rps:.1f} req/s", flush=True)
+            if workers == 1:  # the same turn as 72 PNGs and as one, in turn
+                run(srv.url, bodies["turn_png (one PNG)"], 1, 20)
+                for clients in (1, 2):
+                    for name, b in bodies.items():
+                        c0, s0, w0 = time.process_time(), *cpu_s(srv.proc.pid)
+                        rps, lat = run(srv.url, b, clients, n)
+                        c1, s1, w1 = time.process_time(), *cpu_s(srv.proc.pid)
+                        cpu = tuple(1e3 * v / len(lat) for v in (s1 - s0, w1 - w0, c1 - c0))
+                        PAYLOADS.append((name, clients, rps, lat, cpu))
+                        print(f"{name}, {clients} client(s): {rps:.1f} req/s", flush=True)
             if workers == 1:  # one request at its budget: a 24-image 256 x 256 render
                 with HealthProbe(srv.url) as probe, httpx.Client(base_url=srv.url,
                                                                 timeout=600) as c:
@@ -149,6 +163,8 @@ def serve_and_measure(workers: int, n: int) -> list[Row]:
 
 
 HEALTH: dict[str, str] = {}  # what GET /health took meanwhile
+#: (payload, clients, requests/s, latencies, CPU ms per request) with one worker
+PAYLOADS: list[tuple[str, int, float, list[float], tuple[float, ...]]] = []
 
 
 def main() -> None:
@@ -175,6 +191,15 @@ def main() -> None:
               "throughput (2 cores over the CPU a request takes in all, against one core over "
               "a worker's part).", "", "`GET /health` every 50 ms meanwhile:", ""]
     lines += [f"- {k}: {v}" for k, v in HEALTH.items()]
+    lines += ["", "One worker, the same turn sent as 72 PNG files and as one PNG of the whole "
+              "turn (`turn_png`), in turn:", "",
+              "| payload | clients | requests/s | p50 (ms) | CPU ms per request: server / "
+              "worker / clients | CPU per request vs 72 PNGs |", "|---|---|---|---|---|---|"]
+    base = {c: sum(cpu) for name, c, _r, _l, cpu in PAYLOADS if name.startswith("images")}
+    for name, clients, rps, lat, cpu in PAYLOADS:
+        lines.append(f"| {name} | {clients} | {rps:.1f} | {1e3 * statistics.median(lat):.1f} "
+                     f"| {' / '.join(f'{v:.1f}' for v in cpu)} | "
+                     f"{sum(cpu) / base[clients]:.2f}x |")
     print("\n".join(lines))
     write_page("localize_clients", "Localization throughput: compute workers x concurrent "
                "clients", lines, mode(ap, args))

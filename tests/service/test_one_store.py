@@ -45,7 +45,7 @@ def test_the_service_sees_what_the_cli_wrote(tmp_path: Path) -> None:
         assert r.status_code == 201, r.text
         assert count(url, "lab", "committed_map(_)") == 0
         r = httpx.get(url + "/worlds/lab/map", timeout=30)  # the world has no map yet
-        assert r.status_code == 404 and r.json()["type"] == "/problems/unknown-map", r.text
+        assert r.status_code == 404 and r.json()["field"] == "map", r.text
 
         # the CLI commits a SLAM map into the world the service holds
         env = {**os.environ, "CHIZU_DATA_DIR": str(data), "CHIZU_DEMO_WORLD": ""}

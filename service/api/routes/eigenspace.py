@@ -20,7 +20,7 @@ from chizu.numeric.eigenspace.image_sets import (
 )
 from chizu.numeric.errors import InvalidInput
 from chizu.service.api.strict import StrictJsonRoute
-from chizu.service.compute import stack_turn
+from chizu.service.compute import TurnPng, stack_turn
 from chizu.service.deps import EigenspaceDep, WorldDep
 from chizu.service.disconnect import unless_disconnected
 from chizu.service.eigenspace import check_source
@@ -46,9 +46,12 @@ SessionId = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$", description="session 
 JobId = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$", description="job id")]
 
 
-def turn_payload(body: TurnIn) -> list[str] | np.ndarray:
-    """What the compute workers decode: the base64 PNGs as they came, or the nested lists
-    as an array ``(n, H, W)`` (checked here: rows of one length, images of one size)."""
+def turn_payload(body: TurnIn) -> list[str] | TurnPng | np.ndarray:
+    """What the compute workers decode: the base64 PNGs as they came (one per image, or
+    one of the whole turn), or the nested lists as an array ``(n, H, W)`` (checked here:
+    rows of one length, images of one size)."""
+    if body.turn_png is not None:
+        return TurnPng(body.turn_png)
     if body.images is None:
         return list(body.images_png or [])
     shapes = {(len(im), len(im[0])) for im in body.images}
