@@ -104,6 +104,18 @@ def decode(response: httpx.Response, out: Any) -> Any:
     return TypeAdapter(out).validate_python(response.json())
 
 
+def settled(job: JobOut, timeout_s: float, deadline: float) -> JobOut | None:
+    """One poll of a job: the job once done, None while it runs; :class:`JobError` if
+    it ended otherwise, ``TimeoutError`` past the deadline (``time.monotonic``)."""
+    if job.status in FINAL:
+        if job.status != "done":
+            raise JobError(job)
+        return job
+    if time.monotonic() > deadline:
+        raise TimeoutError(f"job {job.id} still {job.status} after {timeout_s:g} s")
+    return None
+
+
 class SyncTransport:
     """Calls over an ``httpx.Client`` (a ``fastapi.testclient.TestClient`` too)."""
 
@@ -122,15 +134,10 @@ class SyncTransport:
         :class:`JobError`; ``TimeoutError`` past ``timeout_s``."""
         jid = job if isinstance(job, str) else job.id
         deadline = time.monotonic() + timeout_s
-        while True:
-            j = self.call(Request("GET", f"/jobs/{segment(jid)}"), JobOut)
-            if j.status in FINAL:
-                if j.status != "done":
-                    raise JobError(j)
-                return j  # type: ignore[no-any-return]
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"job {jid} still {j.status} after {timeout_s:g} s")
+        while (done := settled(self.call(Request("GET", f"/jobs/{segment(jid)}"), JobOut),
+                               timeout_s, deadline)) is None:
             time.sleep(poll_s)
+        return done
 
     def close(self) -> None:
         if self._own:
@@ -154,15 +161,10 @@ class AsyncTransport:
         """As :meth:`SyncTransport.wait_job`, without blocking the event loop."""
         jid = job if isinstance(job, str) else job.id
         deadline = time.monotonic() + timeout_s
-        while True:
-            j = await self.call(Request("GET", f"/jobs/{segment(jid)}"), JobOut)
-            if j.status in FINAL:
-                if j.status != "done":
-                    raise JobError(j)
-                return j  # type: ignore[no-any-return]
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"job {jid} still {j.status} after {timeout_s:g} s")
+        while (done := settled(await self.call(Request("GET", f"/jobs/{segment(jid)}"),
+                                               JobOut), timeout_s, deadline)) is None:
             await asyncio.sleep(poll_s)
+        return done
 
     async def aclose(self) -> None:
         if self._own:

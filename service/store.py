@@ -178,6 +178,10 @@ class Store:
                 "SELECT created_at, version FROM worlds WHERE name = ?", (name,)).fetchone()
         return None if row is None else (row[0], row[1])
 
+    def world_count(self) -> int:
+        with self._lock:
+            return int(self._conn.execute("SELECT count(*) FROM worlds").fetchone()[0])
+
     def world_names(self) -> list[str]:
         with self._lock:
             rows = self._conn.execute(

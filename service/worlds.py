@@ -353,6 +353,10 @@ class WorldService:
     def names(self) -> list[str]:
         return self.store.world_names()
 
+    def count(self) -> int:
+        """How many worlds are stored (one count, whatever their number)."""
+        return self.store.world_count()
+
     async def delete(self, name: str) -> None:
         async with self._write:
             self.require(name)

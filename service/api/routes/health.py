@@ -26,7 +26,7 @@ async def health(worlds: WorldsDep, kb: KbDep, compute: ComputeDep) -> Health:
         busy = False
     except TimeoutError:
         busy = True
-    return Health(status="ok", worlds=len(worlds.names()),
+    return Health(status="ok", worlds=worlds.count(),
                   engine_thread_alive=kb.engine_thread.is_alive(), engine_busy=busy,
                   prolog_thread=kb.prolog_thread_id,
                   python_thread=kb.engine_thread.ident or 0,
