@@ -117,6 +117,24 @@ error_reply(E, _{ok:false, error:_{type:internal, detail:Detail}}) :-
 		 *          OPERATIONS          *
 		 *******************************/
 
+%   Several operations in one engine call, in order: a world's stored events
+%   replayed (service/worlds.py) pay one round trip for many.  Each runs as it
+%   would alone (its own transaction); the first error stops the batch.
+run(batch, Args, Results) :-
+    arg_(calls, Args, Calls),
+    json_list(Calls, calls),
+    foldl(batch_call, Calls, Results, 0, _).
+
+batch_call(Call, Result, I, I1) :-
+    I1 is I + 1,
+    field("calls[~d]", [I], F),
+    (   is_dict(Call), get_dict(op, Call, OpText), get_dict(args, Call, Args),
+        ( string(OpText) ; atom(OpText) ), atom_string(Op, OpText),
+        operation(Op), Op \== batch
+    ->  once(run(Op, Args, Result))
+    ;   throw(chizu_error(invalid_call, F))
+    ).
+
 run(engine, _, _{thread:Id}) :-
     thread_self(T), ( integer(T) -> Id = T ; thread_property(T, id(Id)) ).
 

@@ -12,6 +12,15 @@ call_api(Op, Args, T, N, Reply) :-
 
 mk(W) :- call_api(create_world, _{world:W, landmarks:["a", "b", "c"]}, R), R.ok == true.
 
+test(batch_runs_in_order_and_names_a_bad_call, [nondet, cleanup(drop_world(api9))]) :-
+    mk(api9),
+    Reach = _{world:"api9", from:"a", to:"b"},
+    call_api(batch, _{calls:[_{op:"reached", args:Reach}, _{op:"reached", args:Reach}]}, R),
+    R.ok == true, R.result = [_, Second], Second.succeeded == 2,
+    call_api(batch, _{calls:[_{op:"reached", args:Reach}, _{op:"halt", args:_{}}]}, R2),
+    R2.ok == false, R2.error.type == "invalid_call", R2.error.field == "calls[1]",
+    call_api(batch, _{calls:[_{op:"batch", args:_{calls:[]}}]}, R3),
+    R3.error.field == "calls[0]".
 test(unknown_op_refused, [nondet]) :-
     call_api(halt, _{}, R), R.ok == false, R.error.type == "unknown_op".
 test(injection_in_world_name, [nondet]) :-

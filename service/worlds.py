@@ -105,6 +105,8 @@ RENAMED_PARAMETERS = {"vp_unknown_min_area_m2": "unknown_region_min_area_m2"}
 #: a world's event-made facts are snapshotted every this many events: start-up loads
 #: the snapshot and replays only the events after it, so its time stays flat
 SNAPSHOT_EVERY = 200
+#: stored events replayed per engine call when a world loads
+REPLAY_BATCH = 200
 #: bumped whenever the Python side of an event (event_call, the quantities of an
 #: observation) changes what its facts are: older snapshots are then replayed instead
 SNAPSHOT_FORMAT = 1
@@ -193,11 +195,13 @@ class WorldService:
             self._loaded[name] = version
 
     def _replay(self, name: str, events: list[Event]) -> None:
-        """Apply stored events to the world's facts, one blocking engine call each (from
-        a worker thread: an awaited call per event would cost a loop round trip each)."""
-        for ev in events:
-            op, args = self.event_call(name, ev.kind, ev.payload)
-            self.kb.call(op, **args)
+        """Apply stored events to the world's facts in order, REPLAY_BATCH to an engine
+        call (api.pl's batch: a round trip costs as much as an event's own work), from
+        a worker thread, off the event loop."""
+        for i in range(0, len(events), REPLAY_BATCH):
+            calls = [dict(zip(("op", "args"), self.event_call(name, ev.kind, ev.payload),
+                              strict=True)) for ev in events[i:i + REPLAY_BATCH]]
+            self.kb.call("batch", calls=calls)
 
     @contextmanager
     def _own_write(self, world: str) -> Iterator[sqlite3.Connection]:
