@@ -6,6 +6,7 @@ lists the operations."""
 from __future__ import annotations
 
 import asyncio
+import functools
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -101,7 +102,14 @@ def decode(response: httpx.Response, out: Any) -> Any:
     media = response.headers.get("content-type", "").split(";")[0].strip()
     if media.startswith("text/") or media == "application/yaml":
         return response.text
-    return TypeAdapter(out).validate_python(response.json())
+    return adapter(out).validate_python(response.json())
+
+
+@functools.lru_cache(maxsize=256)
+def adapter(out: Any) -> TypeAdapter[Any]:
+    """The validator of an answer's type, built once per type (a list type's costs
+    ~20 times a model's validation to build)."""
+    return TypeAdapter(out)
 
 
 def settled(job: JobOut, timeout_s: float, deadline: float) -> JobOut | None:

@@ -210,17 +210,20 @@ class ComputePool:
 
 
 # -- tasks (run in a worker; numeric only) -------------------------------------------------
+def b64_bytes(text: str, field: str) -> bytes:
+    """The bytes of a base64 field; 422 naming it if it is not base64."""
+    try:
+        return base64.b64decode(text, validate=True)
+    except (binascii.Error, ValueError) as e:
+        raise InvalidInput(f"not base64: {e}", field=field) from e
+
+
 def decode_png_turn(images_png: list[str], shape: tuple[int, int] | None) -> np.ndarray:
     """One turn ``(n, H, W)`` from base64 PNG images; a PNG whose header is not
     ``shape`` (H, W) is refused before it is decoded; 422 naming the image."""
-    out = []
-    for i, s in enumerate(images_png):
-        try:
-            raw = base64.b64decode(s, validate=True)
-        except (binascii.Error, ValueError) as e:
-            raise InvalidInput(f"not base64: {e}", field=f"images_png[{i}]") from e
-        out.append(decode_image(f"images_png[{i}]", raw, formats=("PNG",),
-                                expect=None if shape is None else (shape[1], shape[0])))
+    out = [decode_image(f"images_png[{i}]", b64_bytes(s, f"images_png[{i}]"),
+                        formats=("PNG",), expect=None if shape is None else (shape[1], shape[0]))
+           for i, s in enumerate(images_png)]
     return stack_turn(out, "images_png")
 
 
@@ -235,13 +238,9 @@ def decode_turn_png(turn: TurnPng, shape: tuple[int, int], n: int) -> np.ndarray
     """The turn ``(n, H, W)`` of one base64 PNG holding its n images of ``shape`` (H, W)
     side by side, left to right: one file decoded instead of n (its header checked
     first: exactly n x W by H px); 422 naming ``turn_png``."""
-    try:
-        raw = base64.b64decode(turn.b64, validate=True)
-    except (binascii.Error, ValueError) as e:
-        raise InvalidInput(f"not base64: {e}", field="turn_png") from e
     h, w = shape
-    strip = decode_image("turn_png", raw, formats=("PNG",), expect=(n * w, h),
-                         max_side_px=max(n * w, h))
+    strip = decode_image("turn_png", b64_bytes(turn.b64, "turn_png"), formats=("PNG",),
+                         expect=(n * w, h), max_side_px=max(n * w, h))
     return np.ascontiguousarray(strip.reshape(h, n, w).transpose(1, 0, 2))
 
 

@@ -89,13 +89,13 @@ def open_services(settings: Settings | None = None,
     try:
         worlds = WorldService(store, kb)
         jobs = Jobs(store, settings.job_budget_s)
-        eigenspace = EigenspaceService(store, kb, worlds, jobs, compute, executor,
+        eigenspace = EigenspaceService(store, worlds, jobs, compute, executor,
                                        settings.max_learning_pixels)
-        slam = SlamService(store, kb, worlds, settings.request_budget_s)
+        slam = SlamService(store, worlds, settings.request_budget_s)
         viewpoint = ViewpointService(store, kb, worlds, compute)
         localization = LocalizationService(store, worlds, settings.request_budget_s)
         services = Services(settings, store, kb, worlds, jobs, compute, eigenspace, slam,
-                            viewpoint, MissionService(kb, worlds, jobs, eigenspace, slam,
+                            viewpoint, MissionService(worlds, jobs, eigenspace, slam,
                                                       viewpoint, localization),
                             localization)
         runs = services.slam.restore_runs()

@@ -53,7 +53,6 @@ from chizu.service.compute import (
     turn_task,
 )
 from chizu.service.jobs import JobProgress, Jobs, Work
-from chizu.service.kb import KnowledgeBase
 from chizu.service.schemas.eigenspace import (
     MAX_COVERAGE_CELLS,
     CameraOut,
@@ -139,10 +138,10 @@ def read_learning_request(request: bytes) -> tuple[EigenspaceConfig, ImageSet | 
 
 
 class EigenspaceService:
-    def __init__(self, store: Store, kb: KnowledgeBase, worlds: WorldService, jobs: Jobs,
+    def __init__(self, store: Store, worlds: WorldService, jobs: Jobs,
                  compute: ComputePool, executor: Executor | None = None,
                  max_learning_pixels: int = 200_000_000) -> None:
-        self.store, self.kb, self.worlds, self.jobs = store, kb, worlds, jobs
+        self.store, self.worlds, self.jobs = store, worlds, jobs
         #: decoding, projection and rendering run there (worker processes)
         self.compute = compute
         #: a learning job renders at most this many pixels (the paper's room: 5 M)
@@ -263,9 +262,8 @@ class EigenspaceService:
     # -- localization ---------------------------------------------------------------------
     async def _transition(self, world: str, state: dict[str, Any], triplets: list[int],
                           unique: bool) -> dict[str, Any]:
-        await self.worlds.ready(world)
-        r = await self.kb.acall("eigenspace_transition", world=world, state=state,
-                                triplets=triplets, unique=unique)
+        r = await self.worlds.ask(world, "eigenspace_transition", state=state,
+                                  triplets=triplets, unique=unique)
         return dict(r)
 
     def _report(self, world: str, session: Session, vote: Vote) -> dict[str, Any]:
@@ -385,15 +383,14 @@ class EigenspaceService:
 
     async def covering(self, world: str, x: float, y: float) -> list[dict[str, Any]]:
         self.learned(world)
-        await self.worlds.ready(world)
-        return list(await self.kb.acall("eigenspace_covering", world=world, x=x, y=y))
+        return list(await self.worlds.ask(world, "eigenspace_covering", x=x, y=y))
 
     # -- camera -------------------------------------------------------------------------
     async def render(self, world: str, pose: np.ndarray, config: CameraConfig | None,
                      turn: int | None, fmt: str = "png") -> CameraOut:
         """The simulated camera at ``pose`` (one image, or a full turn), rendered and
         encoded in a compute worker: ``images_png`` or ``images`` (the other unset)."""
-        await self.worlds.ready(world)
+        self.worlds.require(world)
         if config is None:
             a = self._analyses.get(world)
             config = a.config.camera if a is not None else CameraConfig()

@@ -101,15 +101,14 @@ class Jobs:
         again, interrupted)."""
         again = lost = 0
         for jid, world, kind, request, attempts in self.store.unfinished_jobs():
-            remake = self._remake.get(kind)
-            if remake is None or request is None or attempts >= MAX_ATTEMPTS:
-                why = (f"interrupted by {attempts + 1} restarts" if remake and request
-                       else "interrupted")
+            if request is None or not self._rerunnable(kind, request, attempts):
+                why = (f"interrupted by {attempts + 1} restarts"
+                       if request is not None and kind in self._remake else "interrupted")
                 self.store.update_job(jid, status="interrupted", stage=why)
                 lost += 1
                 continue
             try:
-                work = remake(world, request)
+                work = self._remake[kind](world, request)
             except Exception:  # noqa: BLE001 - e.g. its world is gone
                 log.exception("job %s cannot be made again", jid)
                 self.store.update_job(jid, status="interrupted", stage="interrupted")
@@ -205,10 +204,13 @@ class Jobs:
             self._finish(jid, "cancelled", {"stage": "cancelled"})
         return self.get(jid)
 
+    def _rerunnable(self, kind: str, request: bytes | None, attempts: int) -> bool:
+        """Whether a job the process left unfinished is made again at the next start."""
+        return request is not None and kind in self._remake and attempts < MAX_ATTEMPTS
+
     def _resumes(self, jid: str) -> bool:
         """Whether the next start queues job ``jid`` again."""
-        return any(j == jid and request is not None and kind in self._remake
-                   and attempts < MAX_ATTEMPTS
+        return any(j == jid and self._rerunnable(kind, request, attempts)
                    for j, _w, kind, request, attempts in self.store.unfinished_jobs())
 
     async def close(self) -> None:

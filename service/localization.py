@@ -123,7 +123,7 @@ class LocalizationService(ScanRuns[LocRun]):
         run.state, run.score = step.state, float(step.score)
 
     async def create(self, world: str) -> LocalizationRunOut:
-        await self.worlds.ready(world)
+        self.worlds.require(world)
         sha, blob = self._world_map(world)
         rid = "l" + uuid.uuid4().hex[:16]
         run = LocRun(rid, world, map_sha=sha)

@@ -76,7 +76,6 @@ from chizu.numeric.world import World
 from chizu.service.disconnect import thread_to_end
 from chizu.service.eigenspace import EigenspaceService
 from chizu.service.jobs import JobProgress, Jobs
-from chizu.service.kb import KnowledgeBase
 from chizu.service.localization import LocalizationService
 from chizu.service.schemas.jobs import JobOut
 from chizu.service.schemas.mission import MissionConfig, MissionRecordOut
@@ -182,10 +181,10 @@ def scan_in(scan: Scan) -> ScanIn:
 class MissionService:
     """Runs missions on a world through the domain services (one knowledge base)."""
 
-    def __init__(self, kb: KnowledgeBase, worlds: WorldService, jobs: Jobs,
+    def __init__(self, worlds: WorldService, jobs: Jobs,
                  eigenspace: EigenspaceService, slam: SlamService,
                  viewpoint: ViewpointService, localization: LocalizationService) -> None:
-        self.kb, self.worlds, self.jobs = kb, worlds, jobs
+        self.worlds, self.jobs = worlds, jobs
         self.eigenspace, self.slam, self.viewpoint = eigenspace, slam, viewpoint
         self.localization = localization
         worlds.register(ArtifactKind(

@@ -89,7 +89,7 @@ class ScanRuns(Generic[R]):
         """Before a stored run is replayed (e.g. load what it runs on)."""
 
     async def _run(self, world: str, rid: str) -> R:
-        await self.worlds.ready(world)  # 404 for an unknown world
+        self.worlds.require(world)  # 404 for an unknown world
         run = self.runs.get(rid)
         if run is None or run.world != world:
             raise NotFound(f"{self.noun} {rid!r} does not exist in world {world!r}",

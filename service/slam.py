@@ -29,7 +29,6 @@ from chizu.numeric.scan import LaserLog, Scan
 from chizu.numeric.slam.merge import resume, runs_of
 from chizu.numeric.slam.runner import Slam, create, warm_up
 from chizu.numeric.slam.saved_map import SavedMap, from_bytes, saved_map, to_bytes
-from chizu.service.kb import KnowledgeBase
 from chizu.service.scan_runs import ScanRun, ScanRuns, to_scan
 from chizu.service.schemas.common import PoseOut
 from chizu.service.schemas.slam import CommitOut, ScanIn, SlamRunIn, SlamRunListed, SlamRunOut
@@ -84,10 +83,8 @@ class SlamService(ScanRuns[Run]):
     kind = "slam"
     noun = "SLAM run"
 
-    def __init__(self, store: Store, kb: KnowledgeBase, worlds: WorldService,
-                 budget_s: float = 30.0) -> None:
+    def __init__(self, store: Store, worlds: WorldService, budget_s: float = 30.0) -> None:
         super().__init__(store, worlds, budget_s)
-        self.kb = kb
         worlds.register(ArtifactKind(FACTS_ARTIFACT, "slam_facts", "slam",
                                      lambda _world, blob: dict(json.loads(blob))))
 
@@ -103,7 +100,7 @@ class SlamService(ScanRuns[Run]):
         run.estimator.process(scan)
 
     async def create(self, world: str, options: SlamRunIn) -> SlamRunOut:
-        await self.worlds.ready(world)
+        self.worlds.require(world)
         rid = "r" + uuid.uuid4().hex[:16]
         # the method's kernels loaded before the first scan, not during it (once)
         await asyncio.to_thread(warm_up, options)
@@ -188,7 +185,7 @@ class SlamService(ScanRuns[Run]):
         ``GET .../map.chizu``) the world's map, as a commit does: its keyframe poses and
         grid become facts and the stored map. A map saved from another world is refused
         (field ``map``): its frame is that world's."""
-        await self.worlds.ready(world)
+        self.worlds.require(world)
         saved = await asyncio.to_thread(from_bytes, blob, "map")
         made_in = saved.meta.get("world")
         if made_in not in (None, world):
@@ -205,8 +202,7 @@ class SlamService(ScanRuns[Run]):
         """One transaction: the map's facts (keyframe poses, occupancy summary, unknown
         regions, loop closures) into the knowledge base, its grid and saved map stored."""
         summary = g.summary()
-        await self.worlds.ready(world)
-        params = await self.kb.acall("params", world=world)
+        params = await self.worlds.ask(world, "params")
         regions = await asyncio.to_thread(
             g.unknown_regions, float(params["parameters"]["unknown_region_min_area_m2"]))
         call = {"world": world, "run": rid,
@@ -230,12 +226,10 @@ class SlamService(ScanRuns[Run]):
         return blob
 
     async def summary(self, world: str) -> Any:
-        await self.worlds.ready(world)
-        return await self.kb.acall("slam_summary", world=world)
+        return await self.worlds.ask(world, "slam_summary")
 
     async def regions_near(self, world: str, x: float, y: float, radius: float) -> Any:
-        await self.worlds.ready(world)
-        return await self.kb.acall("slam_regions_near", world=world, x=x, y=y, radius=radius)
+        return await self.worlds.ask(world, "slam_regions_near", x=x, y=y, radius=radius)
 
     async def delete(self, world: str, rid: str) -> None:
         await self._delete(world, rid)

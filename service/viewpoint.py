@@ -76,7 +76,7 @@ class ViewpointService:
     async def plan(self, world: str, req: PlanRequest) -> ViewpointPlanOut:
         """One planning step: the grid and step 1 in a compute worker, the grouping by
         the world's Prolog rules, steps 3-4 and the answer in a compute worker."""
-        await self.worlds.ready(world)  # 404 for an unknown world
+        self.worlds.require(world)  # 404 for an unknown world
         # grouping asserts the scene as it plans: a failure anywhere puts the stored one back
         async with self.worlds.write_artifact(world, SCENE_ARTIFACT) as w:
             source, material = self.grid_source(world, req)
@@ -99,5 +99,4 @@ class ViewpointService:
         return answer
 
     async def scene(self, world: str) -> Any:
-        await self.worlds.ready(world)
-        return await self.kb.acall("viewpoint_scene", world=world)
+        return await self.worlds.ask(world, "viewpoint_scene")

@@ -153,6 +153,12 @@ class WorldService:
         async with self._write:
             await self._ready_locked(name)
 
+    async def ask(self, world: str, op: str, **args: Any) -> Any:
+        """A read of ``world``'s facts by knowledge-base operation ``op``, the world
+        loaded (or reloaded) first: how every service reads a world's knowledge base."""
+        await self.ready(world)
+        return await self.kb.acall(op, world=world, **args)
+
     async def _ready_locked(self, name: str) -> None:
         """:meth:`ready` for a caller holding the writers' lock."""
         version = self.store.world_version(name)
@@ -420,12 +426,10 @@ class WorldService:
         return await self._append(world, "failed", {"from": source, "to": target})
 
     async def relations(self, world: str, kind: str) -> list[dict[str, Any]]:
-        await self.ready(world)
-        return list(await self._kb("relations", {"world": world, "kind": kind}))
+        return list(await self.ask(world, "relations", kind=kind))
 
     async def drm(self, world: str) -> dict[str, Any]:
-        await self.ready(world)
-        return dict(await self._kb("drm", {"world": world}))
+        return dict(await self.ask(world, "drm"))
 
     async def drm_graph(self, world: str) -> nx.DiGraph:
         """The DRM as a networkx graph, cached until the world changes."""
@@ -449,10 +453,7 @@ class WorldService:
 
     async def query(self, world: str, goal: str, max_solutions: int) -> dict[str, Any]:
         """A read-only, whitelisted Prolog query over the world (prolog/query.pl)."""
-        await self.ready(world)
-        return dict(await self._kb("query", {"world": world, "goal": goal,
-                                             "max_solutions": max_solutions}))
+        return dict(await self.ask(world, "query", goal=goal, max_solutions=max_solutions))
 
     async def facts(self, world: str) -> list[str]:
-        await self.ready(world)
-        return list(await self._kb("facts", {"world": world}))
+        return list(await self.ask(world, "facts"))

@@ -285,30 +285,33 @@ def _ros2_types() -> Any:
 
 
 def _ros_time(ts: Any, t: float) -> Any:
-    sec = int(np.floor(t))
-    return ts.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=int(round((t - sec) * 1e9)))
+    sec, nanosec = divmod(int(round(t * 1e9)), 10**9)
+    return ts.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec)
+
+
+def _ros_quaternion(ts: Any, yaw: float) -> Any:
+    """The rotation by ``yaw`` about z (the inverse of :func:`_yaw`)."""
+    half = 0.5 * float(yaw)
+    return ts.types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=np.sin(half),
+                                                    w=np.cos(half))
 
 
 def _ros_pose(ts: Any, pose: np.ndarray) -> Any:
-    half = 0.5 * float(pose[2])
     return ts.types["geometry_msgs/msg/Pose"](
         position=ts.types["geometry_msgs/msg/Point"](x=float(pose[0]), y=float(pose[1]), z=0.0),
-        orientation=ts.types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=np.sin(half),
-                                                             w=np.cos(half)))
+        orientation=_ros_quaternion(ts, pose[2]))
 
 
 def _transform(ts: Any, t: float, parent: str, child: str, pose: np.ndarray) -> Any:
     """A ``geometry_msgs/TransformStamped`` parent -> child of the planar ``pose``."""
     T = ts.types
-    half = 0.5 * float(pose[2])
     return T["geometry_msgs/msg/TransformStamped"](
         header=T["std_msgs/msg/Header"](stamp=_ros_time(ts, t), frame_id=parent),
         child_frame_id=child,
         transform=T["geometry_msgs/msg/Transform"](
             translation=T["geometry_msgs/msg/Vector3"](x=float(pose[0]), y=float(pose[1]),
                                                        z=0.0),
-            rotation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=np.sin(half),
-                                                       w=np.cos(half))))
+            rotation=_ros_quaternion(ts, pose[2])))
 
 
 def _ros2_writer(path: Path) -> Any:

@@ -120,7 +120,7 @@ class Operation:
             kw.append(f"{py_name(p['name'])}: {t}" if p.get("required") else
                       f"{py_name(p['name'])}: {t} | None = None")
         if kw:
-            args += ["*", *kw] if "*" not in args else kw
+            args += ["*", *kw]
         ret = self.answer()
         out = ret.split(" | ")[0] if ret not in ("None", "Any") else ret
         path = re.sub(r"{(\w+)}", lambda m: "{segment(" + py_name(m.group(1)) + ")}",
