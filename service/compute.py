@@ -39,8 +39,8 @@ import numpy as np
 
 from chizu.numeric.camera import Camera, CameraConfig
 from chizu.numeric.eigenspace.analysis import EigenspaceAnalysis
+from chizu.numeric.eigenspace.diagnosis import refusal
 from chizu.numeric.eigenspace.image_sets import decode_image, encode_png
-from chizu.numeric.eigenspace.learning import EigenspaceModel
 from chizu.numeric.eigenspace.localization import Session, TurnCandidates, Vote, turn_candidates
 from chizu.numeric.eigenspace.movement_strategy import (
     Decision,
@@ -263,40 +263,44 @@ def check_turn(a: EigenspaceAnalysis, images: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class FirstStop:
-    """A one-stop localization computed in a worker: the session and its vote (the
-    answer's report, :func:`stop_report`, needs the world's walls and is made by the
-    service)."""
+    """A one-stop localization computed in a worker: the triplets the turn entered,
+    whether the vote is unique (what the Fig. 4 rules decide the state from) and the
+    answer's report (:func:`stop_report`)."""
 
-    session: Session
-    vote: Vote
+    triplets: list[int]
+    unique: bool
+    report: dict[str, Any]
 
 
-def turn_task(a: EigenspaceAnalysis, turn: list[str] | TurnPng | np.ndarray,
-              first_stop: bool) -> TurnCandidates | FirstStop:
-    """One turn's region hits (Ohta et al. §3.4: project, region test); for a first
-    stop, the new session and its vote. ``turn``: base64 PNGs, one PNG of the whole
-    turn, or images."""
+def turn_task(a: EigenspaceAnalysis, turn: list[str] | TurnPng | np.ndarray
+              ) -> TurnCandidates:
+    """One turn's region hits (Ohta et al. §3.4: project, region test). ``turn``: base64
+    PNGs, one PNG of the whole turn, or images."""
     if isinstance(turn, TurnPng):
         imgs = decode_turn_png(turn, a.model.image_shape, len(a.model.directions))
     else:
         imgs = decode_png_turn(turn, a.model.image_shape) if isinstance(turn, list) else turn
-    cands = turn_candidates(a.regions, check_turn(a, imgs))
-    if not first_stop:
-        return cands
+    return turn_candidates(a.regions, check_turn(a, imgs))
+
+
+def first_stop_task(a: EigenspaceAnalysis, world: World,
+                    turn: list[str] | TurnPng | np.ndarray) -> FirstStop:
+    """A localization from one turn (state X): its hits, the new session's vote (§2.5)
+    and the report; only these travel back, not the session."""
     s = Session(a.config.localization)
-    s.add_stop(cands, a.config.regions.d_thd_m)
+    s.add_stop(turn_task(a, turn), a.config.regions.d_thd_m)
     vote = s.vote(a.set_of())
-    return FirstStop(s, vote)
+    return FirstStop(s.stop_triplets(0), vote.unique, stop_report(a, world, s, vote))
 
 
-def stop_report(s: Session, vote: Vote, model: EigenspaceModel,
-                world: World) -> dict[str, Any]:
+def stop_report(a: EigenspaceAnalysis, world: World, s: Session,
+                vote: Vote) -> dict[str, Any]:
     """What an answer says of a session's vote: up to 10 candidate poses (the best of
     each cluster of agreeing hits, with its votes, triplet and cluster size), whether
-    the vote is unique, and the pose estimate (used when the state is Z; with the
+    the vote is unique, the pose estimate (used when the state is Z; with the
     eigenspace and the world's walls it also interpolates the whole latest turn,
-    :func:`chizu.numeric.eigenspace.localization.whole_turn_interpolation`). Made in the
-    service process, where the world is."""
+    :func:`chizu.numeric.eigenspace.localization.whole_turn_interpolation`) and, when
+    not unique, which test refused it (:func:`chizu.numeric.eigenspace.diagnosis.refusal`)."""
     cands = []
     for cluster, best in list(zip(vote.clusters, s.representatives(vote), strict=True))[:10]:
         p = s.current_pose(best)
@@ -305,9 +309,20 @@ def stop_report(s: Session, vote: Vote, model: EigenspaceModel,
                       "members": len(cluster)})
     est = None
     if vote.winner is not None:
-        p = s.estimate(vote, model, (world.surfaces.a, world.surfaces.b))
+        p = s.estimate(vote, a.model, (world.surfaces.a, world.surfaces.b))
         est = {"x": float(p[0]), "y": float(p[1]), "theta": float(p[2])}
-    return {"candidates": cands, "estimate": est, "unique": vote.unique, "stops": s.stops}
+    why = refusal(a.regions, s, vote)
+    refused_by = None if why is None else {
+        "test": why.reason, "d_err_min_m": None if why.d_err_min_m is None
+        or not np.isfinite(why.d_err_min_m) else why.d_err_min_m,
+        "votes": why.votes, "rival_votes": why.rival_votes}
+    return {"candidates": cands, "estimate": est, "unique": vote.unique, "stops": s.stops,
+            "refused_by": refused_by}
+
+
+def session_report_task(a: EigenspaceAnalysis, world: World, s: Session) -> dict[str, Any]:
+    """:func:`stop_report` of a session's vote over all its stops."""
+    return stop_report(a, world, s, s.vote(a.set_of()))
 
 
 def load_world(blob: bytes) -> World:

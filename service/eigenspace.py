@@ -31,12 +31,10 @@ from chizu.numeric.eigenspace.analysis import (
     learning_pixels,
     raster_axes,
 )
-from chizu.numeric.eigenspace.diagnosis import refusal
 from chizu.numeric.eigenspace.image_sets import ImageSet
 from chizu.numeric.eigenspace.learning_strategy import learn_with_strategy
 from chizu.numeric.eigenspace.localization import (
     Session,
-    Vote,
     session_from_dict,
     session_to_dict,
 )
@@ -48,8 +46,9 @@ from chizu.service.compute import (
     TurnPng,
     blob_key,
     camera_task,
+    first_stop_task,
     next_move_task,
-    stop_report,
+    session_report_task,
     turn_task,
 )
 from chizu.service.jobs import JobProgress, Jobs, Work
@@ -266,17 +265,12 @@ class EigenspaceService:
                                   triplets=triplets, unique=unique)
         return dict(r)
 
-    def _report(self, world: str, session: Session, vote: Vote) -> dict[str, Any]:
-        """:func:`chizu.service.compute.stop_report` with the eigenspace and the world's walls
-        (the estimate interpolates the whole latest turn too)."""
-        a = self.analysis(world)
-        report = stop_report(session, vote, a.model, self.worlds.model(world))
-        why = refusal(a.regions, session, vote)
-        report["refused_by"] = None if why is None else {
-            "test": why.reason, "d_err_min_m": None if why.d_err_min_m is None
-            or not np.isfinite(why.d_err_min_m) else why.d_err_min_m,
-            "votes": why.votes, "rival_votes": why.rival_votes}
-        return report
+    async def _report(self, world: str, session: Session) -> dict[str, Any]:
+        """:func:`chizu.service.compute.stop_report` of a session, computed in a compute
+        worker (the estimate interpolates the whole latest turn against the walls)."""
+        return await self.compute.run_cached(
+            session_report_task, (self._blobs[world], self.worlds.cached_model(world)),
+            session)
 
     @staticmethod
     def _answer(state: dict[str, Any], outcome: str, report: dict[str, Any]
@@ -293,12 +287,10 @@ class EigenspaceService:
         decoded, matched, voted on and reported in a compute worker; the Fig. 4 rules
         decide the state."""
         self.analysis(world)
-        r1 = await self.compute.run_cached(turn_task, self._blobs[world], turn, True)
-        assert isinstance(r1, FirstStop)
-        r = await self._transition(world, {"state": "x"}, r1.session.stop_triplets(0),
-                                   r1.vote.unique)
-        return LocalizationOut(**self._answer(r["state"], r["outcome"],
-                                              self._report(world, r1.session, r1.vote)))
+        r1: FirstStop = await self.compute.run_cached(
+            first_stop_task, (self._blobs[world], self.worlds.cached_model(world)), turn)
+        r = await self._transition(world, {"state": "x"}, r1.triplets, r1.unique)
+        return LocalizationOut(**self._answer(r["state"], r["outcome"], r1.report))
 
     async def create_session(self, world: str) -> SessionCreated:
         a = self.analysis(world)
@@ -318,11 +310,11 @@ class EigenspaceService:
         return SessionState.from_dict(world, row[1])
 
     async def session(self, world: str, sid: str) -> SessionLocalizationOut:
+        self.analysis(world)
         st = self._session(world, sid)
-        vote = st.session.vote(self.analysis(world).set_of())
         return SessionLocalizationOut(id=sid, **self._answer(
             st.state, st.history[-1]["outcome"] if st.history else "none",
-            self._report(world, st.session, vote)))
+            await self._report(world, st.session)))
 
     async def add_stop(self, world: str, sid: str, turn: list[str] | TurnPng | np.ndarray,
                        motion: np.ndarray | None) -> SessionLocalizationOut:
@@ -330,8 +322,7 @@ class EigenspaceService:
         previous stop's start, in that stop's frame."""
         a = self.analysis(world)  # 409 before the work
         self._session(world, sid)
-        cands = await self.compute.run_cached(turn_task, self._blobs[world], turn, False)
-        assert not isinstance(cands, FirstStop)
+        cands = await self.compute.run_cached(turn_task, self._blobs[world], turn)
         async with self._session_lock:  # read-modify-write of one session at a time
             st = self._session(world, sid)
             if st.session.stops > 0 and motion is None:
@@ -347,7 +338,7 @@ class EigenspaceService:
             with self.store.transaction() as conn:
                 self.store.put_session(conn, sid, world, st.to_dict())
         return SessionLocalizationOut(id=sid, **self._answer(
-            st.state, r["outcome"], self._report(world, st.session, vote)))
+            st.state, r["outcome"], await self._report(world, st.session)))
 
     async def next_move(self, world: str, sid: str) -> NextMoveOut:
         """The movement strategy's action (alpha, l, beta) and its Q(Z) (§3.5),

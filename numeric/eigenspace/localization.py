@@ -253,17 +253,16 @@ class Session:
         self.last_turn = cands.projections
         o = self.odometry[-1]
         inv = invert(o)
-        k = self.stops - 1
-        for i in range(len(cands)):
-            self.stop_of.append(k)
-            self.triplet.append(int(cands.t[i]))
-            self.weight.append(float(max(1e-3, 1.0 - cands.d_err[i] / d_thd_m)))
-            self.pose0.append(compose(cands.start_pose[i], inv))
-            self.own_pose.append(cands.start_pose[i])
+        self.stop_of.extend([self.stops - 1] * len(cands))
+        self.triplet.extend(np.asarray(cands.t, dtype=int).tolist())
+        self.weight.extend(np.maximum(1e-3, 1.0 - np.asarray(cands.d_err) / d_thd_m).tolist())
+        self.pose0.extend(compose(cands.start_pose, inv).reshape(-1, 3))
+        self.own_pose.extend(np.asarray(cands.start_pose, dtype=float).reshape(-1, 3))
         return cands
 
     def same(self, p: np.ndarray, q: np.ndarray) -> np.ndarray:
-        """Whether candidates at stop-0 poses ``p (n,3)`` and ``q (3,)`` are identified."""
+        """Whether candidates at stop-0 poses ``p (..., 3)`` and ``q (..., 3)`` are
+        identified (broadcast over the leading axes)."""
         tol = self.config.same_position_m + self.config.odometry_slack_ratio * self.travelled_m
         return agrees(p, q, tol, self.config.same_heading_rad)
 
@@ -280,7 +279,7 @@ class Session:
             return Vote(False, None, np.zeros(0), [])
         p = np.array(self.pose0)
         w = np.array(self.weight)
-        same = np.stack([self.same(p, p[i]) for i in range(n)])
+        same = self.same(p[None, :], p[:, None])  # (n, n): i identified with j
         votes = same.astype(float) @ w
         win = int(np.argmax(votes))
         rivals = ~same[win]

@@ -27,9 +27,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
+from scipy.spatial.distance import cdist
 
 from chizu.numeric.eigenspace.interpolation import affine_weights, interpolate_pose
-from chizu.numeric.eigenspace.learning import EigenspaceModel, f_d
+from chizu.numeric.eigenspace.learning import DYNAMIC_RANGE, EigenspaceModel, f_d
 from chizu.numeric.eigenspace.triplets import Triplets
 from chizu.numeric.errors import InvalidInput
 from chizu.numeric.geometry import bearing, wrap_angle
@@ -102,13 +103,21 @@ def query_chunks(n_queries: int, n_triplets: int, k: int) -> range:
 
 def triplet_differences(model: EigenspaceModel, triplets: Triplets,
                         query: np.ndarray) -> np.ndarray:
-    """d of §2.4 for every query projection and triplet: ``(M, T)``."""
-    x3 = triplets.projections(model)  # (T, 3, K)
-    out = np.empty((len(query), len(x3)))
-    chunks = query_chunks(len(query), len(x3), x3.shape[-1])
+    """d of §2.4 for every query projection and triplet: ``(M, T)``, the smallest of
+    eq. 2's f_d between the query and the triplet's three images. Each distinct member
+    image is measured once (scipy's cdist) and the triplets gather from it: triplets
+    share images, and no ``(M, T, 3, K)`` difference tensor is built."""
+    n_dirs, k = model.projections.shape[1:]
+    flat = triplets.point_idx * n_dirs + triplets.dir_idx  # (T, 3) member image ids
+    images, member = np.unique(flat, return_inverse=True)
+    member = member.reshape(flat.shape)
+    x = model.projections.reshape(-1, k)[images]  # (U, K)
+    scale = 1.0 / (DYNAMIC_RANGE * np.sqrt(model.n_pixels))
+    out = np.empty((len(query), len(triplets)))
+    chunks = query_chunks(len(query), len(triplets), k)
     for a in chunks:
-        q = query[a:a + chunks.step]
-        out[a:a + len(q)] = f_d(q[:, None, None, :], x3[None], model.n_pixels).min(axis=2)
+        d = cdist(query[a:a + chunks.step], x) * scale  # (m, U), eq. 2
+        out[a:a + len(d)] = d[:, member].min(axis=2)
     return out
 
 
@@ -169,11 +178,12 @@ def region_candidates(model: EigenspaceModel, triplets: Triplets, query: np.ndar
 
 def agrees(poses: np.ndarray, reference: np.ndarray, position_m: float,
            heading_rad: float) -> np.ndarray:
-    """Which poses ``(n, 3)`` lie within ``position_m`` and ``heading_rad`` of
-    ``reference`` (``(3,)`` or ``(n, 3)``): the identification test of §2.5."""
+    """Which poses ``(..., 3)`` lie within ``position_m`` and ``heading_rad`` of
+    ``reference`` (``(..., 3)``, broadcast against them): the identification test of
+    §2.5."""
     p, q = np.asarray(poses, dtype=float), np.asarray(reference, dtype=float)
-    return np.asarray((np.linalg.norm(p[:, :2] - q[..., :2], axis=-1) <= position_m)
-                      & (np.abs(wrap_angle(p[:, 2] - q[..., 2])) <= heading_rad))
+    return np.asarray((np.hypot(p[..., 0] - q[..., 0], p[..., 1] - q[..., 1]) <= position_m)
+                      & (np.abs(wrap_angle(p[..., 2] - q[..., 2])) <= heading_rad))
 
 
 def false_admissions(model: EigenspaceModel, triplets: Triplets, c_a: float, d_thd: float,
