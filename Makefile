@@ -5,7 +5,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: run test bench docs lint install prolog clean image image-test
+.PHONY: run test bench docs lint install prolog browser clean image image-test
 
 # SWI-Prolog (pyswip needs libswipl): apt swi-prolog-nox when swipl is missing.
 prolog:
@@ -27,13 +27,22 @@ $(STAMP): pyproject.toml
 
 install: prolog $(STAMP)
 
+# the console's browser tests drive Debian's chromium (Playwright launches it by path:
+# Playwright's own browser download is not needed)
+browser:
+	@if ! command -v chromium >/dev/null 2>&1; then \
+	  echo "installing chromium"; \
+	  SUDO=$$( [ "$$(id -u)" -eq 0 ] || echo sudo ); \
+	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq chromium; \
+	fi
+
 run: install
 	$(VENV)/bin/chizu serve
 
 # two pytest workers (pytest-xdist): the suite runs in about 7 minutes instead of 11 on
 # a 2-core machine; `PYTEST_WORKERS=0 make test` runs it in one process
 PYTEST_WORKERS ?= 2
-test: install
+test: install browser
 	$(PY) -m pytest -n $(PYTEST_WORKERS)
 
 # every benchmark, hours in all: each script writes its page docs/results/<script>.md (the

@@ -8,9 +8,10 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
+from fastapi_offline import FastAPIOffline
 
 from chizu.numeric.memory import return_large_frees
-from chizu.service import __version__, errors
+from chizu.service import __version__, console, errors
 from chizu.service.api import operation_id
 from chizu.service.api.routes import (
     eigenspace,
@@ -59,9 +60,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             await services.jobs.close()
             services.close()
 
-    app = FastAPI(title="chizu", version=__version__, lifespan=lifespan,
-                  description="Hybrid symbolic-numeric planner for mobile robots.",
-                  generate_unique_id_function=operation_id)
+    # the API docs (/docs, /redoc) from files installed with the package, not a CDN: they
+    # work on a robot without internet
+    app = FastAPIOffline(title="chizu", version=__version__, lifespan=lifespan,
+                         description="Hybrid symbolic-numeric planner for mobile robots.",
+                         generate_unique_id_function=operation_id,
+                         static_url="/docs-static", favicon_url="/console/favicon.svg")
+    console.install(app)
     app.include_router(health.router)
     app.include_router(worlds.router)
     app.include_router(qualitative.router)

@@ -272,6 +272,13 @@ class Store:
                                      (world, kind)).fetchone()
         return row is not None
 
+    def artifact_kinds(self, world: str) -> list[str]:
+        """The kinds of artifact ``world`` holds, sorted (no blob is read)."""
+        with self._lock:
+            rows = self._conn.execute("SELECT kind FROM artifacts WHERE world = ? "
+                                      "ORDER BY kind", (world,)).fetchall()
+        return [r[0] for r in rows]
+
     def artifact(self, world: str, kind: str) -> bytes | None:
         with self._lock:
             row = self._conn.execute("SELECT blob FROM artifacts WHERE world = ? AND kind = ?",

@@ -354,11 +354,13 @@ class WorldService:
         return Cached(blob_key(blob), blob, load_world)
 
     def summary(self, name: str) -> WorldSummary:
-        """What the world holds: its template, landmarks, walls, objects and events."""
+        """What the world holds: its template, landmarks, walls, objects, events and the
+        kinds of its stored artifacts."""
         d = self.model(name).description
         return WorldSummary(name=d.name, template=d.template, landmarks=len(d.landmarks),
                             walls=len(d.walls), objects=len(d.objects),
-                            events=self.store.event_count(name))
+                            events=self.store.event_count(name),
+                            artifacts=self.store.artifact_kinds(name))
 
     def names(self) -> list[str]:
         return self.store.world_names()

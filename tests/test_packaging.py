@@ -62,6 +62,8 @@ def test_the_wheel_holds_chizu_only_and_its_rules(dist: Path) -> None:
     rules = {Path(n).name for n in names if n.startswith("chizu/prolog/")}
     assert rules == {p.name for p in (ROOT / "prolog").glob("*.pl")}
     assert "chizu/service/cli.py" in names and "chizu/numeric/slam/merge.py" in names
+    console = {Path(n).name for n in names if n.startswith("chizu/service/console/static/")}
+    assert console == {p.name for p in (ROOT / "service/console/static").iterdir()}
 
 
 def test_the_installed_wheel_serves_the_demo_world(dist: Path, tmp_path: Path) -> None:
@@ -97,6 +99,9 @@ def test_the_installed_wheel_serves_the_demo_world(dist: Path, tmp_path: Path) -
                       timeout=30)
         assert r.status_code == 200, r.text
         assert r.json()["steps"]
+        page = httpx.get(server.url + "/", timeout=10)  # the console, from the package
+        assert page.status_code == 200 and "/console/console.js" in page.text
+        assert httpx.get(server.url + "/console/console.js", timeout=10).status_code == 200
         assert httpx.get(server.url + "/openapi.json",
                          timeout=10).json()["info"]["version"] == \
             PYPROJECT["project"]["version"]

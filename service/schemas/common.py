@@ -28,6 +28,10 @@ class WorldSummary(BaseModel):
     walls: int
     objects: int
     events: int
+    artifacts: list[str] = Field(
+        [], description="what the world has learned or been given, by kind: eigenspace "
+        "(an eigenspace analysis), saved_map (a committed SLAM map), mission (the last "
+        "mission's record), viewpoint_scene, ...")
 
 
 class PoseOut(BaseModel):

@@ -1,0 +1,543 @@
+// chizu console: what the robot knows, drawn from the same REST API as every client.
+// No framework and no build step; every value from the service reaches the page as text
+// (textContent, setAttribute), never as markup.
+
+const SVG = "http://www.w3.org/2000/svg";
+const $ = (sel, root = document) => root.querySelector(sel);
+
+// -- the API ------------------------------------------------------------------------
+class Problem extends Error {
+  constructor(status, body) {
+    super(body && body.detail ? body.detail : `HTTP ${status}`);
+    this.status = status;
+    this.body = body || {};
+  }
+}
+
+async function api(method, path, body) {
+  const init = { method, headers: { accept: "application/json" } };
+  if (body !== undefined) {
+    init.headers["content-type"] = "application/json";
+    init.body = JSON.stringify(body);
+  }
+  const r = await fetch(path, init);
+  if (r.status === 204) return null;
+  const type = r.headers.get("content-type") || "";
+  const data = type.includes("json") ? await r.json() : await r.text();
+  if (!r.ok) throw new Problem(r.status, typeof data === "object" ? data : { detail: data });
+  return data;
+}
+
+const enc = encodeURIComponent;
+const worldPath = (w, rest = "") => `/worlds/${enc(w)}${rest}`;
+
+// -- small DOM helpers ----------------------------------------------------------------
+function el(tag, attrs = {}, ...children) {
+  const e = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) {
+    if (k === "text") e.textContent = v;
+    else if (k.startsWith("on")) e.addEventListener(k.slice(2), v);
+    else e.setAttribute(k, v);
+  }
+  for (const c of children) e.append(c);
+  return e;
+}
+
+function svg(tag, attrs = {}, text) {
+  const e = document.createElementNS(SVG, tag);
+  for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
+  if (text !== undefined) e.textContent = text;
+  return e;
+}
+
+function showProblem(target, err) {
+  target.replaceChildren();
+  const box = el("div", { class: "problem", role: "alert" });
+  const b = err instanceof Problem ? err.body : {};
+  box.append(el("strong", { text: `${b.title || "Error"} (${err.status || "?"})` }));
+  box.append(el("span", { text: b.detail || err.message }));
+  if (b.field) box.append(el("div", { text: `field: ${b.field}` }));
+  target.append(box);
+}
+
+function status(text) { $("#status").textContent = text; }
+
+// -- state ----------------------------------------------------------------------------
+const state = {
+  world: null,          // the world shown
+  description: null,    // its WorldDescription
+  pathEnds: [],         // landmark ids clicked for a path query
+  view: { x: 0, y: 0, w: 10, h: 10 }, // the map's viewBox (SVG y = -world y)
+};
+
+// -- worlds ---------------------------------------------------------------------------
+async function loadWorlds() {
+  const worlds = await api("GET", "/worlds");
+  state.summaries = Object.fromEntries(worlds.map((w) => [w.name, w]));
+  const tbody = $("#worlds-table tbody");
+  tbody.replaceChildren();
+  for (const w of worlds) {
+    const open = el("a", { href: "#/map", text: w.name, onclick: () => selectWorld(w.name) });
+    const del = el("button", { type: "button", class: "secondary", text: "Delete",
+      "aria-label": `Delete world ${w.name}` });
+    del.addEventListener("click", async () => {
+      if (!confirm(`Delete world ${w.name} and everything it holds?`)) return;
+      try { await api("DELETE", worldPath(w.name)); status(`deleted ${w.name}`); }
+      catch (e) { showProblem($("#status"), e); }
+      await loadWorlds();
+    });
+    tbody.append(el("tr", {}, el("td", {}, open), el("td", { text: w.template || "—" }),
+      el("td", { text: w.landmarks }), el("td", { text: w.walls }),
+      el("td", { text: w.objects }), el("td", {}, del)));
+  }
+  const sel = $("#world-select");
+  sel.replaceChildren(...worlds.map((w) => el("option", { value: w.name, text: w.name })));
+  if (!worlds.some((w) => w.name === state.world)) {
+    state.world = worlds.length ? (worlds.find((w) => w.name === "demo") || worlds[0]).name : null;
+  }
+  if (state.world) sel.value = state.world;
+  return worlds;
+}
+
+async function loadTemplates() {
+  // the built-in templates, as the OpenAPI lists them
+  const spec = await api("GET", "/openapi.json");
+  const schemas = spec.components.schemas;
+  const t = schemas.WorldDescription.properties.template;
+  const options = (t.anyOf || [t]).flatMap((s) => s.enum || (s.$ref ?
+    schemas[s.$ref.split("/").pop()].enum || [] : []));
+  $("#create-world select[name=template]").replaceChildren(
+    el("option", { value: "", text: "(empty)" }),
+    ...options.map((o) => el("option", { value: o, text: o })));
+}
+
+$("#create-world").addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  const f = new FormData(ev.target);
+  const body = { name: f.get("name") };
+  if (f.get("template")) body.template = f.get("template");
+  try {
+    await api("POST", "/worlds", body);
+    status(`created ${body.name}`);
+    state.world = body.name;
+    await loadWorlds();
+    ev.target.reset();
+  } catch (e) { showProblem($("#status"), e); }
+});
+
+async function selectWorld(name) {
+  state.world = name;
+  $("#world-select").value = name;
+  for (const s of document.querySelectorAll(".world-name")) s.textContent = name;
+  state.pathEnds = [];
+  for (const id of ["#path-result", "#localize-result", "#status", "#mission-job", "#mission-steps"]) {
+    $(id).replaceChildren();
+  }
+  await drawMap(true);
+}
+
+$("#world-select").addEventListener("change", (ev) => selectWorld(ev.target.value));
+
+// -- the map ----------------------------------------------------------------------------
+function setViewBox() {
+  const v = state.view;
+  $("#map").setAttribute("viewBox", `${v.x} ${v.y} ${v.w} ${v.h}`);
+}
+
+function fit(bounds) {
+  const [x0, y0, x1, y1] = bounds;
+  const pad = 0.05 * Math.max(x1 - x0, y1 - y0, 1);
+  state.view = { x: x0 - pad, y: -y1 - pad, w: x1 - x0 + 2 * pad, h: y1 - y0 + 2 * pad };
+  setViewBox();
+}
+
+function worldBounds(d) {
+  const xs = [], ys = [];
+  for (const w of d.walls) { xs.push(w.a[0], w.b[0]); ys.push(w.a[1], w.b[1]); }
+  for (const l of d.landmarks) if (l.x !== null && l.x !== undefined) { xs.push(l.x); ys.push(l.y); }
+  for (const o of d.objects) { xs.push(o.x); ys.push(o.y); }
+  if (!xs.length) return [0, 0, 10, 10];
+  return [Math.min(...xs), Math.min(...ys), Math.max(...xs), Math.max(...ys)];
+}
+
+function scale() { // metres per screen pixel
+  const r = $("#map").getBoundingClientRect();
+  return state.view.w / Math.max(r.width, 1);
+}
+
+function zoom(factor, cx, cy) {
+  const v = state.view;
+  cx = cx ?? v.x + v.w / 2;
+  cy = cy ?? v.y + v.h / 2;
+  state.view = { x: cx - (cx - v.x) * factor, y: cy - (cy - v.y) * factor,
+                 w: v.w * factor, h: v.h * factor };
+  setViewBox();
+}
+
+function clientToMap(ev) {
+  const r = $("#map").getBoundingClientRect();
+  const v = state.view;
+  // preserveAspectRatio xMidYMid meet: one scale, centred
+  const s = Math.max(v.w / r.width, v.h / r.height);
+  const ox = v.x - (r.width * s - v.w) / 2, oy = v.y - (r.height * s - v.h) / 2;
+  return [ox + (ev.clientX - r.left) * s, oy + (ev.clientY - r.top) * s];
+}
+
+function layer(name) { return $(`#layer-${name}`); }
+
+async function drawMap(refit) {
+  if (!state.world) return;
+  const w = state.world;
+  const [d, summary] = await Promise.all([api("GET", worldPath(w)),
+                                          api("GET", "/worlds").then((ws) => ws.find((x) => x.name === w))]);
+  state.description = d;
+  const has = new Set(summary ? summary.artifacts : []);
+  const ext = worldBounds(d);
+  const size = Math.max(ext[2] - ext[0], ext[3] - ext[1], 1);
+  const r = Math.max(0.06, size / 150); // a landmark's radius in metres
+  if (refit) fit(ext);
+  for (const g of document.querySelectorAll("#map-root > g")) g.replaceChildren();
+
+  const walls = layer("walls");
+  for (const wall of d.walls) {
+    walls.append(svg("line", { class: "wall", x1: wall.a[0], y1: -wall.a[1], x2: wall.b[0],
+      y2: -wall.b[1], "stroke-width": 2, "vector-effect": "non-scaling-stroke" }));
+  }
+  const objects = layer("objects");
+  for (const o of d.objects) {
+    const [sx, sy] = o.size_m;
+    const g = svg("g", { transform: `translate(${o.x} ${-o.y}) rotate(${-o.theta * 180 / Math.PI})` });
+    g.append(svg("rect", { class: "object", x: -sx / 2, y: -sy / 2, width: sx, height: sy,
+      "stroke-width": 1, "vector-effect": "non-scaling-stroke" }));
+    g.append(svg("title", {}, `object ${o.id} (${o.type})`));
+    objects.append(g);
+  }
+  const lms = layer("landmarks");
+  const placed = {};
+  for (const l of d.landmarks) {
+    if (l.x === null || l.x === undefined) continue;
+    placed[l.id] = [l.x, l.y];
+    const g = svg("g", { class: "landmark", "data-id": l.id, tabindex: 0, role: "button",
+      "aria-label": `landmark ${l.id}` });
+    g.append(svg("circle", { cx: l.x, cy: -l.y, r }));
+    g.append(svg("text", { x: l.x + 1.2 * r, y: -l.y - 1.2 * r, "font-size": 2.4 * r,
+      "stroke-width": 0.6 * r }, l.id));
+    g.append(svg("title", {}, `${l.id} (${l.x.toFixed(2)}, ${l.y.toFixed(2)})`));
+    g.addEventListener("click", () => pickLandmark(l.id));
+    g.addEventListener("keydown", (ev) => {
+      if (ev.key === "Enter" || ev.key === " ") { ev.preventDefault(); pickLandmark(l.id); }
+    });
+    lms.append(g);
+  }
+  state.placed = placed;
+  const ids = d.landmarks.map((l) => l.id);
+  for (const sel of [$("#path-from"), $("#path-to")]) {
+    const keep = sel.value;
+    sel.replaceChildren(...ids.map((id) => el("option", { value: id, text: id })));
+    if (ids.includes(keep)) sel.value = keep;
+  }
+  const info = [`${d.landmarks.length} landmarks, ${d.walls.length} walls, ${d.objects.length} objects`];
+  await Promise.all([
+    drawDrm(w, placed, r).then((n) => info.push(`DRM: ${n} edges`)),
+    has.has("saved_map") ? drawGrid(w).then((t) => info.push(t)) : null,
+    has.has("eigenspace") ? drawEigen(w, r).then((t) => info.push(t)) : null,
+  ]);
+  $("#map-info").replaceChildren(...info.map((t) => el("p", { class: "hint", text: t })));
+  applyLayerToggles();
+}
+
+async function drawDrm(w, placed, r) {
+  let drm;
+  try { drm = await api("GET", worldPath(w, "/drm")); } catch { return 0; }
+  const g = layer("drm");
+  for (const e of drm.edges) {
+    const a = placed[e.from], b = placed[e.to];
+    if (!a || !b) continue;
+    const line = svg("line", { class: "drm-edge", x1: a[0], y1: -a[1], x2: b[0], y2: -b[1],
+      "stroke-width": 0.5 + 2.5 * e.p, "stroke-opacity": 0.25 + 0.5 * e.p,
+      "vector-effect": "non-scaling-stroke", "data-from": e.from, "data-to": e.to });
+    line.append(svg("title", {}, `${e.from} → ${e.to}: p ${e.p.toFixed(3)}, ${e.method}`));
+    g.append(line);
+  }
+  return drm.edges.length;
+}
+
+async function drawGrid(w) {
+  const m = await api("GET", worldPath(w, "/map"));
+  const base = worldPath(w, `/slam-runs/${enc(m.run)}`);
+  const yaml = await (await fetch(base + "/map.yaml")).text();
+  const res = parseFloat(/resolution:\s*([-\d.eE]+)/.exec(yaml)[1]);
+  const origin = /origin:\s*\[\s*([-\d.eE]+)\s*,\s*([-\d.eE]+)/.exec(yaml);
+  const img = new Image();
+  img.src = base + "/map.png";
+  await img.decode();
+  const [ox, oy] = [parseFloat(origin[1]), parseFloat(origin[2])];
+  const wm = img.naturalWidth * res, hm = img.naturalHeight * res;
+  layer("grid").append(svg("image", { href: img.src, x: ox, y: -(oy + hm), width: wm,
+    height: hm, preserveAspectRatio: "none", style: "image-rendering: pixelated",
+    opacity: 0.85 }));
+  return `committed map: run ${m.run}, ${(100 * m.explored_fraction).toFixed(0)} % explored`;
+}
+
+async function drawEigen(w, r) {
+  const e = await api("GET", worldPath(w, "/eigenspace"));
+  state.directions = e.directions;
+  const g = layer("eigen");
+  for (const p of e.points) {
+    const c = svg("circle", { class: "eigen-point", cx: p.x, cy: -p.y, r: 0.6 * r });
+    c.append(svg("title", {}, `learning point ${p.id}`));
+    g.append(c);
+  }
+  {
+    const cov = await api("GET", worldPath(w, "/eigenspace/coverage"));
+    const cg = layer("coverage");
+    cov.p_enter.forEach((row, i) => row.forEach((p, j) => {
+      if (p === null || p <= 0) return;
+      cg.append(svg("rect", { x: cov.origin.x + j * cov.cell_m,
+        y: -(cov.origin.y + (i + 1) * cov.cell_m), width: cov.cell_m, height: cov.cell_m,
+        fill: "#10b981", "fill-opacity": 0.6 * p }));
+    }));
+    return `eigenspace: ${e.points.length} learning points, ${e.triplet_list.length} triplets, ` +
+      `${(100 * cov.share).toFixed(0)} % of the floor localizable`;
+  }
+}
+
+function applyLayerToggles() {
+  for (const box of document.querySelectorAll("#layers input")) {
+    layer(box.dataset.layer).style.display = box.checked ? "" : "none";
+  }
+}
+for (const box of document.querySelectorAll("#layers input")) {
+  box.addEventListener("change", applyLayerToggles);
+}
+
+function pickLandmark(id) {
+  state.pathEnds = state.pathEnds.length >= 2 ? [id] : [...state.pathEnds, id];
+  const [from, to] = state.pathEnds;
+  for (const g of document.querySelectorAll(".landmark")) {
+    g.classList.toggle("from", g.dataset.id === from);
+    g.classList.toggle("to", g.dataset.id === to);
+  }
+  if (from) $("#path-from").value = from;
+  if (to) { $("#path-to").value = to; findPath(from, to); }
+  else status(`path from ${from}: click the goal landmark`);
+}
+
+async function findPath(from, to) {
+  const out = $("#path-result");
+  layer("path").replaceChildren();
+  try {
+    const p = await api("GET", worldPath(state.world, `/path?from=${enc(from)}&to=${enc(to)}`));
+    out.replaceChildren();
+    if (!p.found) { out.append(el("p", { text: `no path: ${p.detail || ""}` })); return; }
+    out.append(el("p", { text: `${p.path.join(" → ")} (p = ${p.probability.toFixed(3)})`,
+      "data-testid": "path-summary" }));
+    const list = el("ol", { class: "steps" });
+    for (const s of p.steps) {
+      list.append(el("li", { text: `${s.from} → ${s.to}: ${s.method}` +
+        (s.via.length ? ` via ${s.via.join(", ")}` : "") + ` (p ${s.p.toFixed(3)})` }));
+    }
+    out.append(list);
+    const pts = p.path.map((id) => state.placed[id]).filter(Boolean);
+    if (pts.length > 1) {
+      layer("path").append(svg("polyline", { class: "path-line", "data-path": p.path.join(","),
+        points: pts.map(([x, y]) => `${x},${-y}`).join(" "), "stroke-width": 5,
+        "vector-effect": "non-scaling-stroke" }));
+    }
+    status(`path ${from} → ${to}: ${p.steps.length} steps`);
+  } catch (e) { showProblem(out, e); }
+}
+
+$("#path-form").addEventListener("submit", (ev) => {
+  ev.preventDefault();
+  state.pathEnds = [$("#path-from").value];
+  pickLandmark($("#path-to").value);
+});
+
+$("#localize-form").addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  const f = new FormData(ev.target);
+  const pose = { x: +f.get("x"), y: +f.get("y"), theta: +f.get("theta") };
+  const out = $("#localize-result");
+  out.replaceChildren(el("p", { text: "rendering and localizing…" }));
+  const g = layer("localization");
+  g.replaceChildren();
+  try {
+    const cam = await api("POST", worldPath(state.world, "/camera"),
+      { pose, turn: state.directions || 72, format: "turn_png" });
+    const loc = await api("POST", worldPath(state.world, "/localize"),
+      { turn_png: cam.turn_png });
+    const r = Math.max(0.06, state.view.w / 120);
+    for (const c of loc.candidates) {
+      g.append(svg("circle", { class: "candidate", cx: c.pose.x, cy: -c.pose.y, r,
+        "stroke-width": 2, "vector-effect": "non-scaling-stroke" }));
+    }
+    g.append(svg("circle", { cx: pose.x, cy: -pose.y, r: 0.5 * r, fill: "#111827" }));
+    out.replaceChildren(el("p", { class: `state-${loc.state.state}`,
+      text: `state ${loc.state.state.toUpperCase()} (${loc.outcome}), ${loc.candidates.length} candidates` }));
+    if (loc.pose) {
+      g.append(svg("circle", { class: "estimate", cx: loc.pose.x, cy: -loc.pose.y, r }));
+      const err = Math.hypot(loc.pose.x - pose.x, loc.pose.y - pose.y);
+      out.append(el("p", { text: `estimate (${loc.pose.x.toFixed(2)}, ${loc.pose.y.toFixed(2)}), ` +
+        `${err.toFixed(2)} m from the true pose` }));
+    } else if (loc.refused_by) {
+      out.append(el("p", { text: `refused by ${loc.refused_by.test}` }));
+    }
+  } catch (e) { showProblem(out, e); }
+});
+
+// pan (drag), zoom (wheel, buttons, keys)
+(() => {
+  const map = $("#map");
+  let drag = null;
+  map.addEventListener("pointerdown", (ev) => {
+    if (ev.target.closest(".landmark")) return;
+    drag = { x: ev.clientX, y: ev.clientY, view: { ...state.view } };
+    map.setPointerCapture(ev.pointerId);
+  });
+  map.addEventListener("pointermove", (ev) => {
+    if (!drag) return;
+    const s = scale();
+    state.view = { ...drag.view, x: drag.view.x - (ev.clientX - drag.x) * s,
+                   y: drag.view.y - (ev.clientY - drag.y) * s };
+    setViewBox();
+  });
+  map.addEventListener("pointerup", () => { drag = null; });
+  map.addEventListener("wheel", (ev) => {
+    ev.preventDefault();
+    const [cx, cy] = clientToMap(ev);
+    zoom(ev.deltaY > 0 ? 1.2 : 1 / 1.2, cx, cy);
+  }, { passive: false });
+  map.addEventListener("keydown", (ev) => {
+    const v = state.view, step = 0.1;
+    const moves = { ArrowLeft: [-step * v.w, 0], ArrowRight: [step * v.w, 0],
+                    ArrowUp: [0, -step * v.h], ArrowDown: [0, step * v.h] };
+    if (moves[ev.key]) {
+      ev.preventDefault();
+      state.view = { ...v, x: v.x + moves[ev.key][0], y: v.y + moves[ev.key][1] };
+      setViewBox();
+    } else if (ev.key === "+" || ev.key === "=") zoom(1 / 1.25);
+    else if (ev.key === "-") zoom(1.25);
+    else if (ev.key === "0" && state.description) fit(worldBounds(state.description));
+  });
+  $("#zoom-in").addEventListener("click", () => zoom(1 / 1.25));
+  $("#zoom-out").addEventListener("click", () => zoom(1.25));
+  $("#zoom-fit").addEventListener("click", () => state.description && fit(worldBounds(state.description)));
+})();
+
+// -- mission ------------------------------------------------------------------------------
+function renderSteps(steps) {
+  const list = $("#mission-steps");
+  list.replaceChildren(...steps.map((s) => {
+    const r = s.result || {};
+    const bits = Object.entries(r).filter(([, v]) => v === null || typeof v !== "object")
+      .slice(0, 6).map(([k, v]) => `${k}: ${typeof v === "number" ? +v.toFixed(3) : v}`);
+    return el("li", { class: r.ok === false ? "problem" : "", "data-what": s.what,
+      text: `${s.what}${bits.length ? " — " + bits.join(", ") : ""}` });
+  }));
+}
+
+async function showMission() {
+  try { renderSteps((await api("GET", worldPath(state.world, "/mission"))).steps); }
+  catch (e) { showProblem($("#mission-job"), e); }
+}
+
+$("#mission-replay").addEventListener("click", showMission);
+
+$("#mission-form").addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  const f = new FormData(ev.target);
+  const box = $("#mission-job");
+  box.replaceChildren();
+  $("#mission-steps").replaceChildren();
+  let job;
+  try {
+    job = await api("POST", worldPath(state.world, "/missions"),
+      { seed: +f.get("seed"), max_stops: +f.get("max_stops") });
+  } catch (e) { showProblem(box, e); return; }
+  const bar = el("progress", { max: 1, value: 0, "aria-label": "mission progress" });
+  const label = el("span", { text: " queued" });
+  box.append(bar, label);
+  while (true) {
+    await new Promise((r) => setTimeout(r, 500));
+    try {
+      job = await api("GET", `/jobs/${enc(job.id)}`);
+      bar.value = job.progress;
+      label.textContent = ` ${job.status}: ${job.stage}`;
+      const rec = await api("GET", worldPath(state.world, "/mission")).catch(() => null);
+      if (rec) renderSteps(rec.steps);
+    } catch (e) { showProblem(box, e); return; }
+    if (!["queued", "running"].includes(job.status)) break;
+  }
+  if (job.error) box.append(el("div", { class: "problem", text: job.error.detail || "" }));
+});
+
+// -- jobs -----------------------------------------------------------------------------
+async function loadJobs() {
+  const jobs = await api("GET", "/jobs");
+  const tbody = $("#jobs-table tbody");
+  tbody.replaceChildren(...jobs.map((j) => {
+    const cancel = el("button", { type: "button", class: "secondary", text: "Cancel",
+      "aria-label": `Cancel job ${j.id}` });
+    cancel.disabled = !["queued", "running"].includes(j.status);
+    cancel.addEventListener("click", async () => {
+      try { await api("DELETE", `/jobs/${enc(j.id)}`); } catch (e) { showProblem($("#status"), e); }
+      loadJobs();
+    });
+    return el("tr", {}, el("td", { text: j.id.slice(0, 8) }), el("td", { text: j.world }),
+      el("td", { text: j.kind }), el("td", { text: j.status }), el("td", { text: j.stage }),
+      el("td", {}, el("progress", { max: 1, value: j.progress,
+        "aria-label": `progress of job ${j.id}` })), el("td", {}, cancel));
+  }));
+}
+
+// -- query --------------------------------------------------------------------------------
+$("#query-form").addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  const out = $("#query-result");
+  out.replaceChildren(el("p", { text: "running…" }));
+  try {
+    const r = await api("POST", worldPath(state.world, "/query"), { goal: $("#goal").value });
+    out.replaceChildren();
+    if (!r.solutions.length) { out.append(el("p", { text: "false (no solutions)" })); return; }
+    const cols = [...new Set(r.solutions.flatMap((s) => Object.keys(s)))];
+    const table = el("table", { id: "solutions" });
+    table.append(el("thead", {}, el("tr", {}, ...cols.map((c) => el("th", { scope: "col", text: c })))));
+    const tbody = el("tbody");
+    for (const s of r.solutions) {
+      tbody.append(el("tr", {}, ...cols.map((c) => el("td", {
+        text: typeof s[c] === "object" ? JSON.stringify(s[c]) : String(s[c] ?? "") }))));
+    }
+    table.append(tbody);
+    out.append(el("p", { text: `${r.solutions.length} solution(s)${r.truncated ? " (truncated)" : ""}` }), table);
+  } catch (e) { showProblem(out, e); }
+});
+
+// -- routing --------------------------------------------------------------------------------
+let jobsTimer = null;
+async function route() {
+  const name = (location.hash.replace(/^#\//, "") || "map").split("/")[0];
+  for (const v of document.querySelectorAll(".view")) {
+    v.classList.toggle("active", v.id === `view-${name}`);
+  }
+  for (const a of document.querySelectorAll("header nav a[data-view]")) {
+    if (a.dataset.view === name) a.setAttribute("aria-current", "page");
+    else a.removeAttribute("aria-current");
+  }
+  clearInterval(jobsTimer);
+  try {
+    if (name === "worlds") await loadWorlds();
+    if (name === "jobs") { await loadJobs(); jobsTimer = setInterval(loadJobs, 1000); }
+  } catch (e) { showProblem($("#status"), e); }
+}
+
+window.addEventListener("hashchange", route);
+
+(async () => {
+  try {
+    await Promise.all([loadWorlds(), loadTemplates()]);
+    if (state.world) await selectWorld(state.world);
+    await route();
+    document.body.dataset.ready = "true";
+  } catch (e) { showProblem($("#status"), e); }
+})();

@@ -1,0 +1,227 @@
+"""The web console in a real browser: Debian's chromium driven by Playwright against a
+live ``chizu serve`` with the demo world. What a person sees is checked against what the
+API answers: the demo world's landmarks, a path found by clicking two landmarks, a Prolog
+query's solutions and a bad query's problem, a mission started from the page and shown
+step by step while it runs; no error in the browser's console; nothing fetched from
+another host (the page and /docs work offline)."""
+
+from __future__ import annotations
+
+import shutil
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+
+from tests.conftest import LiveServer
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+#: Chromium as root in a closed network: no sandbox, no background connections
+ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
+        "--disable-component-update", "--disable-sync", "--no-first-run", "--disable-quic"]
+#: a coarse eigenspace for the mission world, so that its mission runs in seconds
+SMALL_EIGENSPACE = {"camera": {"width_px": 32, "height_px": 16, "supersample": 1},
+                    "learning": {"spacing_m": 1.0, "n_directions": 36},
+                    "learning_strategy": None}
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveServer]:
+    srv = LiveServer(tmp_path_factory.mktemp("console") / "data", demo=True)
+    yield srv
+    srv.stop()
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    from playwright.sync_api import sync_playwright
+
+    if not Path(CHROMIUM).exists():
+        pytest.fail("chromium is missing: `make test` installs Debian's chromium")
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        yield b
+        b.close()
+
+
+class Page:
+    """A page at 1280 x 800 (or ``viewport``) with its console errors and every URL it
+    requested."""
+
+    def __init__(self, browser: Any, server: LiveServer,
+                 viewport: tuple[int, int] = (1280, 800)) -> None:
+        self.page = browser.new_page(viewport={"width": viewport[0], "height": viewport[1]})
+        self.errors: list[str] = []
+        self.requests: list[str] = []
+        self.page.on("console", lambda m: self.errors.append(m.text) if m.type == "error"
+                     else None)
+        self.page.on("pageerror", lambda e: self.errors.append(f"page error: {e}"))
+        self.page.on("request", lambda r: self.requests.append(r.url))
+        self.server = server
+
+    def open(self, hash_: str = "") -> Any:
+        self.page.goto(self.server.url + "/" + hash_)
+        self.page.wait_for_selector("body[data-ready=true]", timeout=30_000)
+        return self.page
+
+    def foreign(self) -> list[str]:
+        return [u for u in self.requests if not u.startswith(self.server.url)
+                and not u.startswith("data:")]
+
+
+@pytest.fixture
+def page(browser: Any, server: LiveServer) -> Iterator[Page]:
+    p = Page(browser, server)
+    yield p
+    p.page.close()
+
+
+def api(server: LiveServer, method: str, path: str, **kw: Any) -> Any:
+    r = httpx.request(method, server.url + path, timeout=60, **kw)
+    r.raise_for_status()
+    return r.json() if r.content else None
+
+
+def test_the_demo_world_renders_its_landmarks_walls_and_drm(page: Page,
+                                                            server: LiveServer) -> None:
+    p = page.open()
+    world = api(server, "GET", "/worlds/demo")
+    drm = api(server, "GET", "/worlds/demo/drm")
+    ids = sorted(p.locator("#layer-landmarks .landmark").evaluate_all(
+        "gs => gs.map(g => g.dataset.id)"))
+    assert ids == sorted(lm["id"] for lm in world["landmarks"]) and len(ids) == 22
+    assert p.locator("#layer-walls line").count() == len(world["walls"])
+    assert p.locator("#layer-drm line").count() == len(drm["edges"])
+    # the landmarks sit where the world says: compare one circle with its coordinates
+    lm = world["landmarks"][0]
+    c = p.locator(f'.landmark[data-id="{lm["id"]}"] circle')
+    assert float(c.get_attribute("cx")) == pytest.approx(lm["x"])
+    assert float(c.get_attribute("cy")) == pytest.approx(-lm["y"])
+    assert page.errors == [] and page.foreign() == []
+
+
+def test_a_path_made_by_clicks_is_the_one_the_api_returns(page: Page,
+                                                         server: LiveServer) -> None:
+    p = page.open()
+    p.locator('.landmark[data-id="rn0a"]').click()
+    p.locator('.landmark[data-id="rn3b"]').click()
+    p.wait_for_selector("[data-testid=path-summary]")
+    want = api(server, "GET", "/worlds/demo/path", params={"from": "rn0a", "to": "rn3b"})
+    drawn = p.locator("#layer-path polyline").get_attribute("data-path")
+    assert drawn.split(",") == want["path"]
+    steps = p.locator("#path-result ol li").all_text_contents()
+    assert len(steps) == len(want["steps"])
+    assert all(s.startswith(f"{st['from']} → {st['to']}: {st['method']}")
+               for s, st in zip(steps, want["steps"], strict=True))
+    assert page.errors == []
+
+
+def test_the_map_works_by_keyboard(page: Page) -> None:
+    """Landmarks are focusable: Tab reaches them and Enter picks them; the map pans and
+    zooms with keys."""
+    p = page.open()
+    p.locator('.landmark[data-id="c0"]').focus()
+    p.keyboard.press("Enter")
+    p.locator('.landmark[data-id="c3"]').focus()
+    p.keyboard.press("Enter")
+    p.wait_for_selector("[data-testid=path-summary]")
+    assert p.locator("[data-testid=path-summary]").text_content().startswith("c0")
+    p.locator("#map").focus()
+    before = p.locator("#map").get_attribute("viewBox")
+    p.keyboard.press("+")
+    p.keyboard.press("ArrowLeft")
+    assert p.locator("#map").get_attribute("viewBox") != before
+    p.keyboard.press("0")
+    assert page.errors == []
+
+
+def test_a_query_shows_its_solutions_and_a_bad_one_its_problem(page: Page,
+                                                               server: LiveServer) -> None:
+    p = page.open("#/query")
+    goal = "reachable(rn0a, To, P, Method)"
+    p.fill("#goal", goal)
+    p.click("#query-form button")
+    p.wait_for_selector("#solutions")
+    want = api(server, "POST", "/worlds/demo/query", json={"goal": goal})
+    assert p.locator("#solutions tbody tr").count() == len(want["solutions"]) > 0
+    headers = p.locator("#solutions thead th").all_text_contents()
+    assert set(headers) == set(want["solutions"][0])
+
+    p.fill("#goal", "reachable(rn0a, To")
+    p.click("#query-form button")
+    p.wait_for_selector("#query-result .problem")
+    bad = httpx.post(server.url + "/worlds/demo/query", json={"goal": "reachable(rn0a, To"})
+    assert bad.status_code == 422
+    text = p.locator("#query-result .problem").text_content()
+    assert bad.json()["detail"] in text and "goal" in text
+    # the only error the browser reports is the refused request itself
+    assert [e for e in page.errors if "422" not in e] == []
+
+
+def test_worlds_are_created_and_deleted_from_the_console(page: Page,
+                                                        server: LiveServer) -> None:
+    p = page.open("#/worlds")
+    p.fill("#create-world input[name=name]", "console_w")
+    p.select_option("#create-world select[name=template]", "room_a")
+    p.click("#create-world button")
+    p.wait_for_selector("#worlds-table a:text-is('console_w')")
+    assert api(server, "GET", "/worlds/console_w")["template"] == "room_a"
+    p.once("dialog", lambda d: d.accept())
+    p.click("button[aria-label='Delete world console_w']")
+    p.wait_for_selector("#worlds-table a:text-is('console_w')", state="detached")
+    assert httpx.get(server.url + "/worlds/console_w").status_code == 404
+    assert page.errors == []
+
+
+def test_a_mission_started_from_the_console_shows_its_steps_live(
+        page: Page, server: LiveServer) -> None:
+    api(server, "POST", "/worlds", json={"name": "mission_c", "template": "mission"})
+    job = api(server, "POST", "/worlds/mission_c/eigenspace", json=SMALL_EIGENSPACE)
+    deadline = time.monotonic() + 300
+    while api(server, "GET", f"/jobs/{job['id']}")["status"] in ("queued", "running"):
+        assert time.monotonic() < deadline
+        time.sleep(0.5)
+    p = page.open("#/mission")
+    p.select_option("#world-select", "mission_c")
+    p.click("#mission-form button[type=submit]")
+    seen_running_with_steps = False
+    deadline = time.monotonic() + 600
+    while time.monotonic() < deadline:
+        label = p.locator("#mission-job span").text_content() or ""
+        steps = p.locator("#mission-steps li").count()
+        if label.strip().startswith("running") and steps > 0:
+            seen_running_with_steps = True
+        if label.strip().startswith(("done", "failed", "cancelled")):
+            break
+        time.sleep(0.2)
+    assert seen_running_with_steps, "no step was shown while the mission ran"
+    record = api(server, "GET", "/worlds/mission_c/mission")
+    p.wait_for_function(f"document.querySelectorAll('#mission-steps li').length == "
+                        f"{len(record['steps'])}")
+    whats = p.locator("#mission-steps li").evaluate_all("ls => ls.map(l => l.dataset.what)")
+    assert whats == [s["what"] for s in record["steps"]] and whats[-1] == "evaluation"
+    assert page.errors == []
+
+
+def test_the_console_fits_a_tablet(browser: Any, server: LiveServer) -> None:
+    """At 800 px wide the panel goes under the map and nothing scrolls sideways."""
+    tablet = Page(browser, server, viewport=(800, 1100))
+    p = tablet.open()
+    width = p.evaluate("document.documentElement.scrollWidth")
+    assert width <= 800
+    map_box, panel_box = p.locator("#map").bounding_box(), p.locator(".panel").bounding_box()
+    assert panel_box["y"] >= map_box["y"] + map_box["height"] - 1
+    assert tablet.errors == []
+    tablet.page.close()
+
+
+def test_the_api_docs_load_offline(page: Page, server: LiveServer) -> None:
+    """/docs is Swagger UI from files the package installs: it renders the OpenAPI
+    without a request to any other host."""
+    page.page.goto(server.url + "/docs")
+    page.page.wait_for_selector(".swagger-ui .info .title", timeout=30_000)
+    assert "chizu" in page.page.locator(".swagger-ui .info .title").first.text_content()
+    assert page.foreign() == [] and page.errors == []
