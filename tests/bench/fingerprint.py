@@ -78,49 +78,52 @@ def _strip(v: Any) -> Any:
 
 
 def service_answers() -> dict[str, Any]:
-    """Viewpoint plans, eigenspace answers, a path and a mission through the API."""
+    """Viewpoint plans, eigenspace answers, a path and a mission through the typed client
+    (over the app in this process)."""
     import tempfile
 
     from fastapi.testclient import TestClient
+    from pydantic import BaseModel
 
     from chizu.service.app import create_app
+    from chizu.service.client import Client, JobError
+    from chizu.service.schemas.jobs import JobOut
     from chizu.service.settings import Settings
     from tests.eigenspace.test_api import SMALL
     from tests.viewpoint.test_api import table1_body
 
+    def wire(answer: BaseModel) -> Any:
+        """An answer as its JSON (the keys the server sent), as the dumps hold it."""
+        return answer.model_dump(mode="json", by_alias=True, exclude_unset=True)
+
     out: dict[str, Any] = {}
     with tempfile.TemporaryDirectory() as d, TestClient(create_app(Settings(
-            data_dir=Path(d), demo_world="demo", request_budget_s=600.0))) as c:
+            data_dir=Path(d), demo_world="demo", request_budget_s=600.0))) as http, \
+            Client(http=http) as c:
 
-        def wait(location: str) -> Any:
-            while True:
-                j = c.get(location).json()
-                if j["status"] in ("done", "failed"):
-                    return j
-                time.sleep(0.2)
+        def wait(job: JobOut) -> Any:
+            try:
+                return wire(c.wait_job(job, timeout_s=3600))
+            except JobError as e:  # a failed job is an answer too
+                return wire(e.job)
 
         for name, template in (("vp_a", "fig11a"), ("vp_b", "fig11b"), ("eig", "room_a"),
                                ("m", "mission")):
-            assert c.post("/worlds", json={"name": name, "template": template}).status_code \
-                == 201
+            c.worlds.create_world({"name": name, "template": template})
         for loss in ("L1", "L2", "L3"):
-            out[f"plan-table1-{loss}"] = c.post("/worlds/vp_a/viewpoint-plan",
-                                                json=table1_body(loss)).json()
+            out[f"plan-table1-{loss}"] = wire(c.viewpoint.post_plan("vp_a", table1_body(loss)))
         body = {**table1_body("L3"), "solver": "bnb"}
-        out["plan-bnb"] = c.post("/worlds/vp_a/viewpoint-plan", json=body).json()
-        out["path-demo"] = c.get("/worlds/demo/path",
-                                 params={"from": "rn0a", "to": "rs3b"}).json()
-        job = c.post("/worlds/eig/eigenspace", json=SMALL)
-        out["eig-learn"] = wait(job.headers["location"])
-        out["eig-summary"] = c.get("/worlds/eig/eigenspace").json()
+        out["plan-bnb"] = wire(c.viewpoint.post_plan("vp_a", body))
+        out["path-demo"] = wire(c.qualitative.get_path("demo", from_="rn0a", to="rs3b"))
+        out["eig-learn"] = wait(c.eigenspace.post_eigenspace("eig", SMALL))
+        out["eig-summary"] = wire(c.eigenspace.get_eigenspace("eig"))
         for i, (x, y, th) in enumerate([(3.0, 5.0, 0.0), (4.2, 4.7, 0.3), (2.1, 3.3, 1.2),
                                         (5.5, 2.5, -0.7)]):
-            imgs = c.post("/worlds/eig/camera", json={"pose": {"x": x, "y": y, "theta": th},
-                                                      "turn": 72, "format": "list"}).json()
-            out[f"eig-localize-{i}"] = c.post("/worlds/eig/localize", json=imgs).json()
-        job = c.post("/worlds/m/missions", json={"seed": 3})
-        out["mission"] = wait(job.headers["location"])
-        out["mission-record"] = c.get("/worlds/m/mission").json()
+            imgs = c.eigenspace.post_camera("eig", {"pose": {"x": x, "y": y, "theta": th},
+                                                    "turn": 72, "format": "list"})
+            out[f"eig-localize-{i}"] = wire(c.eigenspace.post_localize("eig", wire(imgs)))
+        out["mission"] = wait(c.mission.post_mission("m", {"seed": 3}))
+        out["mission-record"] = wire(c.mission.get_mission("m"))
     return _strip(out)
 
 

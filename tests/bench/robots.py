@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 import tempfile
 import threading
@@ -29,7 +28,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import httpx
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -41,6 +39,7 @@ from chizu.numeric.slam.evaluation import relation_errors  # noqa: E402
 from chizu.numeric.slam.logs import read_log, read_relations  # noqa: E402
 from chizu.numeric.slam.runner import SlamOptions, run_log  # noqa: E402
 from chizu.numeric.slam.saved_map import from_bytes  # noqa: E402
+from chizu.service.client import Client, ProblemError  # noqa: E402
 from tests.bench.map_localization import DATA, LOGS  # noqa: E402
 from tests.bench.results import mode, write_page  # noqa: E402
 from tests.bench.slam_stream import Server, pct, scan_dict  # noqa: E402
@@ -67,22 +66,22 @@ class Robot:
 
 def stream(url: str, robot: Robot, rate: float, t0: float) -> None:
     """Robot ``robot``'s scans, one a request, on its schedule from ``t0``."""
-    hdr = {"content-type": "application/json"}
-    with httpx.Client(base_url=url, timeout=600) as c:
-        base = f"/worlds/{WORLD}/slam-runs/{robot.run}/scans"
+    with Client(url, timeout_s=600) as c:
         for i, s in enumerate(robot.log.scans):
             target = t0 + i / rate
             now = time.perf_counter()
             if now < target:
                 time.sleep(target - now)
             start = time.perf_counter()
-            r = c.post(base, content=json.dumps({"scans": [scan_dict(s)]}), headers=hdr)
-            robot.latencies_ms.append((time.perf_counter() - start) * 1e3)
-            robot.lags_s.append(start - target)
-            if r.status_code != 200:
-                robot.errors.append(f"scan {i}: {r.status_code} {r.text[:200]}")
+            try:
+                c.slam.post_scans(WORLD, robot.run, {"scans": [scan_dict(s)]})
+            except ProblemError as e:
+                robot.errors.append(f"scan {i}: {e}"[:250])
                 if len(robot.errors) > 5:
                     return
+            finally:
+                robot.latencies_ms.append((time.perf_counter() - start) * 1e3)
+                robot.lags_s.append(start - target)
 
 
 def one_count(n: int, log: LaserLog, rate: float,
@@ -95,12 +94,10 @@ def one_count(n: int, log: LaserLog, rate: float,
         server = Server(Path(tmp))
         try:
             url = server.url
-            assert httpx.post(url + "/worlds", json={"name": WORLD}, timeout=60
-                              ).status_code == 201
-            for r in robots:
-                a = httpx.post(f"{url}/worlds/{WORLD}/slam-runs", timeout=600,
-                               json={"method": "graph", "resume": True})
-                r.run = a.json()["id"]
+            with Client(url, timeout_s=600) as c:
+                c.worlds.create_world({"name": WORLD})
+                for r in robots:
+                    r.run = c.slam.post_run(WORLD, {"method": "graph", "resume": True}).id
             t0 = time.perf_counter() + 0.1
             threads = [threading.Thread(target=stream, args=(url, r, rate, t0))
                        for r in robots]
@@ -109,17 +106,17 @@ def one_count(n: int, log: LaserLog, rate: float,
             for t in threads:
                 t.join()
             wall = time.perf_counter() - t0
-            with httpx.Client(base_url=url, timeout=3600) as c:
+            with Client(url, timeout_s=3600) as c:
                 for r in robots:
                     s = time.perf_counter()
-                    a = c.post(f"/worlds/{WORLD}/slam-runs/{r.run}/commit")
+                    try:
+                        c.slam.post_commit(WORLD, r.run)
+                        r.commit = "founded the map" if r.k == 0 else "joined"
+                    except ProblemError as problem:
+                        r.commit = f"{problem.status}: {problem.detail[:80]}"
                     r.commit_s = time.perf_counter() - s
-                    r.commit = "founded the map" if r.k == 0 else "joined"
-                    if a.status_code != 200:
-                        r.commit = f"{a.status_code}: {a.json().get('detail', '')[:80]}"
-                        continue
                 # every robot's scans as the world's map now has them
-                m = from_bytes(c.get(f"/worlds/{WORLD}/map.chizu").content)
+                m = from_bytes(c.slam.get_saved_map(WORLD))
         finally:
             server.stop()
     lat = [x for r in robots for x in r.latencies_ms]

@@ -16,7 +16,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import httpx
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -35,6 +34,7 @@ from chizu.numeric.qualitative.survey import survey  # noqa: E402
 from chizu.numeric.simulator import LandmarkObserver, ObserverConfig, OdometryConfig, Robot  # noqa: E402
 from chizu.numeric.world import World  # noqa: E402
 from chizu.numeric.worlds import office_world  # noqa: E402
+from chizu.service.client import Client  # noqa: E402
 from chizu.service.kb import KnowledgeBase  # noqa: E402
 from chizu.service.settings import PROLOG_DIR  # noqa: E402
 from chizu.service.worlds import WorldService  # noqa: E402
@@ -49,31 +49,27 @@ def pct(xs: list[float], q: float) -> float:
 
 
 def bench_rest(sizes: tuple[int, ...] = (4, 20, 40), queries: int = 200) -> list[dict]:
+    """Over the typed client, as a user calls it: the paths and the /health baseline both
+    go through it (one HTTP stack, each answer validated)."""
     rows = []
     with tempfile.TemporaryDirectory() as d:
         srv = LiveServer(Path(d))
         try:
-            with httpx.Client(base_url=srv.url, timeout=120) as c:
+            with Client(srv.url, timeout_s=120) as c:
                 for k in sizes:
                     desc = office_world(name=f"office{k}", rooms_per_side=k)
                     w = World(desc)
-                    assert c.post("/worlds", content=desc.model_dump_json(),
-                                  headers={"content-type": "application/json"}).status_code == 201
+                    c.worlds.create_world(desc)
                     obs = survey(w, ObserverConfig(bearing_noise_rad=0.01,
                                                    distance_noise_m=0.02), seed=1)
                     for o in obs:
-                        r = c.post(f"/worlds/{desc.name}/observations",
-                                   content=o.model_dump_json(),
-                                   headers={"content-type": "application/json"})
-                        assert r.status_code == 201, r.text
+                        c.qualitative.post_observation(desc.name, o)
                     builds = []
                     for rep in range(5):
                         if rep:  # re-post one observation: invalidates the closure
-                            c.post(f"/worlds/{desc.name}/observations",
-                                   content=obs[rep].model_dump_json(),
-                                   headers={"content-type": "application/json"})
+                            c.qualitative.post_observation(desc.name, obs[rep])
                         t0 = time.perf_counter()
-                        drm = c.get(f"/worlds/{desc.name}/drm").json()
+                        drm = c.qualitative.get_drm(desc.name)
                         builds.append(time.perf_counter() - t0)
                     rng = np.random.default_rng(0)
                     ids = w.landmark_ids
@@ -81,14 +77,13 @@ def bench_rest(sizes: tuple[int, ...] = (4, 20, 40), queries: int = 200) -> list
                     for _ in range(queries):
                         a, b = rng.choice(ids, 2, replace=False)
                         t0 = time.perf_counter()
-                        r = c.get(f"/worlds/{desc.name}/path", params={"from": a, "to": b})
+                        c.qualitative.get_path(desc.name, from_=a, to=b)
                         lat.append(time.perf_counter() - t0)
-                        assert r.status_code == 200
                         t0 = time.perf_counter()
-                        c.get("/health")
+                        c.health.health()
                         health.append(time.perf_counter() - t0)
                     rows.append({
-                        "landmarks": len(ids), "edges": len(drm["edges"]),
+                        "landmarks": len(ids), "edges": len(drm.edges),
                         "drm_build_ms": statistics.median(builds) * 1e3,
                         "path_p50_ms": pct(lat, 50) * 1e3, "path_p99_ms": pct(lat, 99) * 1e3,
                         "health_p50_ms": pct(health, 50) * 1e3,

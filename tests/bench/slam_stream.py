@@ -38,6 +38,7 @@ import re
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from io import BytesIO
 from pathlib import Path
@@ -52,6 +53,7 @@ sys.path.insert(0, str(ROOT))
 from chizu.numeric.scan import Scan  # noqa: E402
 from chizu.numeric.slam.datasets import slam_data_dir  # noqa: E402
 from chizu.numeric.slam.logs import read_log  # noqa: E402
+from chizu.service.client import Client, ProblemError  # noqa: E402
 from tests.conftest import LiveServer  # noqa: E402
 
 WORLD = "stream"
@@ -146,45 +148,49 @@ class Stream:
 
 
 class EndpointCheck:
-    """GETs of a run's outputs after the stream, each checked for a 200 and a sane body;
-    ``out`` gathers the figures, ``problems`` what failed."""
+    """Calls of a run's outputs after the stream, each checked for an answer and a sane
+    body; ``out`` gathers the figures, ``problems`` what failed."""
 
-    def __init__(self, c: httpx.Client, base: str) -> None:
-        self.c, self.base = c, base
+    def __init__(self, c: Client, http: httpx.Client, run: str) -> None:
+        self.c, self.http, self.run = c, http, run
         self.out: dict[str, Any] = {}
         self.problems: list[str] = []
 
-    def get(self, path: str) -> tuple[httpx.Response, float]:
+    def call(self, what: str, op: Callable[..., Any], *args: Any,
+             **kwargs: Any) -> tuple[Any, float]:
+        """``op(WORLD, run, *args, **kwargs)``: its answer (None after a problem) and ms."""
         t = time.perf_counter()
-        r = self.c.get(self.base + path)
-        ms = (time.perf_counter() - t) * 1e3
-        if r.status_code != 200:
-            self.problems.append(f"GET {path}: {r.status_code} {r.text[:200]}")
-        return r, ms
+        try:
+            answer = op(WORLD, self.run, *args, **kwargs)
+        except ProblemError as e:
+            answer = None
+            self.problems.append(f"{what}: {e}"[:250])
+        return answer, (time.perf_counter() - t) * 1e3
 
     def png(self) -> None:
         from PIL import Image
 
-        r, ms = self.get("/map.png")  # the first map request builds the grid
-        if r.status_code != 200:
+        # the first map request builds the grid
+        content, ms = self.call("GET map.png", self.c.slam.get_map_png)
+        if content is None:
             return
-        img = Image.open(BytesIO(r.content))
+        img = Image.open(BytesIO(content))
         free = float(np.mean(np.asarray(img.convert("L")) > 250))
-        self.out["png"] = {"ms": ms, "kb": len(r.content) / 1024, "size": img.size,
+        self.out["png"] = {"ms": ms, "kb": len(content) / 1024, "size": img.size,
                            "free": free}
-        if r.content[:8] != b"\x89PNG\r\n\x1a\n" or free <= 0.01:
+        if content[:8] != b"\x89PNG\r\n\x1a\n" or free <= 0.01:
             self.problems.append(f"map.png: not a map ({free:.3f} free)")
 
     def pgm(self) -> None:
-        r, ms = self.get("/map.pgm")
-        if r.status_code != 200:
+        content, ms = self.call("GET map.pgm", self.c.slam.get_map_pgm)
+        if content is None:
             return
-        m = re.match(rb"P5\s+(?:#.*\n\s*)*(\d+)\s+(\d+)\s+(\d+)\s", r.content)
+        m = re.match(rb"P5\s+(?:#.*\n\s*)*(\d+)\s+(\d+)\s+(\d+)\s", content)
         if m is None:
             self.problems.append("map.pgm: no P5 header")
             return
         w, h = int(m[1]), int(m[2])
-        px = np.frombuffer(r.content[m.end():], np.uint8)
+        px = np.frombuffer(content[m.end():], np.uint8)
         occ, free = float(np.mean(px == 0)), float(np.mean(px == 254))
         self.out["pgm"] = {"ms": ms, "size": (w, h), "occupied": occ, "free": free}
         if px.size != w * h or occ <= 0 or free <= 0.01:
@@ -194,18 +200,23 @@ class EndpointCheck:
             self.problems.append(f"map.png {self.out['png']['size']} vs map.pgm {(w, h)}")
 
     def yaml(self) -> None:
-        r, ms = self.get("/map.yaml")
-        if r.status_code != 200:
+        content, ms = self.call("GET map.yaml", self.c.slam.get_map_yaml)
+        if content is None:
             return
-        y = r.text
+        y = content.decode()
         res = re.search(r"resolution:\s*([0-9.eE+-]+)", y)
         self.out["yaml"] = {"ms": ms, "resolution": float(res[1]) if res else None}
         if not ("image: map.pgm" in y and res is not None and "origin:" in y):
             self.problems.append(f"map.yaml: {y[:200]!r}")
 
     def trajectory(self, scans: int, last_pose: dict[str, float], sent_t: list[float]) -> None:
-        r, ms = self.get("/trajectory")
-        if r.status_code == 200:
+        # raw: the answer's size on the wire is one of the figures
+        t = time.perf_counter()
+        r = self.http.get(f"/worlds/{WORLD}/slam-runs/{self.run}/trajectory")
+        ms = (time.perf_counter() - t) * 1e3
+        if r.status_code != 200:
+            self.problems.append(f"GET trajectory: {r.status_code} {r.text[:200]}")
+        else:
             tr = r.json()
             n = len(tr["poses"])
             self.out["trajectory"] = {"ms": ms, "poses": n, "kb": len(r.content) / 1024}
@@ -218,23 +229,26 @@ class EndpointCheck:
             self.out["trajectory"]["end_vs_pose_mm"] = gap * 1e3
             if gap > 0.01:  # rounding of the JSON, no more
                 self.problems.append(f"trajectory ends {gap:.2f} m from the last pose")
-        r, ms = self.get("/trajectory?format=tum")
-        if r.status_code == 200 and len(r.text.strip().splitlines()) != scans:
+        tum, ms = self.call("GET trajectory?format=tum", self.c.slam.get_trajectory,
+                            format="tum")
+        if tum is not None and len(tum.strip().splitlines()) != scans:
             self.problems.append("trajectory?format=tum: wrong line count")
 
     def commit(self) -> None:
-        t = time.perf_counter()
-        r = self.c.post(self.base + "/commit")
-        self.out["commit"] = {"ms": (time.perf_counter() - t) * 1e3, "status": r.status_code}
-        if r.status_code != 200:
-            self.problems.append(f"POST commit: {r.status_code} {r.text[:200]}")
+        t, status = time.perf_counter(), 200
+        try:
+            self.c.slam.post_commit(WORLD, self.run)
+        except ProblemError as e:
+            status = e.status
+            self.problems.append(f"POST commit: {e}"[:250])
+        self.out["commit"] = {"ms": (time.perf_counter() - t) * 1e3, "status": status}
 
 
-def check_maps(c: httpx.Client, base: str, scans: int, last_pose: dict[str, float],
-               sent_t: list[float]) -> dict[str, Any]:
-    """GET the maps and the trajectory after the stream, then commit; each must be 200 and
-    sane. The figures by endpoint, and ``problems``."""
-    check = EndpointCheck(c, base)
+def check_maps(c: Client, http: httpx.Client, run: str, scans: int,
+               last_pose: dict[str, float], sent_t: list[float]) -> dict[str, Any]:
+    """Get the maps and the trajectory after the stream, then commit; each must answer and
+    be sane. The figures by endpoint, and ``problems``."""
+    check = EndpointCheck(c, http, run)
     check.png()
     check.pgm()
     check.yaml()
@@ -287,7 +301,8 @@ class Feed:
 
 
 def health_p50_ms(c: httpx.Client, n: int = 30) -> float:
-    """Median latency of ``GET /health``: the HTTP stack's own cost, the baseline."""
+    """Median latency of ``GET /health``: the HTTP stack's own cost, the baseline (raw,
+    as the scans are sent)."""
     hs = []
     for _ in range(n):
         t = time.perf_counter()
@@ -299,7 +314,8 @@ def health_p50_ms(c: httpx.Client, n: int = 30) -> float:
 def send_scans(c: httpx.Client, base: str, feed: Feed, st: Stream) -> dict[str, Any]:
     """Post the scans one a request, scan k at t0 + k/rate (at once when behind), with the
     malformed scans after the middle one; the last answer. Fills ``st``'s latencies,
-    lags and counts."""
+    lags and counts. Raw: each body is encoded once beforehand, so the latency is the
+    request's and the client's CPU stays out of the server's way."""
     period, n = 1.0 / feed.rate, len(feed.bodies)
     bad_at = n // 2
     hdr = {"content-type": "application/json"}
@@ -343,12 +359,11 @@ def stream(url: str, label: str, options: dict[str, Any], feed: Feed,
     of the rest of the machine meanwhile, the malformed scans' answers and the outputs'
     checks."""
     st = Stream(label, options)
-    with httpx.Client(base_url=url, timeout=600) as c:
+    # the typed client shares the raw one's connection
+    with httpx.Client(base_url=url, timeout=600) as c, Client(http=c) as chizu:
         st.health_p50_ms = health_p50_ms(c)
-        r = c.post(f"/worlds/{WORLD}/slam-runs", json=options)
-        if r.status_code != 201:
-            raise RuntimeError(f"create run {options}: {r.status_code} {r.text}")
-        base = f"/worlds/{WORLD}/slam-runs/{r.json()['id']}"
+        run = chizu.slam.post_run(WORLD, options).id
+        base = f"/worlds/{WORLD}/slam-runs/{run}"
         cpu0, busy0, load0 = server.cpu_s(), busy_jiffies(), os.getloadavg()[0]
         client0 = time.process_time()
         last = send_scans(c, base, feed, st)
@@ -365,7 +380,7 @@ def stream(url: str, label: str, options: dict[str, Any], feed: Feed,
             st.bad["odom_moved_m"] = math.hypot(o1[0] - o0[0], o1[1] - o0[1])
         if st.scans:
             sent_t = [d["t"] for d in feed.dicts[:st.scans]]
-            st.endpoints = check_maps(c, base, st.scans, last["pose"], sent_t)
+            st.endpoints = check_maps(chizu, c, run, st.scans, last["pose"], sent_t)
         st.peak_rss_mb = server.peak_rss_mb()
     return st
 
@@ -384,8 +399,9 @@ def size_checks(url: str, dicts: list[dict[str, Any]], max_body: int) -> list[li
                 "angle_min": -math.radians(fov) / 2, "angle_increment": inc,
                 "range_min": 0.02, "range_max": 30.0, "odom": [0.0, 0.0, 0.0]}
 
-    with httpx.Client(base_url=url, timeout=600) as c:
-        rid = c.post(f"/worlds/{WORLD}/slam-runs", json={"method": "odom"}).json()["id"]
+    # raw posts: the point is the body-size limit (bodies' size on the wire, a 413)
+    with httpx.Client(base_url=url, timeout=600) as c, Client(http=c) as chizu:
+        rid = chizu.slam.post_run(WORLD, {"method": "odom"}).id
         base = f"/worlds/{WORLD}/slam-runs/{rid}/scans"
         t = 1.0
         for what, scans in [("1 scan, 360 beams + intensities", [synthetic(360, t)]),
@@ -493,9 +509,8 @@ def serve_and_stream(label: str, opts: dict[str, Any], feed: Feed,
     with tempfile.TemporaryDirectory(prefix="chizu-stream-") as tmp:
         server = Server(Path(tmp))
         try:
-            r = httpx.post(server.url + "/worlds", json={"name": WORLD}, timeout=60)
-            if r.status_code != 201:
-                raise RuntimeError(f"create world: {r.status_code} {r.text}")
+            with Client(server.url, timeout_s=60) as c:
+                c.worlds.create_world({"name": WORLD})
             if size_checks_max_body is not None:
                 size_rows = size_checks(server.url, feed.dicts, size_checks_max_body)
             print(f"streaming {label} ...", flush=True)

@@ -16,6 +16,7 @@ import httpx
 from fastapi.testclient import TestClient
 
 from chizu.service.app import create_app
+from chizu.service.client import Client, ProblemError
 from chizu.service.schemas.jobs import JobOut
 from chizu.service.settings import Settings
 from tests.conftest import make_fig1_world, observation
@@ -34,8 +35,8 @@ def wait_status(get: Any, statuses: tuple[str, ...], timeout_s: float = 120) -> 
     raise AssertionError(f"job never reached {statuses}: {j}")
 
 
-def events(c: httpx.Client, world: str) -> int:
-    return next(int(w["events"]) for w in c.get("/worlds").json() if w["name"] == world)
+def events(c: Client, world: str) -> int:
+    return next(w.events for w in c.worlds.list_worlds() if w.name == world)
 
 
 def test_cancel_list_and_bad_ids(tmp_path: Path) -> None:
@@ -85,26 +86,28 @@ def test_kill_9_during_a_job_and_a_write_loop(tmp_path: Path,
     stop = threading.Event()
 
     def write_loop() -> None:  # observations, one after the other, until the kill
-        with httpx.Client(base_url=srv.url, timeout=10) as w:
+        with Client(srv.url, timeout_s=10) as w:
             k = 0
             while not stop.is_set():
                 try:
-                    r = w.post("/worlds/fig/observations",
-                               json=observation("a", ["b", "d"], heading=0.001 * k))
-                except httpx.HTTPError:
+                    w.qualitative.post_observation(
+                        "fig", observation("a", ["b", "d"], heading=0.001 * k))
+                except ProblemError:  # refused: not acknowledged
+                    pass
+                except httpx.HTTPError:  # the server is gone
                     return
-                if r.status_code == 201:
+                else:
                     acked.append(k)
                 k += 1
 
-    with httpx.Client(base_url=srv.url, timeout=30) as c:
-        make_fig1_world(c, "fig")
+    with httpx.Client(base_url=srv.url, timeout=30) as http, Client(http=http) as c:
+        make_fig1_world(http, "fig")
         base = events(c, "fig")
-        assert c.post("/worlds", json={"name": "w", "template": "room_a"}).status_code == 201
-        jid = c.post("/worlds/w/eigenspace", json=LONG).json()["id"]
+        c.worlds.create_world({"name": "w", "template": "room_a"})
+        jid = c.eigenspace.post_eigenspace("w", LONG).id
         writer = threading.Thread(target=write_loop)
         writer.start()
-        wait_status(lambda: c.get(f"/jobs/{jid}").json(), ("running",))
+        wait_status(lambda: c.jobs.get_job(jid).model_dump(), ("running",))
         while len(acked) < 20:
             time.sleep(0.05)
     os.kill(srv.proc.pid, signal.SIGKILL)
@@ -112,15 +115,13 @@ def test_kill_9_during_a_job_and_a_write_loop(tmp_path: Path,
     stop.set()
     writer.join()
     srv2 = live_server_factory(data)
-    with httpx.Client(base_url=srv2.url, timeout=30) as c:
+    with Client(srv2.url, timeout_s=30) as c:
         n = events(c, "fig") - base
         assert n >= len(acked)  # every acknowledged write is there
         assert n <= len(acked) + 1  # at most the one in flight at the kill
         # the learning the kill cut off runs again from its stored request
-        j = wait_status(lambda: c.get(f"/jobs/{jid}").json(),
-                        ("done", "failed", "interrupted"), timeout_s=600)
-        assert j["status"] == "done" and j["attempts"] == 1, j
-        assert c.get("/worlds/w/eigenspace").status_code == 200
+        assert c.wait_job(jid, timeout_s=600).attempts == 1
+        c.eigenspace.get_eigenspace("w")  # committed: no 404
 
 
 def test_jobs_queued_again_after_a_restart(tmp_path: Path) -> None:

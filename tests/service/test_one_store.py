@@ -10,8 +10,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-import httpx
+import pytest
 
+from chizu.service.client import Client, ProblemError
 from tests.conftest import ROOT, LiveServer
 
 CLIP = ROOT / "examples" / "aces-clip.clf"
@@ -29,23 +30,21 @@ def other_process(data_dir: Path, code: str) -> None:
     subprocess.run([sys.executable, "-c", prog], env=env, cwd=ROOT, check=True, timeout=300)
 
 
-def count(url: str, world: str, goal: str) -> int:
-    r = httpx.post(f"{url}/worlds/{world}/query", json={"goal": f"aggregate_all(count, "
-                                                                f"{goal}, N)"}, timeout=30)
-    assert r.status_code == 200, r.text
-    return int(r.json()["solutions"][0]["N"])
+def count(c: Client, world: str, goal: str) -> int:
+    out = c.qualitative.post_query(world, {"goal": f"aggregate_all(count, {goal}, N)"})
+    return int(out.solutions[0]["N"])
 
 
 def test_the_service_sees_what_the_cli_wrote(tmp_path: Path) -> None:
     data = tmp_path / "data"
     server = LiveServer(data)
+    c = Client(server.url, timeout_s=60)
     try:
-        url = server.url
-        r = httpx.post(url + "/worlds", json={"name": "lab", "template": "demo"}, timeout=60)
-        assert r.status_code == 201, r.text
-        assert count(url, "lab", "committed_map(_)") == 0
-        r = httpx.get(url + "/worlds/lab/map", timeout=30)  # the world has no map yet
-        assert r.status_code == 404 and r.json()["field"] == "map", r.text
+        c.worlds.create_world({"name": "lab", "template": "demo"})
+        assert count(c, "lab", "committed_map(_)") == 0
+        with pytest.raises(ProblemError) as e:  # the world has no map yet
+            c.slam.get_world_map("lab")
+        assert e.value.status == 404 and e.value.field == "map", e.value
 
         # the CLI commits a SLAM map into the world the service holds
         env = {**os.environ, "CHIZU_DATA_DIR": str(data), "CHIZU_DEMO_WORLD": ""}
@@ -53,34 +52,39 @@ def test_the_service_sees_what_the_cli_wrote(tmp_path: Path) -> None:
                              "--world", "lab", "--out", str(tmp_path / "out")], env=env,
                             cwd=ROOT, capture_output=True, text=True, timeout=600)
         assert r2.returncode == 0, r2.stdout + r2.stderr
-        assert count(url, "lab", "committed_map(_)") == 1
-        assert count(url, "lab", "map_pose(_, _, _, _, _)") > 0
-        assert httpx.get(url + "/worlds/lab/map", timeout=30).status_code == 200
+        assert count(c, "lab", "committed_map(_)") == 1
+        assert count(c, "lab", "map_pose(_, _, _, _, _)") > 0
+        c.slam.get_world_map("lab")  # no 404 now
 
         # the service writes on top of it: both are kept
         obs = {"at": "rn0a", "seen": [{"landmark": "c0", "bearing_rad": 0.1, "distance_m": 2.0},
                                       {"landmark": "c1", "bearing_rad": 1.0, "distance_m": 3.0}]}
-        r = httpx.post(url + "/worlds/lab/observations", json=obs, timeout=30)
-        assert r.status_code == 201, r.text
-        assert count(url, "lab", "committed_map(_)") == 1 and count(url, "lab", "rec(_, _, _)") > 0
+        c.qualitative.post_observation("lab", obs)
+        assert count(c, "lab", "committed_map(_)") == 1 and count(c, "lab", "rec(_, _, _)") > 0
 
         # a world another process creates, then deletes
         other_process(data, "asyncio.run(services.worlds.create("
                             "WorldDescription(name='annex', template='demo')))")
-        assert "annex" in [w["name"] for w in httpx.get(url + "/worlds", timeout=30).json()]
-        assert count(url, "annex", "landmark(_)") == count(url, "lab", "landmark(_)") > 0
+        assert "annex" in [w.name for w in c.worlds.list_worlds()]
+        assert count(c, "annex", "landmark(_)") == count(c, "lab", "landmark(_)") > 0
         other_process(data, "asyncio.run(services.worlds.delete('annex'))")
-        r = httpx.post(url + "/worlds/annex/query", json={"goal": "landmark(L)"}, timeout=30)
-        assert r.status_code == 404 and r.json()["field"] == "world"
-        r = httpx.get(url + "/worlds/annex/path", params={"from": "rn0a", "to": "c1"},
-                      timeout=30)
-        assert r.status_code == 404
+        with pytest.raises(ProblemError) as e:
+            c.qualitative.post_query("annex", {"goal": "landmark(L)"})
+        assert e.value.status == 404 and e.value.field == "world"
+        with pytest.raises(ProblemError) as e:
+            c.qualitative.get_path("annex", from_="rn0a", to="c1")
+        assert e.value.status == 404
     finally:
+        c.close()
         server.stop()
     # and a restart finds what both wrote
     server = LiveServer(data)
+    c = Client(server.url, timeout_s=30)
     try:
-        assert count(server.url, "lab", "committed_map(_)") == 1
-        assert httpx.get(server.url + "/worlds/annex", timeout=30).status_code == 404
+        assert count(c, "lab", "committed_map(_)") == 1
+        with pytest.raises(ProblemError) as e:
+            c.worlds.get_world("annex")
+        assert e.value.status == 404
     finally:
+        c.close()
         server.stop()
