@@ -15,6 +15,7 @@ from chizu.service import __version__, console, errors
 from chizu.service.api import operation_id
 from chizu.service.api.routes import (
     eigenspace,
+    events,
     health,
     jobs,
     localization,
@@ -49,6 +50,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if again or lost:
             log.warning("jobs the last server process left unfinished: %d queued again, "
                         "%d interrupted", again, lost)
+        services.worlds.events.attach(asyncio.get_running_loop())
         app.state.services = services
         app.state.store, app.state.kb, app.state.worlds = (services.store, services.kb,
                                                            services.worlds)
@@ -57,6 +59,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         try:
             yield
         finally:
+            services.worlds.events.close()  # open event streams end
             await services.jobs.close()
             services.close()
 
@@ -76,6 +79,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(viewpoint.router)
     app.include_router(mission.router)
     app.include_router(jobs.router)
+    app.include_router(events.router)
     errors.install(app)
     errors.document_problems(app)
     app.add_middleware(errors.BodySizeLimit, max_bytes=settings.max_body_bytes,

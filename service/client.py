@@ -14,7 +14,7 @@ OpenAPI: do not edit.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import AsyncIterator, Iterator, Mapping
 from types import TracebackType
 from typing import Any
 
@@ -29,6 +29,7 @@ from chizu.service.client_base import (
     JobError,
     ProblemError,
     Request,
+    ServerEvent,
     SyncTransport,
     segment,
 )
@@ -76,7 +77,7 @@ from chizu.service.schemas.slam import (
 )
 from chizu.service.schemas.viewpoint import ViewpointGroupsOut, ViewpointPlanOut
 
-__all__ = ["AsyncClient", "Client", "JobError", "ProblemError"]
+__all__ = ["AsyncClient", "Client", "JobError", "ProblemError", "ServerEvent"]
 
 
 class HealthApi:
@@ -379,6 +380,20 @@ class SlamApi:
         return self._t.call(Request('PUT', f"/worlds/{segment(world)}/map.chizu", content=content),
                 CommitOut)
 
+    def get_committed_map_png(self, world: str) -> bytes:
+        """GET /worlds/{world}/map.png: The world's committed map (as its run's ``map.png`` draws
+        it); its origin and resolution are in ``map.yaml``."""
+        return self._t.call(Request('GET', f"/worlds/{segment(world)}/map.png"), bytes)
+
+    def get_committed_map_pgm(self, world: str) -> bytes:
+        """GET /worlds/{world}/map.pgm: The world's committed map as a ROS map_server image."""
+        return self._t.call(Request('GET', f"/worlds/{segment(world)}/map.pgm"), bytes)
+
+    def get_committed_map_yaml(self, world: str) -> bytes:
+        """GET /worlds/{world}/map.yaml: ROS map_server metadata of the committed map (for
+        ``map.pgm``)."""
+        return self._t.call(Request('GET', f"/worlds/{segment(world)}/map.yaml"), bytes)
+
     def get_world_map(self, world: str) -> WorldMapOut:
         """GET /worlds/{world}/map: The world's committed map as the knowledge base sees it
         (Prolog rules)."""
@@ -520,6 +535,24 @@ class JobsApi:
         """DELETE /jobs/{job_id}: Cancel a queued or running job: it ends ``cancelled`` and
         commits nothing; 409 for a job that has already ended."""
         return self._t.call(Request('DELETE', f"/jobs/{segment(job_id)}"), JobOut)
+
+
+class EventsApi:
+    """The operations of chizu.service.api.routes.events."""
+
+    def __init__(self, transport: SyncTransport) -> None:
+        self._t = transport
+
+    def get_events(self, world: str) -> Iterator[ServerEvent]:
+        """GET /worlds/{world}/events: The world's events as they happen (``text/event-stream``):
+        ``job`` (a job of the world changed: its row as ``GET /jobs/{id}`` gives it),
+        ``slam_pose`` and ``localization_pose`` (a batch of scans was processed: run, scans,
+        stamp, pose), ``mission_step`` (a mission recorded a step), ``artifact`` (something
+        was committed: its kind), ``world_deleted``. The first event, ``open``, says the
+        stream is live. Each client has a bounded queue: an event read after some were dropped
+        carries ``dropped`` (how many). Keep-alive comments come every 15 s. 503 while
+        ``CHIZU_MAX_EVENT_STREAMS`` streams are open."""
+        return self._t.stream(Request('GET', f"/worlds/{segment(world)}/events"))
 
 
 class AsyncHealthApi:
@@ -834,6 +867,20 @@ class AsyncSlamApi:
         return await self._t.call(Request('PUT', f"/worlds/{segment(world)}/map.chizu",
                 content=content), CommitOut)
 
+    async def get_committed_map_png(self, world: str) -> bytes:
+        """GET /worlds/{world}/map.png: The world's committed map (as its run's ``map.png`` draws
+        it); its origin and resolution are in ``map.yaml``."""
+        return await self._t.call(Request('GET', f"/worlds/{segment(world)}/map.png"), bytes)
+
+    async def get_committed_map_pgm(self, world: str) -> bytes:
+        """GET /worlds/{world}/map.pgm: The world's committed map as a ROS map_server image."""
+        return await self._t.call(Request('GET', f"/worlds/{segment(world)}/map.pgm"), bytes)
+
+    async def get_committed_map_yaml(self, world: str) -> bytes:
+        """GET /worlds/{world}/map.yaml: ROS map_server metadata of the committed map (for
+        ``map.pgm``)."""
+        return await self._t.call(Request('GET', f"/worlds/{segment(world)}/map.yaml"), bytes)
+
     async def get_world_map(self, world: str) -> WorldMapOut:
         """GET /worlds/{world}/map: The world's committed map as the knowledge base sees it
         (Prolog rules)."""
@@ -989,6 +1036,24 @@ class AsyncJobsApi:
         return await self._t.call(Request('DELETE', f"/jobs/{segment(job_id)}"), JobOut)
 
 
+class AsyncEventsApi:
+    """The operations of chizu.service.api.routes.events."""
+
+    def __init__(self, transport: AsyncTransport) -> None:
+        self._t = transport
+
+    def get_events(self, world: str) -> AsyncIterator[ServerEvent]:
+        """GET /worlds/{world}/events: The world's events as they happen (``text/event-stream``):
+        ``job`` (a job of the world changed: its row as ``GET /jobs/{id}`` gives it),
+        ``slam_pose`` and ``localization_pose`` (a batch of scans was processed: run, scans,
+        stamp, pose), ``mission_step`` (a mission recorded a step), ``artifact`` (something
+        was committed: its kind), ``world_deleted``. The first event, ``open``, says the
+        stream is live. Each client has a bounded queue: an event read after some were dropped
+        carries ``dropped`` (how many). Keep-alive comments come every 15 s. 503 while
+        ``CHIZU_MAX_EVENT_STREAMS`` streams are open."""
+        return self._t.stream(Request('GET', f"/worlds/{segment(world)}/events"))
+
+
 class Client:
     """The service at ``base_url`` (or over ``http``, e.g. a FastAPI TestClient)."""
 
@@ -1004,6 +1069,7 @@ class Client:
         self.viewpoint = ViewpointApi(self._t)
         self.mission = MissionApi(self._t)
         self.jobs = JobsApi(self._t)
+        self.events = EventsApi(self._t)
         self.wait_job = self._t.wait_job
 
     def close(self) -> None:
@@ -1033,6 +1099,7 @@ class AsyncClient:
         self.viewpoint = AsyncViewpointApi(self._t)
         self.mission = AsyncMissionApi(self._t)
         self.jobs = AsyncJobsApi(self._t)
+        self.events = AsyncEventsApi(self._t)
         self.wait_job = self._t.wait_job
 
     async def aclose(self) -> None:

@@ -7,8 +7,9 @@ from __future__ import annotations
 
 import asyncio
 import functools
+import json
 import time
-from collections.abc import Mapping
+from collections.abc import AsyncIterator, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 from urllib.parse import quote
@@ -112,6 +113,51 @@ def adapter(out: Any) -> TypeAdapter[Any]:
     return TypeAdapter(out)
 
 
+@dataclass(frozen=True)
+class ServerEvent:
+    """One Server-Sent Event: its type, id and data (JSON-decoded)."""
+
+    event: str
+    id: str | None
+    data: Any
+
+
+class _EventParser:
+    """Server-Sent Events from a stream's lines (the WHATWG event-stream format: fields
+    until a blank line, ``data`` lines joined, comments skipped)."""
+
+    def __init__(self) -> None:
+        self.event: str = "message"
+        self.id: str | None = None
+        self.data: list[str] = []
+
+    def feed(self, line: str) -> ServerEvent | None:
+        if not line:
+            if not self.data:
+                self.event = "message"
+                return None
+            out = ServerEvent(self.event, self.id, json.loads("\n".join(self.data)))
+            self.event, self.data = "message", []
+            return out
+        if line.startswith(":"):
+            return None
+        name, _, value = line.partition(":")
+        value = value[1:] if value.startswith(" ") else value
+        if name == "event":
+            self.event = value
+        elif name == "data":
+            self.data.append(value)
+        elif name == "id":
+            self.id = value
+        return None
+
+
+def _stream_status(response: httpx.Response) -> None:
+    """A refused stream raises :class:`ProblemError` (its body read first)."""
+    if response.status_code >= 400:
+        decode(response, None)
+
+
 def settled(job: JobOut, timeout_s: float, deadline: float) -> JobOut | None:
     """One poll of a job: the job once done, None while it runs; :class:`JobError` if
     it ended otherwise, ``TimeoutError`` past the deadline (``time.monotonic``)."""
@@ -135,6 +181,19 @@ class SyncTransport:
     def call(self, request: Request, out: Any) -> Any:
         return decode(self.http.request(request.method, request.path, **request.kwargs()),
                       out)
+
+    def stream(self, request: Request) -> Iterator[ServerEvent]:
+        """A Server-Sent Events operation's events as they come (no read timeout; stop
+        iterating to close the stream)."""
+        with self.http.stream(request.method, request.path, timeout=httpx.Timeout(
+                self.http.timeout.connect, read=None), **request.kwargs()) as r:
+            if r.status_code >= 400:
+                r.read()
+                _stream_status(r)
+            parser = _EventParser()
+            for line in r.iter_lines():
+                if (event := parser.feed(line)) is not None:
+                    yield event
 
     def wait_job(self, job: JobOut | str, timeout_s: float = 600.0,
                  poll_s: float = 0.2) -> JobOut:
@@ -163,6 +222,18 @@ class AsyncTransport:
     async def call(self, request: Request, out: Any) -> Any:
         return decode(await self.http.request(request.method, request.path,
                                               **request.kwargs()), out)
+
+    async def stream(self, request: Request) -> AsyncIterator[ServerEvent]:
+        """As :meth:`SyncTransport.stream`, without blocking the event loop."""
+        async with self.http.stream(request.method, request.path, timeout=httpx.Timeout(
+                self.http.timeout.connect, read=None), **request.kwargs()) as r:
+            if r.status_code >= 400:
+                await r.aread()
+                _stream_status(r)
+            parser = _EventParser()
+            async for line in r.aiter_lines():
+                if (event := parser.feed(line)) is not None:
+                    yield event
 
     async def wait_job(self, job: JobOut | str, timeout_s: float = 600.0,
                        poll_s: float = 0.2) -> JobOut:

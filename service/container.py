@@ -87,8 +87,8 @@ def open_services(settings: Settings | None = None,
         raise
     compute = ComputePool(settings.workers, settings.request_budget_s)
     try:
-        worlds = WorldService(store, kb)
-        jobs = Jobs(store, settings.job_budget_s)
+        worlds = WorldService(store, kb, settings.max_event_streams)
+        jobs = Jobs(store, settings.job_budget_s, worlds.events)
         eigenspace = EigenspaceService(store, worlds, jobs, compute, executor,
                                        settings.max_learning_pixels)
         slam = SlamService(store, worlds, settings.request_budget_s)

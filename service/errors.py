@@ -14,6 +14,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from chizu.numeric.errors import ChizuError, Conflict, InvalidInput, NotFound
 from chizu.service.compute import BudgetExceeded, WorkerLost
 from chizu.service.disconnect import ClientGone
+from chizu.service.events import TooManySubscribers
 from chizu.service.jobs import JobOverBudget
 from chizu.service.kb import KbError
 
@@ -34,6 +35,7 @@ STATUS: dict[type[ChizuError], int] = {
     BudgetExceeded: 503,  # the request's time budget
     WorkerLost: 503,  # a compute worker died under the request
     JobOverBudget: 503,  # a job's time budget
+    TooManySubscribers: 503,  # every live event stream slot is taken
 }
 
 # knowledge-base error type -> HTTP status
@@ -247,7 +249,8 @@ _REASONS = {400: "Bad request", 404: "Not found (the field names what)",
             409: "Conflict with the current state", 413: "Payload too large",
             422: "Invalid input (the field names it)",
             500: "Internal error (a bug: please report it)",
-            503: "The knowledge base is unavailable or over its limit"}
+            503: "Unavailable: the knowledge base, a time budget or a capacity (event "
+                 "streams) is exhausted; the detail says which"}
 
 
 def allowed_methods(app: FastAPI, path: str) -> list[str]:

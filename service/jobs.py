@@ -24,6 +24,7 @@ from collections.abc import Awaitable, Callable
 from typing import Any
 
 from chizu.numeric.errors import ChizuError, Conflict, NotFound
+from chizu.service.events import EventHub
 from chizu.service.kb import KbError
 from chizu.service.schemas.jobs import JobOut
 from chizu.service.store import Store
@@ -51,8 +52,10 @@ class JobProgress:
     :class:`JobOverBudget` once it has run for ``budget_s``."""
 
     def __init__(self, store: Store, jid: str, cancelled: threading.Event,
-                 interval_s: float = 0.5, budget_s: float = math.inf) -> None:
+                 interval_s: float = 0.5, budget_s: float = math.inf,
+                 written: Callable[[str], None] | None = None) -> None:
         self.store, self.jid, self.cancelled = store, jid, cancelled
+        self.written = written or (lambda jid: None)  # told after each write
         self.interval_s, self.budget_s = interval_s, budget_s
         self._deadline = time.monotonic() + budget_s
         self._stage: str | None = None
@@ -70,6 +73,7 @@ class JobProgress:
             self._stage, self._written = stage, now
             self.store.update_job(self.jid, unfinished_only=True, stage=stage,
                                   progress=float(min(max(frac, 0.0), 1.0)))
+            self.written(self.jid)
 
 
 Work = Callable[[JobProgress], Awaitable[dict[str, Any]]]
@@ -81,8 +85,9 @@ class Jobs:
     """Durable background jobs; each may run for ``budget_s`` (its progress reports stop
     it past that)."""
 
-    def __init__(self, store: Store, budget_s: float = math.inf) -> None:
-        self.store, self.budget_s = store, budget_s
+    def __init__(self, store: Store, budget_s: float = math.inf,
+                 events: EventHub | None = None) -> None:
+        self.store, self.budget_s, self.events = store, budget_s, events
         self._tasks: dict[str, asyncio.Task[None]] = {}
         self._cancel: dict[str, threading.Event] = {}
         self._closing = False
@@ -104,17 +109,17 @@ class Jobs:
             if request is None or not self._rerunnable(kind, request, attempts):
                 why = (f"interrupted by {attempts + 1} restarts"
                        if request is not None and kind in self._remake else "interrupted")
-                self.store.update_job(jid, status="interrupted", stage=why)
+                self._update(jid, status="interrupted", stage=why)
                 lost += 1
                 continue
             try:
                 work = self._remake[kind](world, request)
             except Exception:  # noqa: BLE001 - e.g. its world is gone
                 log.exception("job %s cannot be made again", jid)
-                self.store.update_job(jid, status="interrupted", stage="interrupted")
+                self._update(jid, status="interrupted", stage="interrupted")
                 lost += 1
                 continue
-            self.store.update_job(jid, status="queued", stage="queued again after a restart",
+            self._update(jid, status="queued", stage="queued again after a restart",
                                   progress=0.0, attempts=attempts + 1)
             self._launch(jid, work)
             again += 1
@@ -130,6 +135,7 @@ class Jobs:
                                field="world")
         jid = uuid.uuid4().hex
         self.store.insert_job(jid, world, kind, request if kind in self._remake else None)
+        self._published(jid)
         self._launch(jid, work)
         return self.get(jid)
 
@@ -148,9 +154,9 @@ class Jobs:
         store the result itself is reported as the job's failure)."""
         status, fields = "failed", {}
         try:
-            self.store.update_job(jid, status="running", stage="running")
+            self._update(jid, status="running", stage="running")
             result = await work(JobProgress(self.store, jid, self._cancel[jid],
-                                            budget_s=self.budget_s))
+                                            budget_s=self.budget_s, written=self._published))
             status, fields = "done", {"stage": "done", "progress": 1.0, "result": result}
         except (asyncio.CancelledError, JobCancelled):
             status = "interrupted" if self._closing else "cancelled"
@@ -172,14 +178,27 @@ class Jobs:
 
     def _finish(self, jid: str, status: str, fields: dict[str, Any]) -> None:
         try:
-            self.store.update_job(jid, status=status, **fields)
+            self._update(jid, status=status, **fields)
         except Exception:  # noqa: BLE001 - e.g. a result that is not JSON
             log.exception("storing the outcome of job %s", jid)
             try:
-                self.store.update_job(jid, status="failed", error={
+                self._update(jid, status="failed", error={
                     "detail": "the job's outcome could not be stored", "field": None})
             except Exception:  # noqa: BLE001
                 log.exception("job %s keeps its last status", jid)
+
+    def _update(self, jid: str, **fields: Any) -> None:
+        """Write a job's row, then publish it as a ``job`` event of its world."""
+        self.store.update_job(jid, **fields)
+        self._published(jid)
+
+    def _published(self, jid: str) -> None:
+        if self.events is None:
+            return
+        rows = self.store.jobs(jid=jid)
+        if rows:
+            job = JobOut(**rows[0])
+            self.events.publish(job.world, "job", job.model_dump(mode="json"))
 
     def get(self, jid: str, world: str | None = None) -> JobOut:
         rows = self.store.jobs(jid=jid, world=world)

@@ -299,6 +299,7 @@ class MissionService:
         blob = json.dumps({"world": run.world, "steps": run.steps}).encode()
         async with self.worlds.write_artifact(run.world, MISSION_ARTIFACT) as write:
             await write.commit(blob, call={"world": run.world, "steps": run.steps})
+        self.worlds.events.publish(run.world, "mission_step", run.steps[-1])
 
     async def _fail(self, run: MissionRun, what: str, why: str, **result: Any) -> None:
         await self._record(run, what, ok=False, reason=why, **result)

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any, Generic, TypeVar
 
 import numpy as np
+from pydantic import BaseModel
 
 from chizu.numeric.errors import InvalidInput, NotFound
 from chizu.numeric.scan import Scan, beam_angles
@@ -55,6 +56,10 @@ class ScanRun:
     lock: asyncio.Lock = field(default_factory=asyncio.Lock)
     laser: Laser | None = None
     odometry: list[np.ndarray] = field(default_factory=list)
+
+    def status(self) -> BaseModel:
+        """What ``GET`` of the run answers (each kind says)."""
+        raise NotImplementedError
 
 
 R = TypeVar("R", bound=ScanRun)
@@ -155,6 +160,10 @@ class ScanRuns(Generic[R]):
                     with self.store.transaction() as conn:
                         self.store.drop_scans_from(conn, self.kind, rid, run.scans)
             done = run.scans - first
+            # a live event: where the run is now (GET /worlds/{world}/events)
+            self.worlds.events.publish(world, f"{self.kind}_pose", {
+                "run": rid, **run.status().model_dump(
+                    mode="json", include={"scans", "last_t", "pose", "state"})})
             if done < len(scans):
                 raise BudgetExceeded(
                     f"the batch ran past its time budget of {self.budget_s:g} s: its first "

@@ -42,6 +42,8 @@ class Settings(BaseSettings):
     job_budget_s: float = Field(3600.0, gt=0, description="time budget of a background job "
                                 "(eigenspace learning); past it the job fails")
     max_body_bytes: int = Field(8 * 1024 * 1024, gt=0)
+    max_event_streams: int = Field(64, gt=0, description="live event streams (GET "
+                                   "/worlds/{world}/events) open at once; past it 503")
     max_learning_pixels: int = Field(200_000_000, gt=0, description="pixels an eigenspace "
                                      "learning job may render (the paper's room: 5 M)")
     max_upload_bytes: int = Field(256 * 1024 * 1024, gt=0,

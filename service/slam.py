@@ -216,6 +216,15 @@ class SlamService(ScanRuns[Run]):
         return CommitOut(world=world, run=rid, facts=reply, map=summary,
                          unknown_regions=regions, loop_closures=len(closures))
 
+    async def committed_grid(self, world: str) -> OccupancyMap:
+        """The world's committed occupancy grid (404 naming ``map`` before a commit)."""
+        self.worlds.require(world)
+        blob = self.store.artifact(world, MAP_ARTIFACT)
+        if blob is None:
+            raise NotFound(f"world {world!r} has no committed map: commit a SLAM run "
+                           "or upload a map first", field="map")
+        return await asyncio.to_thread(OccupancyMap.from_npz, blob)
+
     def saved_map(self, world: str) -> bytes:
         """The world's committed map as a ``map.chizu`` file."""
         self.worlds.require(world)

@@ -35,6 +35,7 @@ from chizu.numeric.qualitative.drm import (
 from chizu.numeric.world import World, WorldDescription
 from chizu.numeric.worlds import TEMPLATES, from_template
 from chizu.service.compute import Cached, blob_key, load_world
+from chizu.service.events import MAX_SUBSCRIBERS, EventHub
 from chizu.service.kb import KbError, KnowledgeBase
 from chizu.service.schemas.common import WorldSummary
 from chizu.service.store import Event, Store
@@ -96,6 +97,8 @@ class ArtifactWrite:
             store.put_artifact(conn, self.world, self.kind.name, blob)
             for name, b in (extra or {}).items():
                 store.put_artifact(conn, self.world, name, b)
+        self.worlds.events.publish(self.world, "artifact",
+                                   {"kind": self.kind.name, "with": sorted(extra or {})})
         return self.reply
 
 
@@ -119,8 +122,11 @@ _READ_ONLY = frozenset({"worlds", "landmarks", "relations", "drm", "facts", "par
 
 
 class WorldService:
-    def __init__(self, store: Store, kb: KnowledgeBase) -> None:
+    def __init__(self, store: Store, kb: KnowledgeBase,
+                 max_event_streams: int = MAX_SUBSCRIBERS) -> None:
         self.store, self.kb = store, kb
+        #: live events of every world (GET /worlds/{world}/events)
+        self.events = EventHub(max_event_streams)
         self._write = asyncio.Lock()
         self._models: dict[str, World] = {}
         # DRM graphs per world, tagged with the world's version (bumped on every change)
@@ -379,6 +385,8 @@ class WorldService:
             self._since_snapshot.pop(name, None)
             for hook in self.on_delete:
                 hook(name)
+            self.events.publish(name, "world_deleted", {"world": name})
+            self.events.close_world(name)
             if not loaded:
                 return
             try:

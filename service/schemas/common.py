@@ -19,6 +19,8 @@ class Health(BaseModel):
     compute_workers: int = Field(0, description="compute worker processes (0: threads)")
     compute_restarts: int = Field(0, description="times the compute pool broke (a worker "
                                   "killed while idle) and was started again")
+    event_streams: int = Field(0, description="live event streams open (GET "
+                               "/worlds/{world}/events)")
 
 
 class WorldSummary(BaseModel):

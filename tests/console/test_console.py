@@ -206,6 +206,30 @@ def test_a_mission_started_from_the_console_shows_its_steps_live(
     assert page.errors == []
 
 
+def test_a_slam_run_moves_on_the_map_as_its_scans_arrive(page: Page,
+                                                          server: LiveServer) -> None:
+    """Scans posted by a robot (here: the test, over the API) reach the page as live
+    events: the run's trajectory grows on the map, one point a batch."""
+    p = page.open()
+    p.wait_for_selector("body[data-live=demo]")
+    rid = api(server, "POST", "/worlds/demo/slam-runs", json={"method": "odom"})["id"]
+    for i in range(4):
+        scan = {"t": 0.1 * i, "odom": [0.3 * i, 0.0, 0.0], "ranges": [2.0] * 181,
+                "angle_min": -1.5707963, "angle_increment": 0.0174533}
+        api(server, "POST", f"/worlds/demo/slam-runs/{rid}/scans", json={"scans": [scan]})
+    line = p.locator(f'#layer-trajectory polyline[data-run="{rid}"]')
+    p.wait_for_function(f"document.querySelector('#layer-trajectory polyline[data-run=\"{rid}\"]')"
+                        "?.dataset.scans === '4'")
+    pts = line.get_attribute("points").split()
+    want = api(server, "GET", f"/worlds/demo/slam-runs/{rid}/trajectory")["poses"]
+    assert len(pts) == len(want) == 4
+    assert [float(v) for v in pts[-1].split(",")] == pytest.approx(
+        [want[-1][0], -want[-1][1]], abs=1e-6)
+    assert "4 scans" in p.locator("#live-run").text_content()
+    api(server, "DELETE", f"/worlds/demo/slam-runs/{rid}")
+    assert page.errors == []
+
+
 def test_the_console_fits_a_tablet(browser: Any, server: LiveServer) -> None:
     """At 800 px wide the panel goes under the map and nothing scrolls sideways."""
     tablet = Page(browser, server, viewport=(800, 1100))

@@ -97,6 +97,15 @@ def test_commit_asserts_facts(client: TestClient, world: str, run: str) -> None:
     assert all(a["distance"] <= b["distance"] for a, b in zip(near, near[1:], strict=False))
     bad = client.get(f"/worlds/{world}/map/unknown-regions?x=nan&y=5")
     assert bad.status_code == 422
+    # the committed grid as images: the run's map, as map_server files
+    for ext in ("png", "pgm", "yaml"):
+        committed = client.get(f"/worlds/{world}/map.{ext}")
+        assert committed.status_code == 200, committed.text
+        assert committed.content == client.get(
+            f"/worlds/{world}/slam-runs/{run}/map.{ext}").content, ext
+    client.post("/worlds", json={"name": "no_map_yet"})
+    none = client.get("/worlds/no_map_yet/map.png")
+    assert none.status_code == 404 and none.json()["field"] == "map"
 
 
 def test_malformed_scans_leave_the_run_unharmed(client: TestClient, world: str, run: str) -> None:

@@ -30,4 +30,5 @@ async def health(worlds: WorldsDep, kb: KbDep, compute: ComputeDep) -> Health:
                   engine_thread_alive=kb.engine_thread.is_alive(), engine_busy=busy,
                   prolog_thread=kb.prolog_thread_id,
                   python_thread=kb.engine_thread.ident or 0,
-                  compute_workers=compute.workers, compute_restarts=compute.restarts)
+                  compute_workers=compute.workers, compute_restarts=compute.restarts,
+                  event_streams=worlds.events.subscribers)

@@ -130,6 +130,30 @@ async def put_saved_map(world: WorldDep, request: Request, slam: SlamDep) -> Com
     return await slam.upload(world, await request.body())
 
 
+@router.get("/map.png", response_class=Response,
+            responses={200: {"content": {"image/png": {}}}})
+async def get_committed_map_png(world: WorldDep, slam: SlamDep) -> Response:
+    """The world's committed map (as its run's ``map.png`` draws it); its origin and
+    resolution are in ``map.yaml``."""
+    return Response((await slam.committed_grid(world)).to_png(), media_type="image/png")
+
+
+@router.get("/map.pgm", response_class=Response,
+            responses={200: {"content": {"image/x-portable-graymap": {}}}})
+async def get_committed_map_pgm(world: WorldDep, slam: SlamDep) -> Response:
+    """The world's committed map as a ROS map_server image."""
+    return Response((await slam.committed_grid(world)).to_pgm(),
+                    media_type="image/x-portable-graymap")
+
+
+@router.get("/map.yaml", response_class=Response,
+            responses={200: {"content": {"application/yaml": {}}}})
+async def get_committed_map_yaml(world: WorldDep, slam: SlamDep) -> Response:
+    """ROS map_server metadata of the committed map (for ``map.pgm``)."""
+    return Response((await slam.committed_grid(world)).to_yaml("map.pgm"),
+                    media_type="application/yaml")
+
+
 @router.get("/map", response_model=WorldMapOut)
 async def get_world_map(world: WorldDep, slam: SlamDep) -> Any:
     """The world's committed map as the knowledge base sees it (Prolog rules)."""

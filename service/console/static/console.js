@@ -125,8 +125,27 @@ $("#create-world").addEventListener("submit", async (ev) => {
   } catch (e) { showProblem($("#status"), e); }
 });
 
+// -- live events (GET /worlds/{w}/events): one stream for the world shown ---------------
+const live = { source: null, handlers: {} };
+
+function on(kind, handler) { live.handlers[kind] = handler; }
+
+function listen(world) {
+  if (live.source) live.source.close();
+  live.source = new EventSource(worldPath(world, "/events"));
+  for (const kind of ["job", "slam_pose", "localization_pose", "mission_step", "artifact",
+                      "world_deleted"]) {
+    live.source.addEventListener(kind, (ev) => {
+      const h = live.handlers[kind];
+      if (h) h(JSON.parse(ev.data));
+    });
+  }
+  live.source.addEventListener("open", () => { document.body.dataset.live = world; });
+}
+
 async function selectWorld(name) {
   state.world = name;
+  listen(name);
   $("#world-select").value = name;
   for (const s of document.querySelectorAll(".world-name")) s.textContent = name;
   state.pathEnds = [];
@@ -196,7 +215,11 @@ async function drawMap(refit) {
   const size = Math.max(ext[2] - ext[0], ext[3] - ext[1], 1);
   const r = Math.max(0.06, size / 150); // a landmark's radius in metres
   if (refit) fit(ext);
-  for (const g of document.querySelectorAll("#map-root > g")) g.replaceChildren();
+  // redrawn from the world; what live events drew (trajectories, a localization) stays
+  for (const g of document.querySelectorAll("#map-root > g")) {
+    if (!["layer-trajectory", "layer-localization"].includes(g.id)) g.replaceChildren();
+  }
+  if (refit) { layer("trajectory").replaceChildren(); layer("localization").replaceChildren(); }
 
   const walls = layer("walls");
   for (const wall of d.walls) {
@@ -264,12 +287,12 @@ async function drawDrm(w, placed, r) {
 
 async function drawGrid(w) {
   const m = await api("GET", worldPath(w, "/map"));
-  const base = worldPath(w, `/slam-runs/${enc(m.run)}`);
-  const yaml = await (await fetch(base + "/map.yaml")).text();
+  const base = worldPath(w, "/map");
+  const yaml = await (await fetch(base + ".yaml")).text();
   const res = parseFloat(/resolution:\s*([-\d.eE]+)/.exec(yaml)[1]);
   const origin = /origin:\s*\[\s*([-\d.eE]+)\s*,\s*([-\d.eE]+)/.exec(yaml);
   const img = new Image();
-  img.src = base + "/map.png";
+  img.src = `${base}.png?v=${Date.now()}`;
   await img.decode();
   const [ox, oy] = [parseFloat(origin[1]), parseFloat(origin[2])];
   const wm = img.naturalWidth * res, hm = img.naturalHeight * res;
@@ -444,33 +467,75 @@ async function showMission() {
 
 $("#mission-replay").addEventListener("click", showMission);
 
+const mission = { job: null, bar: null, label: null, steps: [] };
+
 $("#mission-form").addEventListener("submit", async (ev) => {
   ev.preventDefault();
   const f = new FormData(ev.target);
   const box = $("#mission-job");
   box.replaceChildren();
-  $("#mission-steps").replaceChildren();
-  let job;
+  mission.steps = [];
+  renderSteps([]);
+  layer("trajectory").replaceChildren();
   try {
-    job = await api("POST", worldPath(state.world, "/missions"),
+    mission.job = await api("POST", worldPath(state.world, "/missions"),
       { seed: +f.get("seed"), max_stops: +f.get("max_stops") });
   } catch (e) { showProblem(box, e); return; }
-  const bar = el("progress", { max: 1, value: 0, "aria-label": "mission progress" });
-  const label = el("span", { text: " queued" });
-  box.append(bar, label);
-  while (true) {
-    await new Promise((r) => setTimeout(r, 500));
-    try {
-      job = await api("GET", `/jobs/${enc(job.id)}`);
-      bar.value = job.progress;
-      label.textContent = ` ${job.status}: ${job.stage}`;
-      const rec = await api("GET", worldPath(state.world, "/mission")).catch(() => null);
-      if (rec) renderSteps(rec.steps);
-    } catch (e) { showProblem(box, e); return; }
-    if (!["queued", "running"].includes(job.status)) break;
-  }
-  if (job.error) box.append(el("div", { class: "problem", text: job.error.detail || "" }));
+  mission.bar = el("progress", { max: 1, value: 0, "aria-label": "mission progress" });
+  mission.label = el("span", { text: " queued" });
+  box.append(mission.bar, mission.label);
 });
+
+// a job's progress, as the world's events report it
+on("job", (job) => {
+  if (mission.job && job.id === mission.job.id) {
+    mission.bar.value = job.progress;
+    mission.label.textContent = ` ${job.status}: ${job.stage}`;
+    if (job.error) $("#mission-job").append(el("div", { class: "problem", text: job.error.detail || "" }));
+  }
+  if (document.querySelector("#view-jobs.active")) loadJobs();
+  if (job.status === "done" && job.kind === "eigenspace_learning") drawMap(false);
+});
+
+// each step as the mission records it; where it says a position, a mark on the map
+on("mission_step", (step) => {
+  if (step.step === 0) mission.steps = [];
+  mission.steps.push(step);
+  renderSteps(mission.steps);
+  const r = step.result || {};
+  if (typeof r.x === "number" && typeof r.y === "number") {
+    const size = Math.max(0.06, state.view.w / 150);
+    const g = layer("trajectory");
+    const dot = svg("circle", { class: "estimate", cx: r.x, cy: -r.y, r: size,
+      "data-step": step.step });
+    dot.append(svg("title", {}, `${step.step}: ${step.what}`));
+    g.append(dot);
+  }
+});
+
+// a SLAM or localization run's pose as its scans are processed
+function livePose(kind) {
+  return (d) => {
+    if (!d.pose) return;
+    const g = layer("trajectory");
+    let line = g.querySelector(`polyline[data-run="${CSS.escape(d.run)}"]`);
+    if (!line) {
+      line = svg("polyline", { class: "traj", "data-run": d.run, "data-kind": kind, points: "",
+        "stroke-width": 2, "vector-effect": "non-scaling-stroke" });
+      g.append(line);
+    }
+    line.setAttribute("points", `${line.getAttribute("points")} ${d.pose.x},${-d.pose.y}`.trim());
+    line.dataset.scans = d.scans;
+    $("#live-run").textContent = `${kind} run ${d.run}: ${d.scans} scans, pose ` +
+      `(${d.pose.x.toFixed(2)}, ${d.pose.y.toFixed(2)}, ${d.pose.theta.toFixed(2)})`;
+  };
+}
+on("slam_pose", livePose("SLAM"));
+on("localization_pose", livePose("localization"));
+on("artifact", (a) => {
+  if (["saved_map", "eigenspace", "slam_facts"].includes(a.kind)) drawMap(false);
+});
+on("world_deleted", () => { status(`world ${state.world} was deleted`); loadWorlds(); });
 
 // -- jobs -----------------------------------------------------------------------------
 async function loadJobs() {
