@@ -4,8 +4,8 @@
     .venv/bin/python docs/_scripts/console_screenshots.py
 
 Writes docs/figures/console-*.png (1280 x 800): the demo world's map with a path found by
-clicking two landmarks, room A's eigenspace with a localization, a finished mission's
-steps, a Prolog query and the worlds.
+clicking two landmarks, room A's eigenspace with a localization, the paper's Fig. 11(b)
+scene planned, a finished mission's steps, a Prolog query and the worlds.
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ def main() -> None:
                 c.post("/worlds", json={"name": "room_a", "template": "room_a"})
                 learn = {"learning_strategy": None}
                 wait(c, c.post("/worlds/room_a/eigenspace", json=learn).json())
+                c.post("/worlds", json={"name": "room11b", "template": "fig11b"})
                 c.post("/worlds", json={"name": "mission", "template": "mission"})
                 wait(c, c.post("/worlds/mission/eigenspace", json=SMALL_EIGENSPACE).json())
                 wait(c, c.post("/worlds/mission/missions", json={"seed": 3}).json())
@@ -61,6 +62,15 @@ def main() -> None:
                 page.click("#localize-form button")
                 page.wait_for_selector("#localize-result p[class^=state-]", timeout=60_000)
                 page.screenshot(path=OUT / "console-eigenspace.png")
+
+                page.select_option("#world-select", "room11b")
+                page.wait_for_function(
+                    "document.querySelector('.world-name').textContent === 'room11b'")
+                page.fill("#plan-body", (ROOT / "examples" / "scene.json").read_text())
+                page.click("#plan-form button")
+                page.wait_for_selector("[data-testid=plan-summary]")
+                page.locator("#plan-result").scroll_into_view_if_needed()
+                page.screenshot(path=OUT / "console-viewpoint-plan.png")
 
                 page.goto(srv.url + "/#/mission")
                 page.wait_for_selector("body[data-ready=true]")

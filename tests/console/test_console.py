@@ -16,7 +16,7 @@ from typing import Any
 import httpx
 import pytest
 
-from tests.conftest import LiveServer
+from tests.conftest import ROOT, LiveServer
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 #: Chromium as root in a closed network: no sandbox, no background connections
@@ -228,6 +228,35 @@ def test_a_slam_run_moves_on_the_map_as_its_scans_arrive(page: Page,
     assert "4 scans" in p.locator("#live-run").text_content()
     api(server, "DELETE", f"/worlds/demo/slam-runs/{rid}")
     assert page.errors == []
+
+
+def test_a_viewpoint_plan_is_drawn_with_its_route_and_timeline(
+        page: Page, server: LiveServer) -> None:
+    """The paper's Fig. 11(b) scene (examples/scene.json) planned from the console: the
+    groups in the order the API plans them, a pose per step on the map, the timeline
+    against the time limit."""
+    api(server, "POST", "/worlds", json={"name": "room11b", "template": "fig11b"})
+    scene = (ROOT / "examples" / "scene.json").read_text()
+    want = api(server, "POST", "/worlds/room11b/viewpoint-plan", content=scene,
+               headers={"content-type": "application/json"})
+    p = page.open()
+    p.select_option("#world-select", "room11b")
+    p.wait_for_function("document.querySelector('.world-name').textContent === 'room11b'")
+    p.fill("#plan-body", scene)
+    p.click("#plan-form button")
+    p.wait_for_selector("[data-testid=plan-summary]")
+    summary = p.locator("[data-testid=plan-summary]").text_content()
+    assert summary.startswith(" → ".join(want["plan"]["groups"]))
+    drawn = p.locator("#layer-plan g[data-group]").evaluate_all(
+        "gs => gs.map(g => g.dataset.group)")
+    assert drawn == [s["name"] for s in want["plan"]["steps"]]
+    assert p.locator("#plan-result .timeline .limit").count() == 1
+    assert p.locator("#plan-result .timeline .seg").count() == 2 * len(want["plan"]["steps"])
+    p.fill("#plan-body", '{"robot": [1, 1]}')
+    p.click("#plan-form button")
+    p.wait_for_selector("#plan-result .problem")
+    assert "robot" in p.locator("#plan-result .problem").text_content()
+    assert [e for e in page.errors if "422" not in e] == []
 
 
 def test_the_console_fits_a_tablet(browser: Any, server: LiveServer) -> None:

@@ -259,6 +259,7 @@ async function drawMap(refit) {
     sel.replaceChildren(...ids.map((id) => el("option", { value: id, text: id })));
     if (ids.includes(keep)) sel.value = keep;
   }
+  fillPlanRequest(d, ext);
   const info = [`${d.landmarks.length} landmarks, ${d.walls.length} walls, ${d.objects.length} objects`];
   await Promise.all([
     drawDrm(w, placed, r).then((n) => info.push(`DRM: ${n} edges`)),
@@ -406,6 +407,85 @@ $("#localize-form").addEventListener("submit", async (ev) => {
     } else if (loc.refused_by) {
       out.append(el("p", { text: `refused by ${loc.refused_by.test}` }));
     }
+  } catch (e) { showProblem(out, e); }
+});
+
+// -- viewpoint plan (Masuzawa & Miura): groups, entry poses, route, timeline ------------
+function fillPlanRequest(d, ext) {
+  const types = [...new Set(d.objects.map((o) => o.type))];
+  const start = d.landmarks.find((l) => l.x !== null && l.x !== undefined);
+  const robot = start ? [start.x, start.y, 0] : [(ext[0] + ext[2]) / 2, (ext[1] + ext[3]) / 2, 0];
+  const body = { robot, exit: robot.slice(0, 2), time_limit_s: 60, loss: "L2",
+    object_types: types.map((t) => ({ name: t, value: 100, mean_count: 1 })),
+    candidates: d.objects.map((o) => ({ id: o.id, type: o.type, x: o.x, y: o.y })) };
+  $("#plan-body").value = JSON.stringify(body, null, 1);
+}
+
+function drawPlan(req, out) {
+  const g = layer("plan");
+  g.replaceChildren();
+  const steps = out.plan.steps;
+  const pts = [req.robot, ...steps.map((s) => s.pose)];
+  g.append(svg("polyline", { class: "plan-route", "stroke-width": 2,
+    "vector-effect": "non-scaling-stroke", points: pts.map((p) => `${p[0]},${-p[1]}`).join(" ") }));
+  const r = Math.max(0.06, state.view.w / 150);
+  steps.forEach((s, i) => {
+    const [x, y, th] = s.pose;
+    const m = svg("g", { "data-group": s.name });
+    m.append(svg("circle", { class: "plan-pose", cx: x, cy: -y, r }));
+    m.append(svg("line", { x1: x, y1: -y, x2: x + 3 * r * Math.cos(th), y2: -y - 3 * r * Math.sin(th),
+      stroke: "#0e7490", "stroke-width": 2, "vector-effect": "non-scaling-stroke" }));
+    m.append(svg("text", { x: x + 1.2 * r, y: -y + 3 * r, "font-size": 2.4 * r,
+      class: "label", "stroke-width": 0.6 * r }, `${i + 1} ${s.name}`));
+    g.append(m);
+  });
+}
+
+function timeline(req, out) {
+  const steps = out.plan.steps;
+  const end = Math.max(req.time_limit_s || 0, ...steps.map((s) => s.done_at_s), 1);
+  const bar = el("div", { class: "timeline", role: "img",
+    "aria-label": `plan timeline: done at ${(out.plan.expected_time_s ?? 0).toFixed(1)} s ` +
+      `against a limit of ${req.time_limit_s} s` });
+  let t = 0;
+  for (const s of steps) {
+    for (const [kind, dt] of [["travel", s.travel_s], ["observe", s.observe_s]]) {
+      const seg = el("div", { class: `seg ${kind}`, title: `${s.name}: ${kind} ${dt.toFixed(1)} s` });
+      seg.style.left = `${(100 * t) / end}%`;
+      seg.style.width = `${(100 * dt) / end}%`;
+      bar.append(seg);
+      t += dt;
+    }
+  }
+  if (req.time_limit_s) {
+    const lim = el("div", { class: "limit" }, el("span", { text: `limit ${req.time_limit_s} s` }));
+    lim.style.left = `${(100 * req.time_limit_s) / end}%`;
+    bar.append(lim);
+  }
+  return bar;
+}
+
+$("#plan-form").addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  const out = $("#plan-result");
+  let req;
+  try { req = JSON.parse($("#plan-body").value); } catch (e) {
+    showProblem(out, new Problem(0, { title: "Not JSON", detail: e.message }));
+    return;
+  }
+  try {
+    const plan = await api("POST", worldPath(state.world, "/viewpoint-plan"), req);
+    out.replaceChildren(
+      el("p", { "data-testid": "plan-summary", text: `${plan.plan.groups.join(" → ") || "leave now"}` +
+        ` — expected ${(plan.plan.expected_time_s ?? 0).toFixed(1)} s, utility ` +
+        `${(plan.plan.utility ?? 0).toFixed(1)}` }),
+      timeline(req, plan),
+      el("ol", { class: "steps" }, ...plan.plan.steps.map((s) => el("li", {
+        text: `${s.name}: travel ${s.travel_s.toFixed(1)} s, observe ${s.observe_s.toFixed(1)} s, ` +
+          `done at ${s.done_at_s.toFixed(1)} s` }))),
+      el("p", { class: "hint", text: `${plan.groups.length} groups: ` +
+        plan.groups.map((g) => `${g.name} (${g.members.join(", ")})`).join("; ") }));
+    drawPlan(req, plan);
   } catch (e) { showProblem(out, e); }
 });
 
