@@ -65,6 +65,7 @@ bench: install
 	$(PY) tests/bench/localize_clients.py
 	$(PY) tests/bench/slam_batch.py
 	$(PY) tests/bench/mission.py
+	$(PY) tests/bench/console.py
 
 # the service's image (docker/Dockerfile) from CHIZU_BASE, any Debian bookworm image; the
 # host's CA bundle goes to pip in the build (a proxy that re-signs TLS needs it)

@@ -118,6 +118,25 @@ class OccupancyMap:
                 for c in self.unknown_components(min_area_m2)]
 
     # -- exports ------------------------------------------------------------------------
+    def downsampled(self, max_side: int) -> OccupancyMap:
+        """The grid with at most ``max_side`` cells a side, for drawing: each block of f x f
+        cells becomes one, occupied if any of them is, else free if any is, else unknown
+        (walls stay visible at any scale); its intensity the block's largest."""
+        f = -(-max(self.shape) // max(1, max_side))
+        if f <= 1:
+            return self
+        nx, ny = -(-self.shape[0] // f), -(-self.shape[1] // f)
+        state = np.full((nx * f, ny * f), UNKNOWN, dtype=self.state.dtype)
+        state[:self.shape[0], :self.shape[1]] = self.state
+        inten = np.full((nx * f, ny * f), -np.inf)
+        inten[:self.shape[0], :self.shape[1]] = np.where(np.isnan(self.intensity), -np.inf,
+                                                         self.intensity)
+        # OCCUPIED > FREE > UNKNOWN: a block's maximum is its state
+        block_state = state.reshape(nx, f, ny, f).max(axis=(1, 3))
+        block_inten = inten.reshape(nx, f, ny, f).max(axis=(1, 3))
+        return OccupancyMap(self.origin.copy(), self.resolution_m * f, block_state,
+                            np.where(np.isinf(block_inten), np.nan, block_inten))
+
     def image_rows(self) -> np.ndarray:
         """The grid as image rows (top row = largest y)."""
         return np.asarray(self.state.T[::-1])

@@ -380,19 +380,22 @@ class SlamApi:
         return self._t.call(Request('PUT', f"/worlds/{segment(world)}/map.chizu", content=content),
                 CommitOut)
 
-    def get_committed_map_png(self, world: str) -> bytes:
+    def get_committed_map_png(self, world: str, *, max_px: int | None = None) -> bytes:
         """GET /worlds/{world}/map.png: The world's committed map (as its run's ``map.png`` draws
-        it); its origin and resolution are in ``map.yaml``."""
-        return self._t.call(Request('GET', f"/worlds/{segment(world)}/map.png"), bytes)
+        it); its origin and resolution are in ``map.yaml`` (ask both with the same
+        ``max_px``)."""
+        return self._t.call(Request('GET', f"/worlds/{segment(world)}/map.png",
+                params={'max_px': max_px}), bytes)
 
     def get_committed_map_pgm(self, world: str) -> bytes:
         """GET /worlds/{world}/map.pgm: The world's committed map as a ROS map_server image."""
         return self._t.call(Request('GET', f"/worlds/{segment(world)}/map.pgm"), bytes)
 
-    def get_committed_map_yaml(self, world: str) -> bytes:
+    def get_committed_map_yaml(self, world: str, *, max_px: int | None = None) -> bytes:
         """GET /worlds/{world}/map.yaml: ROS map_server metadata of the committed map (for
-        ``map.pgm``)."""
-        return self._t.call(Request('GET', f"/worlds/{segment(world)}/map.yaml"), bytes)
+        ``map.pgm``; with ``max_px``, of the downsampled ``map.png``)."""
+        return self._t.call(Request('GET', f"/worlds/{segment(world)}/map.yaml",
+                params={'max_px': max_px}), bytes)
 
     def get_world_map(self, world: str) -> WorldMapOut:
         """GET /worlds/{world}/map: The world's committed map as the knowledge base sees it
@@ -867,19 +870,22 @@ class AsyncSlamApi:
         return await self._t.call(Request('PUT', f"/worlds/{segment(world)}/map.chizu",
                 content=content), CommitOut)
 
-    async def get_committed_map_png(self, world: str) -> bytes:
+    async def get_committed_map_png(self, world: str, *, max_px: int | None = None) -> bytes:
         """GET /worlds/{world}/map.png: The world's committed map (as its run's ``map.png`` draws
-        it); its origin and resolution are in ``map.yaml``."""
-        return await self._t.call(Request('GET', f"/worlds/{segment(world)}/map.png"), bytes)
+        it); its origin and resolution are in ``map.yaml`` (ask both with the same
+        ``max_px``)."""
+        return await self._t.call(Request('GET', f"/worlds/{segment(world)}/map.png",
+                params={'max_px': max_px}), bytes)
 
     async def get_committed_map_pgm(self, world: str) -> bytes:
         """GET /worlds/{world}/map.pgm: The world's committed map as a ROS map_server image."""
         return await self._t.call(Request('GET', f"/worlds/{segment(world)}/map.pgm"), bytes)
 
-    async def get_committed_map_yaml(self, world: str) -> bytes:
+    async def get_committed_map_yaml(self, world: str, *, max_px: int | None = None) -> bytes:
         """GET /worlds/{world}/map.yaml: ROS map_server metadata of the committed map (for
-        ``map.pgm``)."""
-        return await self._t.call(Request('GET', f"/worlds/{segment(world)}/map.yaml"), bytes)
+        ``map.pgm``; with ``max_px``, of the downsampled ``map.png``)."""
+        return await self._t.call(Request('GET', f"/worlds/{segment(world)}/map.yaml",
+                params={'max_px': max_px}), bytes)
 
     async def get_world_map(self, world: str) -> WorldMapOut:
         """GET /worlds/{world}/map: The world's committed map as the knowledge base sees it

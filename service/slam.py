@@ -85,6 +85,8 @@ class SlamService(ScanRuns[Run]):
 
     def __init__(self, store: Store, worlds: WorldService, budget_s: float = 30.0) -> None:
         super().__init__(store, worlds, budget_s)
+        self._grids: dict[tuple[Any, ...], OccupancyMap] = {}
+        self._png: tuple[tuple[Any, ...], bytes] | None = None
         worlds.register(ArtifactKind(FACTS_ARTIFACT, "slam_facts", "slam",
                                      lambda _world, blob: dict(json.loads(blob))))
 
@@ -216,14 +218,33 @@ class SlamService(ScanRuns[Run]):
         return CommitOut(world=world, run=rid, facts=reply, map=summary,
                          unknown_regions=regions, loop_closures=len(closures))
 
-    async def committed_grid(self, world: str) -> OccupancyMap:
-        """The world's committed occupancy grid (404 naming ``map`` before a commit)."""
+    async def committed_grid(self, world: str, max_side: int | None = None) -> OccupancyMap:
+        """The world's committed occupancy grid (404 naming ``map`` before a commit),
+        with at most ``max_side`` cells a side if given (:meth:`OccupancyMap.downsampled`).
+        Kept per world until its stored content changes: a large map is decoded once."""
         self.worlds.require(world)
-        blob = self.store.artifact(world, MAP_ARTIFACT)
-        if blob is None:
-            raise NotFound(f"world {world!r} has no committed map: commit a SLAM run "
-                           "or upload a map first", field="map")
-        return await asyncio.to_thread(OccupancyMap.from_npz, blob)
+        version = self.store.world_version(world)
+        key = (world, version, max_side)
+        if key not in self._grids:
+            blob = self.store.artifact(world, MAP_ARTIFACT)
+            if blob is None:
+                raise NotFound(f"world {world!r} has no committed map: commit a SLAM run "
+                               "or upload a map first", field="map")
+            g = await asyncio.to_thread(OccupancyMap.from_npz, blob)
+            if max_side is not None:
+                g = await asyncio.to_thread(g.downsampled, max_side)
+            self._grids[key] = g
+            while len(self._grids) > 4:  # the few maps being looked at
+                self._grids.pop(next(iter(self._grids)))
+        return self._grids[key]
+
+    async def committed_png(self, world: str, max_side: int | None = None) -> bytes:
+        """:meth:`committed_grid` as a PNG, encoded once per version and size."""
+        g = await self.committed_grid(world, max_side)
+        key = (world, self.store.world_version(world), max_side)
+        if self._png is None or self._png[0] != key:
+            self._png = (key, await asyncio.to_thread(g.to_png))
+        return self._png[1]
 
     def saved_map(self, world: str) -> bytes:
         """The world's committed map as a ``map.chizu`` file."""

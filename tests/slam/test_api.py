@@ -103,6 +103,13 @@ def test_commit_asserts_facts(client: TestClient, world: str, run: str) -> None:
         assert committed.status_code == 200, committed.text
         assert committed.content == client.get(
             f"/worlds/{world}/slam-runs/{run}/map.{ext}").content, ext
+    small = client.get(f"/worlds/{world}/map.png?max_px=16")
+    meta = client.get(f"/worlds/{world}/map.yaml?max_px=16").text
+    width, height = int.from_bytes(small.content[16:20], "big"), \
+        int.from_bytes(small.content[20:24], "big")  # the PNG's IHDR
+    assert max(width, height) <= 16 and float(meta.split("resolution: ")[1].split()[0]) > \
+        float(committed.text.split("resolution: ")[1].split()[0])
+    assert client.get(f"/worlds/{world}/map.png?max_px=0").status_code == 422
     client.post("/worlds", json={"name": "no_map_yet"})
     none = client.get("/worlds/no_map_yet/map.png")
     assert none.status_code == 404 and none.json()["field"] == "map"

@@ -130,12 +130,18 @@ async def put_saved_map(world: WorldDep, request: Request, slam: SlamDep) -> Com
     return await slam.upload(world, await request.body())
 
 
+#: a drawing's size: the committed map downsampled to at most this many pixels a side
+MaxPx = Annotated[int | None, Query(ge=16, le=20_000, description="at most this many "
+                                    "pixels a side: blocks of cells merged, walls kept")]
+
+
 @router.get("/map.png", response_class=Response,
             responses={200: {"content": {"image/png": {}}}})
-async def get_committed_map_png(world: WorldDep, slam: SlamDep) -> Response:
+async def get_committed_map_png(world: WorldDep, slam: SlamDep,
+                                max_px: MaxPx = None) -> Response:
     """The world's committed map (as its run's ``map.png`` draws it); its origin and
-    resolution are in ``map.yaml``."""
-    return Response((await slam.committed_grid(world)).to_png(), media_type="image/png")
+    resolution are in ``map.yaml`` (ask both with the same ``max_px``)."""
+    return Response(await slam.committed_png(world, max_px), media_type="image/png")
 
 
 @router.get("/map.pgm", response_class=Response,
@@ -148,9 +154,11 @@ async def get_committed_map_pgm(world: WorldDep, slam: SlamDep) -> Response:
 
 @router.get("/map.yaml", response_class=Response,
             responses={200: {"content": {"application/yaml": {}}}})
-async def get_committed_map_yaml(world: WorldDep, slam: SlamDep) -> Response:
-    """ROS map_server metadata of the committed map (for ``map.pgm``)."""
-    return Response((await slam.committed_grid(world)).to_yaml("map.pgm"),
+async def get_committed_map_yaml(world: WorldDep, slam: SlamDep,
+                                 max_px: MaxPx = None) -> Response:
+    """ROS map_server metadata of the committed map (for ``map.pgm``; with ``max_px``,
+    of the downsampled ``map.png``)."""
+    return Response((await slam.committed_grid(world, max_px)).to_yaml("map.pgm"),
                     media_type="application/yaml")
 
 

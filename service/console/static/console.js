@@ -3,6 +3,7 @@
 // (textContent, setAttribute), never as markup.
 
 const SVG = "http://www.w3.org/2000/svg";
+const MAP_PX = 2048; // a committed map is drawn from at most this many pixels a side
 const $ = (sel, root = document) => root.querySelector(sel);
 
 // -- the API ------------------------------------------------------------------------
@@ -289,11 +290,13 @@ async function drawDrm(w, placed, r) {
 async function drawGrid(w) {
   const m = await api("GET", worldPath(w, "/map"));
   const base = worldPath(w, "/map");
-  const yaml = await (await fetch(base + ".yaml")).text();
+  // a large map comes downsampled to what a screen shows (walls kept)
+  const px = `?max_px=${MAP_PX}`;
+  const yaml = await (await fetch(`${base}.yaml${px}`)).text();
   const res = parseFloat(/resolution:\s*([-\d.eE]+)/.exec(yaml)[1]);
   const origin = /origin:\s*\[\s*([-\d.eE]+)\s*,\s*([-\d.eE]+)/.exec(yaml);
   const img = new Image();
-  img.src = `${base}.png?v=${Date.now()}`;
+  img.src = `${base}.png${px}&v=${Date.now()}`;
   await img.decode();
   const [ox, oy] = [parseFloat(origin[1]), parseFloat(origin[2])];
   const wm = img.naturalWidth * res, hm = img.naturalHeight * res;
@@ -681,6 +684,9 @@ window.addEventListener("hashchange", route);
 (async () => {
   try {
     await Promise.all([loadWorlds(), loadTemplates()]);
+    // #/map/<world> opens that world
+    const wanted = decodeURIComponent(location.hash.split("/")[2] || "");
+    if (state.summaries[wanted]) state.world = wanted;
     if (state.world) await selectWorld(state.world);
     await route();
     document.body.dataset.ready = "true";
