@@ -76,7 +76,7 @@ def main() -> None:
                 page.wait_for_selector("body[data-ready=true]")
                 page.select_option("#world-select", "mission")
                 page.click("#mission-replay")
-                page.wait_for_selector("#mission-steps li")
+                page.wait_for_selector("#mission-steps li[data-what=evaluation]")
                 page.screenshot(path=OUT / "console-mission.png")
 
                 page.goto(srv.url + "/#/query")

@@ -543,9 +543,16 @@ function renderSteps(steps) {
   }));
 }
 
+// a finished mission replayed: its recorded steps one after another, as they came live
 async function showMission() {
-  try { renderSteps((await api("GET", worldPath(state.world, "/mission"))).steps); }
-  catch (e) { showProblem($("#mission-job"), e); }
+  let record;
+  try { record = await api("GET", worldPath(state.world, "/mission")); }
+  catch (e) { showProblem($("#mission-job"), e); return; }
+  for (const dot of layer("trajectory").querySelectorAll("circle[data-step]")) dot.remove();
+  for (const step of record.steps) {
+    missionStep(step);
+    await new Promise((r) => setTimeout(r, 150));
+  }
 }
 
 $("#mission-replay").addEventListener("click", showMission);
@@ -581,7 +588,9 @@ on("job", (job) => {
 });
 
 // each step as the mission records it; where it says a position, a mark on the map
-on("mission_step", (step) => {
+on("mission_step", (step) => missionStep(step));
+
+function missionStep(step) {
   if (step.step === 0) mission.steps = [];
   mission.steps.push(step);
   renderSteps(mission.steps);
@@ -594,7 +603,7 @@ on("mission_step", (step) => {
     dot.append(svg("title", {}, `${step.step}: ${step.what}`));
     g.append(dot);
   }
-});
+}
 
 // a SLAM or localization run's pose as its scans are processed
 function livePose(kind) {
