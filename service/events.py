@@ -91,10 +91,17 @@ class EventHub:
     def subscribers(self) -> int:
         return sum(len(s) for s in self._subs.values())
 
+    def listening(self, world: str | None = None) -> bool:
+        """Whether anyone would receive an event of ``world`` (None: of any world): a
+        publisher whose event costs work to make asks first."""
+        if self._loop is None:
+            return False
+        return bool(self._subs.get(world) if world is not None else self._subs)
+
     def publish(self, world: str, kind: str, data: dict[str, Any]) -> None:
         """Send ``data`` as an event of ``kind`` to every subscriber of ``world``."""
         loop = self._loop
-        if loop is None or not self._subs.get(world):
+        if loop is None or not self.listening(world):
             return
         with self._lock:
             event = Event(next(self._ids), kind, data)

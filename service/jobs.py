@@ -193,7 +193,8 @@ class Jobs:
         self._published(jid)
 
     def _published(self, jid: str) -> None:
-        if self.events is None:
+        """Publish job ``jid``'s row as a ``job`` event (read only if anyone listens)."""
+        if self.events is None or not self.events.listening():
             return
         rows = self.store.jobs(jid=jid)
         if rows:

@@ -161,9 +161,10 @@ class ScanRuns(Generic[R]):
                         self.store.drop_scans_from(conn, self.kind, rid, run.scans)
             done = run.scans - first
             # a live event: where the run is now (GET /worlds/{world}/events)
-            self.worlds.events.publish(world, f"{self.kind}_pose", {
-                "run": rid, **run.status().model_dump(
-                    mode="json", include={"scans", "last_t", "pose", "state"})})
+            if self.worlds.events.listening(world):
+                self.worlds.events.publish(world, f"{self.kind}_pose", {
+                    "run": rid, **run.status().model_dump(
+                        mode="json", include={"scans", "last_t", "pose", "state"})})
             if done < len(scans):
                 raise BudgetExceeded(
                     f"the batch ran past its time budget of {self.budget_s:g} s: its first "

@@ -208,9 +208,10 @@ function layer(name) { return $(`#layer-${name}`); }
 async function drawMap(refit) {
   if (!state.world) return;
   const w = state.world;
-  const [d, summary] = await Promise.all([api("GET", worldPath(w)),
-                                          api("GET", "/worlds").then((ws) => ws.find((x) => x.name === w))]);
+  const d = await api("GET", worldPath(w));
   state.description = d;
+  // what the world holds, as listed (artifact events keep it current)
+  const summary = state.summaries[w];
   const has = new Set(summary ? summary.artifacts : []);
   const ext = worldBounds(d);
   const size = Math.max(ext[2] - ext[0], ext[3] - ext[1], 1);
@@ -584,7 +585,6 @@ on("job", (job) => {
     if (job.error) $("#mission-job").append(el("div", { class: "problem", text: job.error.detail || "" }));
   }
   if (document.querySelector("#view-jobs.active")) loadJobs();
-  if (job.status === "done" && job.kind === "eigenspace_learning") drawMap(false);
 });
 
 // each step as the mission records it; where it says a position, a mark on the map
@@ -625,6 +625,8 @@ function livePose(kind) {
 on("slam_pose", livePose("SLAM"));
 on("localization_pose", livePose("localization"));
 on("artifact", (a) => {
+  const summary = state.summaries[state.world];
+  if (summary) summary.artifacts = [...new Set([...summary.artifacts, a.kind, ...a.with])];
   if (["saved_map", "eigenspace", "slam_facts"].includes(a.kind)) drawMap(false);
 });
 on("world_deleted", () => { status(`world ${state.world} was deleted`); loadWorlds(); });
