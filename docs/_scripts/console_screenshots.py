@@ -65,7 +65,7 @@ def main() -> None:
 
                 page.select_option("#world-select", "room11b")
                 page.wait_for_function(
-                    "document.querySelector('.world-name').textContent === 'room11b'")
+                    "document.body.dataset.world === 'room11b'")
                 page.fill("#plan-body", (ROOT / "examples" / "scene.json").read_text())
                 page.click("#plan-form button")
                 page.wait_for_selector("[data-testid=plan-summary]")
@@ -76,7 +76,7 @@ def main() -> None:
                 page.wait_for_selector("body[data-ready=true]")
                 page.select_option("#world-select", "mission")
                 page.click("#mission-replay")
-                page.wait_for_selector("#mission-steps li[data-what=evaluation]")
+                page.wait_for_selector("#mission-steps[data-state=replayed]")
                 page.screenshot(path=OUT / "console-mission.png")
 
                 page.goto(srv.url + "/#/query")

@@ -205,7 +205,7 @@ def test_a_mission_started_from_the_console_shows_its_steps_live(
     assert whats == [s["what"] for s in record["steps"]] and whats[-1] == "evaluation"
     # replayed: the same steps again, and a mark on the map for each step with a position
     p.click("#mission-replay")
-    p.wait_for_selector("#mission-steps li[data-what=evaluation]")
+    p.wait_for_selector("#mission-steps[data-state=replayed]")
     assert p.locator("#mission-steps li").count() == len(record["steps"])
     placed = [s for s in record["steps"] if isinstance(s["result"].get("x"), float | int)]
     assert p.locator("#layer-trajectory circle[data-step]").count() == len(placed) > 0

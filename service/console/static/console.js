@@ -154,6 +154,7 @@ async function selectWorld(name) {
     $(id).replaceChildren();
   }
   await drawMap(true);
+  document.body.dataset.world = name;
 }
 
 $("#world-select").addEventListener("change", (ev) => selectWorld(ev.target.value));
@@ -415,7 +416,12 @@ $("#localize-form").addEventListener("submit", async (ev) => {
 });
 
 // -- viewpoint plan (Masuzawa & Miura): groups, entry poses, route, timeline ------------
+// A request the user has edited for this world is theirs: a redraw (a new artifact, a
+// world summary arriving after they typed) must not replace it.
+$("#plan-body").addEventListener("input", () => { $("#plan-body").dataset.editedFor = state.world; });
+
 function fillPlanRequest(d, ext) {
+  if ($("#plan-body").dataset.editedFor === state.world) return;
   const types = [...new Set(d.objects.map((o) => o.type))];
   const start = d.landmarks.find((l) => l.x !== null && l.x !== undefined);
   const robot = start ? [start.x, start.y, 0] : [(ext[0] + ext[2]) / 2, (ext[1] + ext[3]) / 2, 0];
@@ -546,14 +552,19 @@ function renderSteps(steps) {
 
 // a finished mission replayed: its recorded steps one after another, as they came live
 async function showMission() {
+  const list = $("#mission-steps");
+  list.dataset.state = "replaying";
+  mission.steps = [];
+  renderSteps([]);
   let record;
   try { record = await api("GET", worldPath(state.world, "/mission")); }
-  catch (e) { showProblem($("#mission-job"), e); return; }
+  catch (e) { showProblem($("#mission-job"), e); delete list.dataset.state; return; }
   for (const dot of layer("trajectory").querySelectorAll("circle[data-step]")) dot.remove();
   for (const step of record.steps) {
     missionStep(step);
     await new Promise((r) => setTimeout(r, 150));
   }
+  list.dataset.state = "replayed";
 }
 
 $("#mission-replay").addEventListener("click", showMission);
