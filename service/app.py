@@ -56,12 +56,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                                                            services.worlds)
         app.state.eigenspace, app.state.slam = services.eigenspace, services.slam
         app.state.viewpoint = services.viewpoint
+        # the OpenAPI schema is built on its first request (half a second for this API):
+        # built now, off the event loop, the console's and /docs' first load need not wait
+        warm = asyncio.create_task(asyncio.to_thread(app.openapi))
         try:
             yield
         finally:
             services.worlds.events.close()  # open event streams end
             await services.jobs.close()
             services.close()
+            await warm
 
     # the API docs (/docs, /redoc) from files installed with the package, not a CDN: they
     # work on a robot without internet

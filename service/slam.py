@@ -40,6 +40,13 @@ MAP_ARTIFACT = "slam_map"
 #: the committed run's saved map (numeric.slam.saved_map), as ``map.chizu`` holds it
 SAVED_MAP_ARTIFACT = "saved_map"
 FACTS_ARTIFACT = "slam_facts"
+#: the committed map's drawing, at most DRAWING_PX pixels a side (``map.png?max_px=2048``,
+#: the console's map layer) and its map_server YAML: made once when the map is committed,
+#: so the first view of a large map reads an image instead of decoding, downsampling and
+#: encoding the whole grid while the user waits
+DRAWING_PX = 2048
+DRAWING_ARTIFACT = "slam_map_drawing"
+DRAWING_YAML_ARTIFACT = "slam_map_drawing_yaml"
 __all__ = ["Run", "SlamService", "loop_closures"]
 
 
@@ -212,9 +219,17 @@ class SlamService(ScanRuns[Run]):
                 "info": {k: summary[k] for k in ("resolution_m", "free_m2", "occupied_m2",
                                                  "unknown_m2")},
                 "regions": regions, "closures": closures}
-        blob, npz = await asyncio.to_thread(lambda: (json.dumps(call).encode(), g.to_npz()))
+
+        def encode() -> tuple[bytes, dict[str, bytes]]:
+            drawing = g.downsampled(DRAWING_PX)
+            return json.dumps(call).encode(), {
+                MAP_ARTIFACT: g.to_npz(), SAVED_MAP_ARTIFACT: chizu,
+                DRAWING_ARTIFACT: drawing.to_png(),
+                DRAWING_YAML_ARTIFACT: drawing.to_yaml("map.pgm").encode()}
+
+        blob, extra = await asyncio.to_thread(encode)
         async with self.worlds.write_artifact(world, FACTS_ARTIFACT) as w:
-            reply = await w.commit(blob, {MAP_ARTIFACT: npz, SAVED_MAP_ARTIFACT: chizu}, call)
+            reply = await w.commit(blob, extra, call)
         return CommitOut(world=world, run=rid, facts=reply, map=summary,
                          unknown_regions=regions, loop_closures=len(closures))
 
@@ -238,13 +253,32 @@ class SlamService(ScanRuns[Run]):
                 self._grids.pop(next(iter(self._grids)))
         return self._grids[key]
 
+    def _drawing(self, world: str, kind: str, max_side: int | None) -> bytes | None:
+        """The drawing made at commit (``DRAWING_PX`` a side), when that size is asked."""
+        if max_side != DRAWING_PX:
+            return None
+        self.worlds.require(world)
+        return self.store.artifact(world, kind)
+
     async def committed_png(self, world: str, max_side: int | None = None) -> bytes:
-        """:meth:`committed_grid` as a PNG, encoded once per version and size."""
+        """:meth:`committed_grid` as a PNG: the drawing made at commit for
+        ``max_side == DRAWING_PX``, else encoded once per version and size."""
+        drawing = self._drawing(world, DRAWING_ARTIFACT, max_side)
+        if drawing is not None:
+            return drawing
         g = await self.committed_grid(world, max_side)
         key = (world, self.store.world_version(world), max_side)
         if self._png is None or self._png[0] != key:
             self._png = (key, await asyncio.to_thread(g.to_png))
         return self._png[1]
+
+    async def committed_yaml(self, world: str, max_side: int | None = None) -> bytes:
+        """map_server YAML of :meth:`committed_grid` (of ``map.pgm``, or of the
+        downsampled ``map.png`` with ``max_side``)."""
+        drawing = self._drawing(world, DRAWING_YAML_ARTIFACT, max_side)
+        if drawing is not None:
+            return drawing
+        return (await self.committed_grid(world, max_side)).to_yaml("map.pgm").encode()
 
     def saved_map(self, world: str) -> bytes:
         """The world's committed map as a ``map.chizu`` file."""

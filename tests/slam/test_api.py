@@ -110,6 +110,13 @@ def test_commit_asserts_facts(client: TestClient, world: str, run: str) -> None:
     assert max(width, height) <= 16 and float(meta.split("resolution: ")[1].split()[0]) > \
         float(committed.text.split("resolution: ")[1].split()[0])
     assert client.get(f"/worlds/{world}/map.png?max_px=0").status_code == 422
+    # the console's drawing (2048 px a side) is made at commit and stored with the map; this
+    # map is smaller, so the drawing is the map itself
+    listed = {w["name"]: w for w in client.get("/worlds").json()}
+    assert "slam_map_drawing" in listed[world]["artifacts"]
+    for ext in ("png", "yaml"):
+        assert client.get(f"/worlds/{world}/map.{ext}?max_px=2048").content == \
+            client.get(f"/worlds/{world}/map.{ext}").content, ext
     client.post("/worlds", json={"name": "no_map_yet"})
     none = client.get("/worlds/no_map_yet/map.png")
     assert none.status_code == 404 and none.json()["field"] == "map"

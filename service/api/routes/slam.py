@@ -158,8 +158,7 @@ async def get_committed_map_yaml(world: WorldDep, slam: SlamDep,
                                  max_px: MaxPx = None) -> Response:
     """ROS map_server metadata of the committed map (for ``map.pgm``; with ``max_px``,
     of the downsampled ``map.png``)."""
-    return Response((await slam.committed_grid(world, max_px)).to_yaml("map.pgm"),
-                    media_type="application/yaml")
+    return Response(await slam.committed_yaml(world, max_px), media_type="application/yaml")
 
 
 @router.get("/map", response_model=WorldMapOut)

@@ -705,12 +705,13 @@ window.addEventListener("hashchange", route);
 
 (async () => {
   try {
-    await Promise.all([loadWorlds(), loadTemplates()]);
+    const templates = loadTemplates(); // the create form's list: the map need not wait
+    await loadWorlds();
     // #/map/<world> opens that world
     const wanted = decodeURIComponent(location.hash.split("/")[2] || "");
     if (state.summaries[wanted]) state.world = wanted;
     if (state.world) await selectWorld(state.world);
-    await route();
+    await Promise.all([route(), templates]);
     document.body.dataset.ready = "true";
   } catch (e) { showProblem($("#status"), e); }
 })();
