@@ -82,6 +82,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(localization.router)
     app.include_router(viewpoint.router)
     app.include_router(mission.router)
+    app.include_router(events.jobs_router)
     app.include_router(jobs.router)
     app.include_router(events.router)
     errors.install(app)

@@ -519,6 +519,31 @@ class MissionApi:
         return self._t.call(Request('GET', f"/worlds/{segment(world)}/mission"), MissionRecordOut)
 
 
+class EventsApi:
+    """The operations of chizu.service.api.routes.events."""
+
+    def __init__(self, transport: SyncTransport) -> None:
+        self._t = transport
+
+    def get_job_events(self) -> Iterator[ServerEvent]:
+        """GET /jobs/events: Every world's ``job`` events as they happen (``text/event-stream``):
+        a job's row, as ``GET /jobs/{id}`` gives it, at each status and progress change. The
+        first event, ``open``, says the stream is live; the queue, ``dropped`` count, keep-
+        alives and the limit on open streams are those of ``GET /worlds/{world}/events``."""
+        return self._t.stream(Request('GET', '/jobs/events'))
+
+    def get_events(self, world: str) -> Iterator[ServerEvent]:
+        """GET /worlds/{world}/events: The world's events as they happen (``text/event-stream``):
+        ``job`` (a job of the world changed: its row as ``GET /jobs/{id}`` gives it),
+        ``slam_pose`` and ``localization_pose`` (a batch of scans was processed: run, scans,
+        stamp, pose), ``mission_step`` (a mission recorded a step), ``artifact`` (something
+        was committed: its kind), ``world_deleted``. The first event, ``open``, says the
+        stream is live. Each client has a bounded queue: an event read after some were dropped
+        carries ``dropped`` (how many). Keep-alive comments come every 15 s. 503 while
+        ``CHIZU_MAX_EVENT_STREAMS`` streams are open."""
+        return self._t.stream(Request('GET', f"/worlds/{segment(world)}/events"))
+
+
 class JobsApi:
     """The operations of chizu.service.api.routes.jobs."""
 
@@ -538,24 +563,6 @@ class JobsApi:
         """DELETE /jobs/{job_id}: Cancel a queued or running job: it ends ``cancelled`` and
         commits nothing; 409 for a job that has already ended."""
         return self._t.call(Request('DELETE', f"/jobs/{segment(job_id)}"), JobOut)
-
-
-class EventsApi:
-    """The operations of chizu.service.api.routes.events."""
-
-    def __init__(self, transport: SyncTransport) -> None:
-        self._t = transport
-
-    def get_events(self, world: str) -> Iterator[ServerEvent]:
-        """GET /worlds/{world}/events: The world's events as they happen (``text/event-stream``):
-        ``job`` (a job of the world changed: its row as ``GET /jobs/{id}`` gives it),
-        ``slam_pose`` and ``localization_pose`` (a batch of scans was processed: run, scans,
-        stamp, pose), ``mission_step`` (a mission recorded a step), ``artifact`` (something
-        was committed: its kind), ``world_deleted``. The first event, ``open``, says the
-        stream is live. Each client has a bounded queue: an event read after some were dropped
-        carries ``dropped`` (how many). Keep-alive comments come every 15 s. 503 while
-        ``CHIZU_MAX_EVENT_STREAMS`` streams are open."""
-        return self._t.stream(Request('GET', f"/worlds/{segment(world)}/events"))
 
 
 class AsyncHealthApi:
@@ -1017,6 +1024,31 @@ class AsyncMissionApi:
                 MissionRecordOut)
 
 
+class AsyncEventsApi:
+    """The operations of chizu.service.api.routes.events."""
+
+    def __init__(self, transport: AsyncTransport) -> None:
+        self._t = transport
+
+    def get_job_events(self) -> AsyncIterator[ServerEvent]:
+        """GET /jobs/events: Every world's ``job`` events as they happen (``text/event-stream``):
+        a job's row, as ``GET /jobs/{id}`` gives it, at each status and progress change. The
+        first event, ``open``, says the stream is live; the queue, ``dropped`` count, keep-
+        alives and the limit on open streams are those of ``GET /worlds/{world}/events``."""
+        return self._t.stream(Request('GET', '/jobs/events'))
+
+    def get_events(self, world: str) -> AsyncIterator[ServerEvent]:
+        """GET /worlds/{world}/events: The world's events as they happen (``text/event-stream``):
+        ``job`` (a job of the world changed: its row as ``GET /jobs/{id}`` gives it),
+        ``slam_pose`` and ``localization_pose`` (a batch of scans was processed: run, scans,
+        stamp, pose), ``mission_step`` (a mission recorded a step), ``artifact`` (something
+        was committed: its kind), ``world_deleted``. The first event, ``open``, says the
+        stream is live. Each client has a bounded queue: an event read after some were dropped
+        carries ``dropped`` (how many). Keep-alive comments come every 15 s. 503 while
+        ``CHIZU_MAX_EVENT_STREAMS`` streams are open."""
+        return self._t.stream(Request('GET', f"/worlds/{segment(world)}/events"))
+
+
 class AsyncJobsApi:
     """The operations of chizu.service.api.routes.jobs."""
 
@@ -1042,24 +1074,6 @@ class AsyncJobsApi:
         return await self._t.call(Request('DELETE', f"/jobs/{segment(job_id)}"), JobOut)
 
 
-class AsyncEventsApi:
-    """The operations of chizu.service.api.routes.events."""
-
-    def __init__(self, transport: AsyncTransport) -> None:
-        self._t = transport
-
-    def get_events(self, world: str) -> AsyncIterator[ServerEvent]:
-        """GET /worlds/{world}/events: The world's events as they happen (``text/event-stream``):
-        ``job`` (a job of the world changed: its row as ``GET /jobs/{id}`` gives it),
-        ``slam_pose`` and ``localization_pose`` (a batch of scans was processed: run, scans,
-        stamp, pose), ``mission_step`` (a mission recorded a step), ``artifact`` (something
-        was committed: its kind), ``world_deleted``. The first event, ``open``, says the
-        stream is live. Each client has a bounded queue: an event read after some were dropped
-        carries ``dropped`` (how many). Keep-alive comments come every 15 s. 503 while
-        ``CHIZU_MAX_EVENT_STREAMS`` streams are open."""
-        return self._t.stream(Request('GET', f"/worlds/{segment(world)}/events"))
-
-
 class Client:
     """The service at ``base_url`` (or over ``http``, e.g. a FastAPI TestClient)."""
 
@@ -1074,8 +1088,8 @@ class Client:
         self.localization = LocalizationApi(self._t)
         self.viewpoint = ViewpointApi(self._t)
         self.mission = MissionApi(self._t)
-        self.jobs = JobsApi(self._t)
         self.events = EventsApi(self._t)
+        self.jobs = JobsApi(self._t)
         self.wait_job = self._t.wait_job
 
     def close(self) -> None:
@@ -1104,8 +1118,8 @@ class AsyncClient:
         self.localization = AsyncLocalizationApi(self._t)
         self.viewpoint = AsyncViewpointApi(self._t)
         self.mission = AsyncMissionApi(self._t)
-        self.jobs = AsyncJobsApi(self._t)
         self.events = AsyncEventsApi(self._t)
+        self.jobs = AsyncJobsApi(self._t)
         self.wait_job = self._t.wait_job
 
     async def aclose(self) -> None:

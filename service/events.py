@@ -1,6 +1,7 @@
 """Live events per world, for the console and API clients alike (``GET
 /worlds/{world}/events``, Server-Sent Events): job progress, SLAM poses, mission steps,
-committed artifacts.
+committed artifacts. The service-wide stream (``GET /jobs/events``, the world ``None``
+here) carries the job events of every world: a jobs list kept current without polling.
 
 Each subscriber has its own bounded queue. A publisher never waits: when a subscriber's
 queue is full its oldest event is dropped, and the next event it reads says how many it
@@ -27,6 +28,8 @@ from chizu.numeric.errors import ChizuError
 QUEUE_EVENTS = 256
 #: event streams open at once, over all worlds
 MAX_SUBSCRIBERS = 64
+#: the event kinds the service-wide stream (world ``None``) also receives
+SERVICE_KINDS = frozenset({"job"})
 
 
 class TooManySubscribers(ChizuError):
@@ -45,7 +48,7 @@ class Subscriber:
     """One client's stream: its waiting events and how many were dropped since it last
     read."""
 
-    world: str
+    world: str | None
     events: deque[Event] = field(default_factory=lambda: deque(maxlen=QUEUE_EVENTS))
     dropped: int = 0
     closed: bool = False
@@ -79,7 +82,7 @@ class EventHub:
 
     def __init__(self, max_subscribers: int = MAX_SUBSCRIBERS) -> None:
         self.max_subscribers = max_subscribers
-        self._subs: dict[str, set[Subscriber]] = {}
+        self._subs: dict[str | None, set[Subscriber]] = {}
         self._ids = itertools.count(1)
         self._loop: asyncio.AbstractEventLoop | None = None
         self._lock = threading.Lock()
@@ -91,17 +94,21 @@ class EventHub:
     def subscribers(self) -> int:
         return sum(len(s) for s in self._subs.values())
 
-    def listening(self, world: str | None = None) -> bool:
-        """Whether anyone would receive an event of ``world`` (None: of any world): a
-        publisher whose event costs work to make asks first."""
+    def listening(self, world: str | None = None, kind: str | None = None) -> bool:
+        """Whether anyone would receive an event of ``kind`` in ``world`` (None: of any
+        world): a publisher whose event costs work to make asks first."""
         if self._loop is None:
             return False
-        return bool(self._subs.get(world) if world is not None else self._subs)
+        if world is None:
+            return bool(self._subs)
+        return bool(self._subs.get(world)) or (kind in SERVICE_KINDS
+                                               and bool(self._subs.get(None)))
 
     def publish(self, world: str, kind: str, data: dict[str, Any]) -> None:
-        """Send ``data`` as an event of ``kind`` to every subscriber of ``world``."""
+        """Send ``data`` as an event of ``kind`` to every subscriber of ``world`` (and of
+        the service-wide stream, for :data:`SERVICE_KINDS`)."""
         loop = self._loop
-        if loop is None or not self.listening(world):
+        if loop is None or not self.listening(world, kind):
             return
         with self._lock:
             event = Event(next(self._ids), kind, data)
@@ -117,8 +124,11 @@ class EventHub:
     def _deliver(self, world: str, event: Event) -> None:
         for s in list(self._subs.get(world, ())):
             s.push(event)
+        if event.kind in SERVICE_KINDS:
+            for s in list(self._subs.get(None, ())):
+                s.push(event)
 
-    def close_world(self, world: str) -> None:
+    def close_world(self, world: str | None) -> None:
         """End every stream of ``world`` (it was deleted)."""
         for s in self._subs.pop(world, set()):
             s.close()
@@ -129,9 +139,9 @@ class EventHub:
             self.close_world(world)
 
     @asynccontextmanager
-    async def subscribe(self, world: str) -> AsyncIterator[Subscriber]:
-        """A subscriber of ``world``'s events for the duration of the block (503 when
-        :data:`MAX_SUBSCRIBERS` streams are open)."""
+    async def subscribe(self, world: str | None) -> AsyncIterator[Subscriber]:
+        """A subscriber of ``world``'s events (None: the service-wide stream) for the
+        duration of the block (503 when :data:`MAX_SUBSCRIBERS` streams are open)."""
         if self.subscribers >= self.max_subscribers:
             raise TooManySubscribers(
                 f"{self.max_subscribers} event streams are open; close one or try later",

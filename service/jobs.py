@@ -197,7 +197,7 @@ class Jobs:
         if self.events is None or not self.events.listening():
             return
         rows = self.store.jobs(jid=jid)
-        if rows:
+        if rows and self.events.listening(rows[0]["world"], "job"):
             job = JobOut(**rows[0])
             self.events.publish(job.world, "job", job.model_dump(mode="json"))
 

@@ -212,6 +212,29 @@ def test_a_mission_started_from_the_console_shows_its_steps_live(
     assert page.errors == []
 
 
+def test_the_jobs_list_follows_every_worlds_jobs_live(page: Page, server: LiveServer) -> None:
+    """The jobs view lists the jobs once, then the service-wide job events keep it
+    current (no polling): a job started over the API appears, moves and ends; one
+    cancelled by its button ends cancelled."""
+    api(server, "POST", "/worlds", json={"name": "jobs_c", "template": "room_a"})
+    p = page.open("#/jobs")
+    p.wait_for_selector("#jobs-table[data-live=true]")
+    job = api(server, "POST", "/worlds/jobs_c/eigenspace", json=SMALL_EIGENSPACE)
+    row = f"#jobs-table tr[data-job='{job['id']}']"
+    p.wait_for_selector(f"{row}[data-status=done]", timeout=300_000)
+    assert p.locator(f"{row} progress").evaluate("e => e.value") == 1
+    big = {**SMALL_EIGENSPACE, "learning": {"spacing_m": 0.25, "n_directions": 72}}
+    job = api(server, "POST", "/worlds/jobs_c/eigenspace", json=big)
+    row = f"#jobs-table tr[data-job='{job['id']}']"
+    p.wait_for_selector(row)
+    p.click(f"{row} button")
+    p.wait_for_selector(f"{row}[data-status=cancelled]", timeout=120_000)
+    assert api(server, "GET", f"/jobs/{job['id']}")["status"] == "cancelled"
+    gets = [u for u in page.requests if u.endswith("/jobs")]
+    assert len(gets) == 1, gets  # listed once: the rest came as events
+    assert page.errors == []
+
+
 def test_a_slam_run_moves_on_the_map_as_its_scans_arrive(page: Page,
                                                           server: LiveServer) -> None:
     """Scans posted by a robot (here: the test, over the API) reach the page as live

@@ -21,10 +21,11 @@ from tests.conftest import LiveServer
 
 
 class Stream:
-    """A client of a world's events (the typed client's ``events.get_events``) in a
-    thread: the events it has read, as (event, data); ``problem`` if refused."""
+    """A client of a world's events (the typed client's ``events.get_events``; world
+    None: the service-wide ``events.get_job_events``) in a thread: the events it has
+    read, as (event, data); ``problem`` if refused."""
 
-    def __init__(self, url: str, world: str) -> None:
+    def __init__(self, url: str, world: str | None) -> None:
         self.events: list[tuple[str, Any]] = []
         self.problem: ProblemError | None = None
         self.answered = threading.Event()
@@ -33,9 +34,11 @@ class Stream:
         self._t = threading.Thread(target=self._run, args=(world,), daemon=True)
         self._t.start()
 
-    def _run(self, world: str) -> None:
+    def _run(self, world: str | None) -> None:
+        events = (self._client.events.get_job_events() if world is None
+                  else self._client.events.get_events(world))
         try:
-            for e in self._client.events.get_events(world):
+            for e in events:
                 self.answered.set()
                 self.events.append((e.event, e.data))
                 if self._stop.is_set() or e.event == "world_deleted":
@@ -102,6 +105,29 @@ def test_a_job_and_a_slam_run_are_seen_as_they_happen(server: LiveServer) -> Non
     s.close()
 
 
+def test_every_worlds_jobs_are_on_the_service_wide_stream(server: LiveServer) -> None:
+    """GET /jobs/events: the job rows of every world, and nothing else (a jobs list kept
+    current without polling)."""
+    c = httpx.Client(base_url=server.url, timeout=120)
+    for w in ("jobs_a", "jobs_b"):
+        c.post("/worlds", json={"name": w, "template": "room_a"}).raise_for_status()
+    s = Stream(server.url, None)
+    s.wait_for(lambda k, d: k == "open")
+    small = {"camera": {"width_px": 32, "height_px": 16, "supersample": 1},
+             "learning": {"spacing_m": 1.0, "n_directions": 36}, "learning_strategy": None}
+    jobs = [c.post(f"/worlds/{w}/eigenspace", json=small).json() for w in ("jobs_a", "jobs_b")]
+    rid = c.post("/worlds/jobs_a/slam-runs", json={"method": "odom"}).json()["id"]
+    c.post(f"/worlds/jobs_a/slam-runs/{rid}/scans", json={"scans": [{
+        "t": 0.0, "odom": [0.0, 0.0, 0.0], "ranges": [2.0] * 181, "angle_min": -1.5707963,
+        "angle_increment": 0.0174533}]}).raise_for_status()
+    for job in jobs:
+        s.wait_for(lambda k, d, j=job: k == "job" and d["id"] == j["id"]
+                   and d["status"] == "done")
+    assert {d["world"] for k, d in s.events if k == "job"} == {"jobs_a", "jobs_b"}
+    assert {k for k, _ in s.events} == {"open", "job"}  # no pose, no artifact
+    s.close()
+
+
 def test_a_stream_ends_with_its_world_and_with_its_client(server: LiveServer) -> None:
     c = httpx.Client(base_url=server.url, timeout=60)
     c.post("/worlds", json={"name": "gone"}).raise_for_status()
@@ -160,5 +186,21 @@ def test_a_slow_subscriber_loses_its_oldest_events_and_is_told() -> None:
             hub.close_world("w")
             assert await s.next() is None
         assert hub.subscribers == 0
+
+    asyncio.run(main())
+
+
+def test_the_service_wide_stream_gets_every_worlds_job_events_only() -> None:
+    async def main() -> None:
+        hub = EventHub()
+        hub.attach(asyncio.get_running_loop())
+        async with hub.subscribe(None) as s:
+            assert hub.listening("w", "job") and not hub.listening("w", "slam_pose")
+            hub.publish("w", "slam_pose", {"i": 0})
+            hub.publish("w", "job", {"i": 1})
+            hub.publish("v", "job", {"i": 2})
+            got = [(await s.next())[0].data["i"] for _ in range(2)]  # type: ignore[index]
+            assert got == [1, 2] and not s.events
+        assert not hub.listening()
 
     asyncio.run(main())

@@ -51,9 +51,9 @@ def load(parameters: str = "") -> schemathesis.BaseSchema:  # type: ignore[name-
         spec, config=SchemathesisConfig.from_str(CONFIG + parameters))
 
 
-# a world's live events stream until the client leaves: no generated request ends it
-# (its 404, 422 and 503 are tested in tests/service/test_events.py)
-EVENTS = "/worlds/{world}/events"
+# live event streams last until the client leaves: no generated request ends them
+# (their 404, 422 and 503 are tested in tests/service/test_events.py)
+EVENTS = ["/worlds/{world}/events", "/jobs/events"]
 schema = load().exclude(path=EVENTS)
 # the second pass: every {world} is the existing one; deleting it would end the pass
 on_a_world = load(f'[parameters]\n"path.world" = "{WORLD}"\n').exclude(

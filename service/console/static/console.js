@@ -595,7 +595,6 @@ on("job", (job) => {
     mission.label.textContent = ` ${job.status}: ${job.stage}`;
     if (job.error) $("#mission-job").append(el("div", { class: "problem", text: job.error.detail || "" }));
   }
-  if (document.querySelector("#view-jobs.active")) loadJobs();
 });
 
 // each step as the mission records it; where it says a position, a mark on the map
@@ -642,23 +641,50 @@ on("artifact", (a) => {
 });
 on("world_deleted", () => { status(`world ${state.world} was deleted`); loadWorlds(); });
 
-// -- jobs -----------------------------------------------------------------------------
+// -- jobs: the list once, then kept current by the service-wide job events --------------
+const jobs = { rows: new Map(), source: null };
+
+function jobRow(j) {
+  const cancel = el("button", { type: "button", class: "secondary", text: "Cancel",
+    "aria-label": `Cancel job ${j.id}` });
+  cancel.disabled = !["queued", "running"].includes(j.status);
+  cancel.addEventListener("click", async () => {
+    try { await api("DELETE", `/jobs/${enc(j.id)}`); } catch (e) { showProblem($("#status"), e); }
+  });
+  return el("tr", { "data-job": j.id, "data-status": j.status },
+    el("td", { text: j.id.slice(0, 8) }), el("td", { text: j.world }),
+    el("td", { text: j.kind }), el("td", { text: j.status }), el("td", { text: j.stage }),
+    el("td", {}, el("progress", { max: 1, value: j.progress,
+      "aria-label": `progress of job ${j.id}` })), el("td", {}, cancel));
+}
+
+function showJob(j) {
+  const row = jobRow(j);
+  const old = jobs.rows.get(j.id);
+  if (old) old.replaceWith(row); else $("#jobs-table tbody").append(row);
+  jobs.rows.set(j.id, row);
+}
+
 async function loadJobs() {
-  const jobs = await api("GET", "/jobs");
-  const tbody = $("#jobs-table tbody");
-  tbody.replaceChildren(...jobs.map((j) => {
-    const cancel = el("button", { type: "button", class: "secondary", text: "Cancel",
-      "aria-label": `Cancel job ${j.id}` });
-    cancel.disabled = !["queued", "running"].includes(j.status);
-    cancel.addEventListener("click", async () => {
-      try { await api("DELETE", `/jobs/${enc(j.id)}`); } catch (e) { showProblem($("#status"), e); }
-      loadJobs();
-    });
-    return el("tr", {}, el("td", { text: j.id.slice(0, 8) }), el("td", { text: j.world }),
-      el("td", { text: j.kind }), el("td", { text: j.status }), el("td", { text: j.stage }),
-      el("td", {}, el("progress", { max: 1, value: j.progress,
-        "aria-label": `progress of job ${j.id}` })), el("td", {}, cancel));
-  }));
+  // listen first, then list: a change between the two arrives as an event
+  followJobs();
+  const list = await api("GET", "/jobs");
+  jobs.rows.clear();
+  $("#jobs-table tbody").replaceChildren();
+  for (const j of list) showJob(j);
+}
+
+function followJobs() {
+  if (jobs.source) return;
+  jobs.source = new EventSource("/jobs/events");
+  jobs.source.addEventListener("job", (ev) => showJob(JSON.parse(ev.data)));
+  jobs.source.addEventListener("open", () => { $("#jobs-table").dataset.live = "true"; });
+}
+
+function unfollowJobs() {
+  if (jobs.source) jobs.source.close();
+  jobs.source = null;
+  delete $("#jobs-table").dataset.live;
 }
 
 // -- query --------------------------------------------------------------------------------
@@ -684,7 +710,6 @@ $("#query-form").addEventListener("submit", async (ev) => {
 });
 
 // -- routing --------------------------------------------------------------------------------
-let jobsTimer = null;
 async function route() {
   const name = (location.hash.replace(/^#\//, "") || "map").split("/")[0];
   for (const v of document.querySelectorAll(".view")) {
@@ -694,10 +719,10 @@ async function route() {
     if (a.dataset.view === name) a.setAttribute("aria-current", "page");
     else a.removeAttribute("aria-current");
   }
-  clearInterval(jobsTimer);
+  if (name !== "jobs") unfollowJobs();
   try {
     if (name === "worlds") await loadWorlds();
-    if (name === "jobs") { await loadJobs(); jobsTimer = setInterval(loadJobs, 1000); }
+    if (name === "jobs") await loadJobs();
   } catch (e) { showProblem($("#status"), e); }
 }
 
