@@ -255,6 +255,26 @@ def test_a_slam_run_moves_on_the_map_as_its_scans_arrive(page: Page,
     assert [float(v) for v in pts[-1].split(",")] == pytest.approx(
         [want[-1][0], -want[-1][1]], abs=1e-6)
     assert "4 scans" in p.locator("#live-run").text_content()
+    # the run appeared in the list as it started; shown, its map and trajectory are drawn
+    # and follow the next scans
+    button = p.locator(f'#slam-runs button[data-run="{rid}"]')
+    p.wait_for_function(f"document.querySelector('#slam-runs button[data-run=\"{rid}\"]')"
+                        "?.textContent.endsWith('4 scans')")
+    button.click()
+    p.wait_for_selector(f"#slam-runs[data-shown='{rid}']")
+    assert button.get_attribute("aria-pressed") == "true"
+    assert p.locator("#layer-runmap image").count() == 1
+    for i in range(4, 6):
+        scan = {"t": 0.1 * i, "odom": [0.3 * i, 0.0, 0.0], "ranges": [2.0] * 181,
+                "angle_min": -1.5707963, "angle_increment": 0.0174533}
+        api(server, "POST", f"/worlds/demo/slam-runs/{rid}/scans", json={"scans": [scan]})
+    p.wait_for_selector(f"#slam-runs[data-shown='{rid}'][data-scans='6']")
+    want = api(server, "GET", f"/worlds/demo/slam-runs/{rid}/trajectory")["poses"]
+    pts = line.get_attribute("points").split()
+    assert [float(v) for v in pts[-1].split(",")] == pytest.approx(
+        [want[-1][0], -want[-1][1]], abs=1e-6) and len(pts) == 6
+    button.click()  # hidden again
+    p.wait_for_function("document.querySelectorAll('#layer-runmap image').length === 0")
     api(server, "DELETE", f"/worlds/demo/slam-runs/{rid}")
     assert page.errors == []
 

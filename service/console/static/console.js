@@ -219,10 +219,15 @@ async function drawMap(refit) {
   const r = Math.max(0.06, size / 150); // a landmark's radius in metres
   if (refit) fit(ext);
   // redrawn from the world; what live events drew (trajectories, a localization) stays
+  const kept = ["layer-trajectory", "layer-localization", "layer-runmap"];
   for (const g of document.querySelectorAll("#map-root > g")) {
-    if (!["layer-trajectory", "layer-localization"].includes(g.id)) g.replaceChildren();
+    if (!kept.includes(g.id)) g.replaceChildren();
   }
-  if (refit) { layer("trajectory").replaceChildren(); layer("localization").replaceChildren(); }
+  if (refit) {
+    for (const id of kept) $(`#${id}`).replaceChildren();
+    runs.shown = null;
+    delete $("#slam-runs").dataset.shown;
+  }
 
   const walls = layer("walls");
   for (const wall of d.walls) {
@@ -265,6 +270,7 @@ async function drawMap(refit) {
   fillPlanRequest(d, ext);
   const info = [`${d.landmarks.length} landmarks, ${d.walls.length} walls, ${d.objects.length} objects`];
   await Promise.all([
+    loadRuns(w),
     drawDrm(w, placed, r).then((n) => info.push(`DRM: ${n} edges`)),
     has.has("saved_map") ? drawGrid(w).then((t) => info.push(t)) : null,
     has.has("eigenspace") ? drawEigen(w, r).then((t) => info.push(t)) : null,
@@ -289,23 +295,84 @@ async function drawDrm(w, placed, r) {
   return drm.edges.length;
 }
 
-async function drawGrid(w) {
-  const m = await api("GET", worldPath(w, "/map"));
-  const base = worldPath(w, "/map");
-  // a large map comes downsampled to what a screen shows (walls kept)
-  const px = `?max_px=${MAP_PX}`;
-  const yaml = await (await fetch(`${base}.yaml${px}`)).text();
+// a map_server image (base.png, placed by base.yaml) as an SVG image in the world frame
+async function mapImage(base, query) {
+  const yaml = await (await fetch(`${base}.yaml${query}`)).text();
   const res = parseFloat(/resolution:\s*([-\d.eE]+)/.exec(yaml)[1]);
   const origin = /origin:\s*\[\s*([-\d.eE]+)\s*,\s*([-\d.eE]+)/.exec(yaml);
   const img = new Image();
-  img.src = `${base}.png${px}&v=${Date.now()}`;
+  img.src = `${base}.png${query}${query ? "&" : "?"}v=${Date.now()}`;
   await img.decode();
   const [ox, oy] = [parseFloat(origin[1]), parseFloat(origin[2])];
   const wm = img.naturalWidth * res, hm = img.naturalHeight * res;
-  layer("grid").append(svg("image", { href: img.src, x: ox, y: -(oy + hm), width: wm,
-    height: hm, preserveAspectRatio: "none", style: "image-rendering: pixelated",
-    opacity: 0.85 }));
+  return svg("image", { href: img.src, x: ox, y: -(oy + hm), width: wm, height: hm,
+    preserveAspectRatio: "none", style: "image-rendering: pixelated", opacity: 0.85 });
+}
+
+async function drawGrid(w) {
+  const m = await api("GET", worldPath(w, "/map"));
+  // a large map comes downsampled to what a screen shows (walls kept)
+  layer("grid").append(await mapImage(worldPath(w, "/map"), `?max_px=${MAP_PX}`));
   return `committed map: run ${m.run}, ${(100 * m.explored_fraction).toFixed(0)} % explored`;
+}
+
+// -- SLAM runs: listed per world; one shown with its trajectory and map, kept current as
+// its scans arrive (the map at most every 2 s: a run's grid is redrawn on request) --------
+const runs = { shown: null, refreshing: false, again: false, last: 0, timer: null };
+
+async function loadRuns(w) {
+  const list = await api("GET", worldPath(w, "/slam-runs"));
+  if (w !== state.world) return;
+  const ul = $("#slam-runs");
+  ul.replaceChildren(...list.map((r) => {
+    const b = el("button", { type: "button", class: "secondary run", "data-run": r.id,
+      "aria-pressed": String(runs.shown === r.id),
+      text: `${r.id} · ${r.method} · ${r.scans ?? "?"} scans` });
+    b.addEventListener("click", () => showRun(runs.shown === r.id ? null : r.id));
+    return el("li", {}, b);
+  }));
+  if (!list.length) ul.append(el("li", { class: "hint", text: "none yet" }));
+}
+
+async function showRun(rid) {
+  runs.shown = rid;
+  for (const b of document.querySelectorAll("#slam-runs button")) {
+    b.setAttribute("aria-pressed", String(b.dataset.run === rid));
+  }
+  layer("runmap").replaceChildren();
+  delete $("#slam-runs").dataset.shown;
+  if (rid) await refreshRun();
+}
+
+// the shown run's trajectory (the estimator's, corrected by its loop closures) and map
+async function refreshRun() {
+  const rid = runs.shown, w = state.world;
+  if (!rid) return;
+  if (runs.refreshing) { runs.again = true; return; }
+  runs.refreshing = true;
+  try {
+    const base = worldPath(w, `/slam-runs/${enc(rid)}`);
+    const [t, image] = await Promise.all([api("GET", `${base}/trajectory`),
+      mapImage(`${base}/map`, "").catch(() => null)]); // no scan yet: no map
+    if (runs.shown !== rid || state.world !== w) return;
+    const line = trajectoryLine(rid, "SLAM");
+    line.setAttribute("points", t.poses.map((p) => `${p[0]},${-p[1]}`).join(" "));
+    line.dataset.scans = t.poses.length;
+    layer("runmap").replaceChildren(...(image ? [image] : []));
+    $("#slam-runs").dataset.shown = rid;
+    $("#slam-runs").dataset.scans = t.poses.length;
+  } catch (e) { showProblem($("#status"), e); }
+  finally {
+    runs.refreshing = false;
+    runs.last = Date.now();
+    if (runs.again) { runs.again = false; scheduleRunRefresh(); }
+  }
+}
+
+function scheduleRunRefresh() {
+  if (runs.timer) return;
+  runs.timer = setTimeout(() => { runs.timer = null; refreshRun(); },
+    Math.max(0, runs.last + 2000 - Date.now()));
 }
 
 async function drawEigen(w, r) {
@@ -615,21 +682,31 @@ function missionStep(step) {
   }
 }
 
+function trajectoryLine(rid, kind) {
+  const g = layer("trajectory");
+  let line = g.querySelector(`polyline[data-run="${CSS.escape(rid)}"]`);
+  if (!line) {
+    line = svg("polyline", { class: "traj", "data-run": rid, "data-kind": kind, points: "",
+      "stroke-width": 2, "vector-effect": "non-scaling-stroke" });
+    g.append(line);
+  }
+  return line;
+}
+
 // a SLAM or localization run's pose as its scans are processed
 function livePose(kind) {
   return (d) => {
     if (!d.pose) return;
-    const g = layer("trajectory");
-    let line = g.querySelector(`polyline[data-run="${CSS.escape(d.run)}"]`);
-    if (!line) {
-      line = svg("polyline", { class: "traj", "data-run": d.run, "data-kind": kind, points: "",
-        "stroke-width": 2, "vector-effect": "non-scaling-stroke" });
-      g.append(line);
-    }
+    const line = trajectoryLine(d.run, kind);
     line.setAttribute("points", `${line.getAttribute("points")} ${d.pose.x},${-d.pose.y}`.trim());
     line.dataset.scans = d.scans;
     $("#live-run").textContent = `${kind} run ${d.run}: ${d.scans} scans, pose ` +
       `(${d.pose.x.toFixed(2)}, ${d.pose.y.toFixed(2)}, ${d.pose.theta.toFixed(2)})`;
+    if (kind !== "SLAM") return;
+    const b = document.querySelector(`#slam-runs button[data-run="${CSS.escape(d.run)}"]`);
+    if (!b) loadRuns(state.world); // a run started since the list was read
+    else b.textContent = b.textContent.replace(/· [\d?]+ scans$/, `· ${d.scans} scans`);
+    if (d.run === runs.shown) scheduleRunRefresh();
   };
 }
 on("slam_pose", livePose("SLAM"));
