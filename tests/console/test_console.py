@@ -7,6 +7,7 @@ another host (the page and /docs work offline)."""
 
 from __future__ import annotations
 
+import math
 import shutil
 import time
 from collections.abc import Iterator
@@ -209,6 +210,61 @@ def test_a_mission_started_from_the_console_shows_its_steps_live(
     assert p.locator("#mission-steps li").count() == len(record["steps"])
     placed = [s for s in record["steps"] if isinstance(s["result"].get("x"), float | int)]
     assert p.locator("#layer-trajectory circle[data-step]").count() == len(placed) > 0
+    assert page.errors == []
+
+
+def test_localization_once_and_as_a_session_of_stops(page: Page, server: LiveServer) -> None:
+    """One turn, then a session of two stops joined by the strategy's next move: the
+    console's states and candidates are those the API gives for the same turns and the
+    odometry between them (the previous stop's frame)."""
+    api(server, "POST", "/worlds", json={"name": "loc_c", "template": "room_a"})
+    job = api(server, "POST", "/worlds/loc_c/eigenspace", json=SMALL_EIGENSPACE)
+    deadline = time.monotonic() + 300
+    while api(server, "GET", f"/jobs/{job['id']}")["status"] in ("queued", "running"):
+        assert time.monotonic() < deadline
+        time.sleep(0.5)
+    pt = api(server, "GET", "/worlds/loc_c/eigenspace")["points"][0]
+    pose = {"x": round(pt["x"] + 0.3, 3), "y": round(pt["y"] + 0.2, 3), "theta": 0.5}
+    directions = api(server, "GET", "/worlds/loc_c/eigenspace")["directions"]
+
+    def turn(at: dict[str, float]) -> str:
+        return api(server, "POST", "/worlds/loc_c/camera", json={
+            "pose": at, "turn": directions, "format": "turn_png"})["turn_png"]
+
+    p = page.open()
+    p.select_option("#world-select", "loc_c")
+    p.wait_for_function("document.body.dataset.world === 'loc_c'")
+    for k, v in pose.items():
+        p.fill(f"#localize-form input[name={k}]", str(v))
+    p.click("#localize-form button[type=submit]")
+    p.wait_for_selector("#localize-result p[data-state]")
+    want = api(server, "POST", "/worlds/loc_c/localize", json={"turn_png": turn(pose)})
+    assert p.locator("#localize-result p[data-state]").get_attribute("data-state") == \
+        want["state"]["state"]
+    assert p.locator("#layer-localization .candidate").count() == len(want["candidates"])
+
+    p.click("#session-start")
+    p.wait_for_selector("#localize-result p[data-state=x]")
+    p.click("#session-stop")
+    p.wait_for_selector("#session-stops li:nth-child(1)")
+    p.click("#session-move")
+    p.wait_for_selector("#localize-result p[data-move], #localize-result p:has-text('no move')")
+    second = {k: float(p.locator(f"#localize-form input[name={k}]").input_value())
+              for k in ("x", "y", "theta")}
+    p.click("#session-stop")
+    p.wait_for_selector("#session-stops li:nth-child(2)")
+    got = p.locator("#session-stops li").evaluate_all("ls => ls.map(l => l.dataset.state)")
+    sid = api(server, "POST", "/worlds/loc_c/localization-sessions")["id"]
+    stops = f"/worlds/loc_c/localization-sessions/{sid}/stops"
+    first = api(server, "POST", stops, json={"turn_png": turn(pose)})
+    c, s_ = math.cos(pose["theta"]), math.sin(pose["theta"])
+    dx, dy = second["x"] - pose["x"], second["y"] - pose["y"]
+    odo = {"dx": c * dx + s_ * dy, "dy": -s_ * dx + c * dy,
+           "dtheta": math.remainder(second["theta"] - pose["theta"], math.tau)}
+    then = api(server, "POST", stops, json={"turn_png": turn(second), "odometry": odo})
+    assert got[0] == "z" or second != pose  # not localized: the strategy moved it
+    assert got == [first["state"]["state"], then["state"]["state"]]
+    assert p.locator("#layer-localization .candidate").count() == len(then["candidates"])
     assert page.errors == []
 
 

@@ -224,6 +224,7 @@ async function drawMap(refit) {
     if (!kept.includes(g.id)) g.replaceChildren();
   }
   if (refit) {
+    endSession();
     for (const id of kept) $(`#${id}`).replaceChildren();
     runs.shown = null;
     delete $("#slam-runs").dataset.shown;
@@ -450,35 +451,144 @@ $("#path-form").addEventListener("submit", (ev) => {
   pickLandmark($("#path-to").value);
 });
 
+// -- eigenspace localization (Maeda & Shirai): one turn, or a session of stops ------------
+function formPose() {
+  const f = new FormData($("#localize-form"));
+  return { x: +f.get("x"), y: +f.get("y"), theta: +f.get("theta") };
+}
+
+async function renderTurn(pose) {
+  const cam = await api("POST", worldPath(state.world, "/camera"),
+    { pose, turn: state.directions || 72, format: "turn_png" });
+  return cam.turn_png;
+}
+
+// a localization's answer on the map and in words: candidates, the estimate, the state
+function showLocalization(loc, pose, out) {
+  const g = layer("localization");
+  for (const c of g.querySelectorAll(".candidate, .estimate")) c.remove();
+  const r = Math.max(0.06, state.view.w / 120);
+  for (const c of loc.candidates) {
+    g.append(svg("circle", { class: "candidate", cx: c.pose.x, cy: -c.pose.y, r,
+      "stroke-width": 2, "vector-effect": "non-scaling-stroke" }));
+  }
+  g.append(svg("circle", { class: "true-pose", cx: pose.x, cy: -pose.y, r: 0.5 * r,
+    fill: "#111827" }));
+  out.replaceChildren(el("p", { class: `state-${loc.state.state}`, "data-state": loc.state.state,
+    text: `state ${loc.state.state.toUpperCase()} (${loc.outcome}), ` +
+      `${loc.candidates.length} candidates` }));
+  if (loc.pose) {
+    g.append(svg("circle", { class: "estimate", cx: loc.pose.x, cy: -loc.pose.y, r }));
+    const err = Math.hypot(loc.pose.x - pose.x, loc.pose.y - pose.y);
+    out.append(el("p", { text: `estimate (${loc.pose.x.toFixed(2)}, ${loc.pose.y.toFixed(2)}), ` +
+      `${err.toFixed(2)} m from the true pose` }));
+  } else if (loc.refused_by) {
+    out.append(el("p", { text: `refused by ${loc.refused_by.test}` }));
+  }
+}
+
 $("#localize-form").addEventListener("submit", async (ev) => {
   ev.preventDefault();
-  const f = new FormData(ev.target);
-  const pose = { x: +f.get("x"), y: +f.get("y"), theta: +f.get("theta") };
+  endSession();
+  const pose = formPose();
   const out = $("#localize-result");
   out.replaceChildren(el("p", { text: "rendering and localizing…" }));
-  const g = layer("localization");
-  g.replaceChildren();
+  layer("localization").replaceChildren();
   try {
-    const cam = await api("POST", worldPath(state.world, "/camera"),
-      { pose, turn: state.directions || 72, format: "turn_png" });
     const loc = await api("POST", worldPath(state.world, "/localize"),
-      { turn_png: cam.turn_png });
-    const r = Math.max(0.06, state.view.w / 120);
-    for (const c of loc.candidates) {
-      g.append(svg("circle", { class: "candidate", cx: c.pose.x, cy: -c.pose.y, r,
-        "stroke-width": 2, "vector-effect": "non-scaling-stroke" }));
-    }
-    g.append(svg("circle", { cx: pose.x, cy: -pose.y, r: 0.5 * r, fill: "#111827" }));
-    out.replaceChildren(el("p", { class: `state-${loc.state.state}`,
-      text: `state ${loc.state.state.toUpperCase()} (${loc.outcome}), ${loc.candidates.length} candidates` }));
-    if (loc.pose) {
-      g.append(svg("circle", { class: "estimate", cx: loc.pose.x, cy: -loc.pose.y, r }));
-      const err = Math.hypot(loc.pose.x - pose.x, loc.pose.y - pose.y);
-      out.append(el("p", { text: `estimate (${loc.pose.x.toFixed(2)}, ${loc.pose.y.toFixed(2)}), ` +
-        `${err.toFixed(2)} m from the true pose` }));
-    } else if (loc.refused_by) {
-      out.append(el("p", { text: `refused by ${loc.refused_by.test}` }));
-    }
+      { turn_png: await renderTurn(pose) });
+    showLocalization(loc, pose, out);
+  } catch (e) { showProblem(out, e); }
+});
+
+// A session: each stop is a turn at the pose in the form, with the odometry from the
+// previous stop's pose in that pose's frame; Next move asks the movement strategy for the
+// action (alpha, l, beta) maximising Q(Z) and moves the form's pose by it.
+const session = { id: null, poses: [] };
+
+function endSession() {
+  session.id = null;
+  session.poses = [];
+  $("#session-stops").replaceChildren();
+  $("#session-stop").disabled = $("#session-move").disabled = true;
+}
+
+function odometry(a, b) {
+  const dx = b.x - a.x, dy = b.y - a.y, c = Math.cos(a.theta), s = Math.sin(a.theta);
+  const dth = Math.atan2(Math.sin(b.theta - a.theta), Math.cos(b.theta - a.theta));
+  return { dx: c * dx + s * dy, dy: -s * dx + c * dy, dtheta: dth };
+}
+
+$("#session-start").addEventListener("click", async () => {
+  endSession();
+  layer("localization").replaceChildren();
+  const out = $("#localize-result");
+  try {
+    const s = await api("POST", worldPath(state.world, "/localization-sessions"));
+    session.id = s.id;
+    out.replaceChildren(el("p", { class: `state-${s.state.state}`, "data-state": s.state.state,
+      text: `session started: state ${s.state.state.toUpperCase()}, no stop yet` }));
+    $("#session-stop").disabled = false;
+  } catch (e) { showProblem(out, e); }
+});
+
+$("#session-stop").addEventListener("click", async () => {
+  const pose = formPose(), out = $("#localize-result");
+  const prev = session.poses[session.poses.length - 1];
+  const body = { turn_png: null };
+  if (prev) body.odometry = odometry(prev, pose);
+  out.replaceChildren(el("p", { text: "rendering and localizing…" }));
+  try {
+    body.turn_png = await renderTurn(pose);
+    const loc = await api("POST",
+      worldPath(state.world, `/localization-sessions/${enc(session.id)}/stops`), body);
+    session.poses.push(pose);
+    showLocalization(loc, pose, out);
+    const route = layer("localization").querySelector("polyline.stops") ||
+      layer("localization").appendChild(svg("polyline", { class: "stops traj",
+        "stroke-dasharray": "4 3", "stroke-width": 2, "vector-effect": "non-scaling-stroke" }));
+    route.setAttribute("points", session.poses.map((p) => `${p.x},${-p.y}`).join(" "));
+    $("#session-stops").append(el("li", { "data-state": loc.state.state,
+      text: `stop ${loc.stops}: state ${loc.state.state.toUpperCase()} (${loc.outcome}), ` +
+        `${loc.candidates.length} candidates` }));
+    $("#session-move").disabled = loc.state.state === "z";
+  } catch (e) { showProblem(out, e); }
+});
+
+// how far the robot can drive from (x, y) along heading th before a wall, less the
+// clearance the strategy's model of a move keeps (Maeda & Shirai §3.4)
+function freeRun(x, y, th, clearance = 0.3) {
+  const dx = Math.cos(th), dy = Math.sin(th);
+  let best = Infinity;
+  for (const w of state.description.walls) {
+    const [ax, ay] = w.a, [bx, by] = w.b;
+    const ex = bx - ax, ey = by - ay, den = dx * ey - dy * ex;
+    if (Math.abs(den) < 1e-12) continue;
+    const t = ((ax - x) * ey - (ay - y) * ex) / den;  // along the ray
+    const u = ((ax - x) * dy - (ay - y) * dx) / den;  // along the wall
+    if (t > 0 && u >= 0 && u <= 1) best = Math.min(best, t);
+  }
+  return Math.max(0, best - clearance);
+}
+
+$("#session-move").addEventListener("click", async () => {
+  const out = $("#localize-result");
+  try {
+    const m = await api("GET",
+      worldPath(state.world, `/localization-sessions/${enc(session.id)}/next-move`));
+    if (!m.action) { out.append(el("p", { text: "localized: no move needed" })); return; }
+    const { alpha_rad: a, l_m: l, beta_rad: b } = m.action;
+    const p = formPose(), th = p.theta + a, run = Math.min(l, freeRun(p.x, p.y, th));
+    const q = { x: p.x + run * Math.cos(th), y: p.y + run * Math.sin(th),
+                theta: Math.atan2(Math.sin(th + b), Math.cos(th + b)) };
+    const f = $("#localize-form");
+    f.elements.x.value = q.x.toFixed(3);
+    f.elements.y.value = q.y.toFixed(3);
+    f.elements.theta.value = q.theta.toFixed(3);
+    out.append(el("p", { "data-move": "true", text: `next move: turn ${a.toFixed(2)} rad, ` +
+      `drive ${l.toFixed(2)} m${run < l ? ` (${run.toFixed(2)} m before a wall)` : ""}, ` +
+      `turn ${b.toFixed(2)} rad; Q(Z) = ${m.q_z.toFixed(2)}. The pose above is where it ` +
+      "leads: Add stop there." }));
   } catch (e) { showProblem(out, e); }
 });
 
