@@ -376,6 +376,78 @@ def test_the_console_fits_a_tablet(browser: Any, server: LiveServer) -> None:
     tablet.page.close()
 
 
+#: axe-core's rules for WCAG 2.1 A and AA (contrast 4.5:1 among them) and its best practice
+AXE_RULES = {"runOnly": {"type": "tag", "values": ["wcag2a", "wcag2aa", "wcag21a",
+                                                    "wcag21aa", "best-practice"]}}
+
+
+@pytest.mark.parametrize("viewport", [(1280, 800), (800, 1100)], ids=["desktop", "tablet"])
+def test_every_view_passes_axe(browser: Any, server: LiveServer,
+                               viewport: tuple[int, int]) -> None:
+    """axe-core (the checker browsers' accessibility tools run) finds no WCAG 2.1 AA
+    violation -- contrast, names, labels, roles, landmarks -- in any view, with answers
+    shown: a path, a Prolog query's solutions, a problem."""
+    from axe_playwright_python.sync_playwright import Axe
+
+    page = Page(browser, server, viewport=viewport)
+    p = page.open()
+    p.locator('.landmark[data-id="rn0a"]').click()
+    p.locator('.landmark[data-id="rn3b"]').click()
+    p.wait_for_selector("[data-testid=path-summary]")
+    found = {}
+    for view in ("map", "worlds", "mission", "jobs", "query"):
+        p.goto(f"{server.url}/#/{view}")
+        p.wait_for_selector(f"#view-{view}.active")
+        if view == "query":
+            p.fill("#goal", "reachable(rn0a, To, P, Method)")
+            p.click("#query-form button")
+            p.wait_for_selector("#solutions")
+            found["query with solutions"] = Axe().run(p, options=AXE_RULES).response
+            p.fill("#goal", "reachable(rn0a, To")
+            p.click("#query-form button")
+            p.wait_for_selector("#query-result .problem")
+        found[view] = Axe().run(p, options=AXE_RULES).response
+    bad = {view: [(v["id"], v["help"], [n["target"] for n in v["nodes"]][:3])
+                  for v in r["violations"]] for view, r in found.items() if r["violations"]}
+    assert bad == {}
+    assert all(r["passes"] for r in found.values())  # axe ran its rules
+    page.page.close()
+
+
+def test_every_control_is_reached_by_tab_and_shows_its_focus(page: Page) -> None:
+    """Tab from the top of each view reaches every visible control of the page, and the
+    focused one is drawn with a focus ring."""
+    p = page.open()
+    for view in ("map", "worlds", "mission", "jobs", "query"):
+        p.goto(f"{page.server.url}/#/{view}")
+        p.wait_for_selector(f"#view-{view}.active")
+        controls = p.evaluate("""() => [...document.querySelectorAll(
+            'a[href], button, input, select, textarea, [tabindex="0"]')]
+            .filter(e => !e.disabled && e.getClientRects().length &&
+                    getComputedStyle(e).visibility !== 'hidden' && !e.closest('.skip'))
+            .length""")
+        p.evaluate("document.activeElement.blur()")
+        reached, unringed = set(), []
+        for _ in range(controls + 5):
+            p.keyboard.press("Tab")
+            key, ring = p.evaluate("""() => {
+                const e = document.activeElement, s = getComputedStyle(e);
+                const c = e.querySelector && e.querySelector('circle');
+                const ring = s.outlineStyle !== 'none' ||
+                    (c && getComputedStyle(c).stroke !== 'none');
+                const all = [...document.querySelectorAll('*')];
+                return [e.tagName + '#' + all.indexOf(e), ring];
+            }""")
+            if key.startswith("BODY#"):  # past the last control: the browser's own UI
+                continue
+            reached.add(key)
+            if not ring:
+                unringed.append(key)
+        assert len(reached) >= controls, view
+        assert unringed == [], view
+    assert page.errors == []
+
+
 def test_the_api_docs_load_offline(page: Page, server: LiveServer) -> None:
     """/docs is Swagger UI from files the package installs: it renders the OpenAPI
     without a request to any other host."""
