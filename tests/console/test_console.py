@@ -291,6 +291,40 @@ def test_the_jobs_list_follows_every_worlds_jobs_live(page: Page, server: LiveSe
     assert page.errors == []
 
 
+def test_a_committed_map_is_drawn_with_its_unknown_regions(page: Page, server: LiveServer,
+                                                           tmp_path: Path) -> None:
+    """A map made by ``chizu slam`` from the aces clip, uploaded to a world: its grid is
+    drawn where map.yaml puts it, and each unknown region the knowledge base holds is a
+    circle of its area at its centre."""
+    from typer.testing import CliRunner
+
+    from chizu.service.cli import app as cli
+
+    res = CliRunner().invoke(cli, ["slam", str(ROOT / "examples" / "aces-clip.clf"),
+                                   "--out", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    api(server, "POST", "/worlds", json={"name": "aces_c"})
+    api(server, "PUT", "/worlds/aces_c/map.chizu", content=(tmp_path / "map.chizu").read_bytes(),
+        headers={"content-type": "application/octet-stream"})
+    regions = api(server, "GET", "/worlds/aces_c/map")["regions"]
+    assert regions  # the clip leaves parts of the building unseen
+    p = page.open("#/map/aces_c")
+    assert p.locator("#layer-grid image").count() == 1
+    yaml = httpx.get(server.url + "/worlds/aces_c/map.yaml?max_px=2048").text
+    origin = [float(v) for v in yaml.split("origin: [")[1].split("]")[0].split(",")[:2]]
+    image = p.locator("#layer-grid image")
+    assert float(image.get_attribute("x")) == pytest.approx(origin[0])
+    circles = p.locator("#layer-regions circle")
+    assert circles.count() == len(regions)
+    for u in regions:
+        c = p.locator(f'#layer-regions circle[data-region="{u["id"]}"]')
+        assert float(c.get_attribute("cx")) == pytest.approx(u["x"])
+        assert float(c.get_attribute("cy")) == pytest.approx(-u["y"])
+        assert math.pi * float(c.get_attribute("r")) ** 2 == pytest.approx(u["area_m2"])
+    assert f"{len(regions)} unknown regions" in p.locator("#map-info").text_content()
+    assert page.errors == []
+
+
 def test_a_slam_run_moves_on_the_map_as_its_scans_arrive(page: Page,
                                                           server: LiveServer) -> None:
     """Scans posted by a robot (here: the test, over the API) reach the page as live

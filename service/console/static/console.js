@@ -314,7 +314,17 @@ async function drawGrid(w) {
   const m = await api("GET", worldPath(w, "/map"));
   // a large map comes downsampled to what a screen shows (walls kept)
   layer("grid").append(await mapImage(worldPath(w, "/map"), `?max_px=${MAP_PX}`));
-  return `committed map: run ${m.run}, ${(100 * m.explored_fraction).toFixed(0)} % explored`;
+  // the unknown regions the knowledge base holds (what the viewpoint planner explores):
+  // a circle of the region's area at its centre
+  for (const u of m.regions) {
+    const c = svg("circle", { class: "unknown-region", cx: u.x, cy: -u.y,
+      r: Math.sqrt(u.area_m2 / Math.PI), "data-region": u.id, "stroke-width": 2,
+      "stroke-dasharray": "5 3", "vector-effect": "non-scaling-stroke" });
+    c.append(svg("title", {}, `unknown region ${u.id}: ${u.area_m2.toFixed(2)} m²`));
+    layer("regions").append(c);
+  }
+  return `committed map: run ${m.run}, ${(100 * m.explored_fraction).toFixed(0)} % explored, ` +
+    `${m.regions.length} unknown regions`;
 }
 
 // -- SLAM runs: listed per world; one shown with its trajectory and map, kept current as
