@@ -4,8 +4,9 @@
     .venv/bin/python docs/_scripts/console_screenshots.py
 
 Writes docs/figures/console-*.png (1280 x 800): the demo world's map with a path found by
-clicking two landmarks, room A's eigenspace with a localization, the paper's Fig. 11(b)
-scene planned, a finished mission's steps, a Prolog query and the worlds.
+clicking two landmarks, room A's eigenspace with a localization and with a session of
+stops, a SLAM run of the aces clip shown with its map, the paper's Fig. 11(b) scene
+planned, a finished mission's steps, a Prolog query and the worlds.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import httpx
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
+from examples.post_scans import flaser_scans  # noqa: E402
 from tests.conftest import LiveServer  # noqa: E402
 from tests.console.test_console import ARGS, CHROMIUM, SMALL_EIGENSPACE  # noqa: E402
 
@@ -41,10 +43,19 @@ def main() -> None:
                 c.post("/worlds", json={"name": "room_a", "template": "room_a"})
                 learn = {"learning_strategy": None}
                 wait(c, c.post("/worlds/room_a/eigenspace", json=learn).json())
+                c.post("/worlds", json={"name": "room_a_coarse", "template": "room_a"})
+                wait(c, c.post("/worlds/room_a_coarse/eigenspace",
+                               json=SMALL_EIGENSPACE).json())
                 c.post("/worlds", json={"name": "room11b", "template": "fig11b"})
                 c.post("/worlds", json={"name": "mission", "template": "mission"})
                 wait(c, c.post("/worlds/mission/eigenspace", json=SMALL_EIGENSPACE).json())
                 wait(c, c.post("/worlds/mission/missions", json={"seed": 3}).json())
+                c.post("/worlds", json={"name": "aces"})
+                rid = c.post("/worlds/aces/slam-runs", json={"method": "graph"}).json()["id"]
+                scans = flaser_scans(str(ROOT / "examples" / "aces-clip.clf"), 40.0)
+                for i in range(0, len(scans), 100):
+                    c.post(f"/worlds/aces/slam-runs/{rid}/scans",
+                           json={"scans": scans[i:i + 100]}).raise_for_status()
             with sync_playwright() as p:
                 b = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
                 page = b.new_page(viewport={"width": 1280, "height": 800})
@@ -62,6 +73,32 @@ def main() -> None:
                 page.click("#localize-form button")
                 page.wait_for_selector("#localize-result p[class^=state-]", timeout=60_000)
                 page.screenshot(path=OUT / "console-eigenspace.png")
+
+                # a session where one turn is not enough: a coarse eigenspace
+                page.select_option("#world-select", "room_a_coarse")
+                page.wait_for_function("document.body.dataset.world === 'room_a_coarse'")
+                for k, v in (("x", 1.3), ("y", 1.2), ("theta", 0.5)):
+                    page.fill(f"#localize-form input[name={k}]", str(v))
+                page.click("#session-start")
+                page.wait_for_selector("#localize-result p[data-state=x]")
+                for _ in range(3):
+                    n = page.locator("#session-stops li").count()
+                    page.click("#session-stop")
+                    page.wait_for_selector(f"#session-stops li:nth-child({n + 1})",
+                                           timeout=60_000)
+                    if page.locator("#session-move").is_disabled():
+                        break  # Z
+                    page.click("#session-move")
+                    page.wait_for_selector("#localize-result p[data-move]")
+                page.locator("#session-stops").scroll_into_view_if_needed()
+                page.screenshot(path=OUT / "console-session.png")
+
+                page.select_option("#world-select", "aces")
+                page.wait_for_function("document.body.dataset.world === 'aces'")
+                page.click(f'#slam-runs button[data-run="{rid}"]')
+                page.wait_for_selector(f"#slam-runs[data-shown='{rid}']")
+                page.locator("#slam-runs").scroll_into_view_if_needed()
+                page.screenshot(path=OUT / "console-slam-run.png")
 
                 page.select_option("#world-select", "room11b")
                 page.wait_for_function(

@@ -329,7 +329,7 @@ async function drawGrid(w) {
 
 // -- SLAM runs: listed per world; one shown with its trajectory and map, kept current as
 // its scans arrive (the map at most every 2 s: a run's grid is redrawn on request) --------
-const runs = { shown: null, refreshing: false, again: false, last: 0, timer: null };
+const runs = { shown: null, refreshing: false, again: false, last: 0, timer: null, fit: false };
 
 async function loadRuns(w) {
   const list = await api("GET", worldPath(w, "/slam-runs"));
@@ -352,6 +352,7 @@ async function showRun(rid) {
   }
   layer("runmap").replaceChildren();
   delete $("#slam-runs").dataset.shown;
+  runs.fit = Boolean(rid); // the view takes in the run's map once it is drawn
   if (rid) await refreshRun();
 }
 
@@ -370,6 +371,15 @@ async function refreshRun() {
     line.setAttribute("points", t.poses.map((p) => `${p[0]},${-p[1]}`).join(" "));
     line.dataset.scans = t.poses.length;
     layer("runmap").replaceChildren(...(image ? [image] : []));
+    if (runs.fit && image) {
+      runs.fit = false;
+      const [x, y] = [+image.getAttribute("x"), -image.getAttribute("y")];
+      const [w, h] = [+image.getAttribute("width"), +image.getAttribute("height")];
+      const b = worldBounds(state.description);
+      const empty = !state.description.walls.length && !state.description.landmarks.length;
+      fit(empty ? [x, y - h, x + w, y] : [Math.min(b[0], x), Math.min(b[1], y - h),
+        Math.max(b[2], x + w), Math.max(b[3], y)]);
+    }
     $("#slam-runs").dataset.shown = rid;
     $("#slam-runs").dataset.scans = t.poses.length;
   } catch (e) { showProblem($("#status"), e); }
