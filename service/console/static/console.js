@@ -209,6 +209,9 @@ function layer(name) { return $(`#layer-${name}`); }
 async function drawMap(refit) {
   if (!state.world) return;
   const w = state.world;
+  // the DRM is asked at once: on a large world its first answer after a change (the
+  // relations' closure) is the slowest request of the page
+  const drm = api("GET", worldPath(w, "/drm")).catch(() => null);
   const d = await api("GET", worldPath(w));
   state.description = d;
   // what the world holds, as listed (artifact events keep it current)
@@ -272,7 +275,7 @@ async function drawMap(refit) {
   const info = [`${d.landmarks.length} landmarks, ${d.walls.length} walls, ${d.objects.length} objects`];
   await Promise.all([
     loadRuns(w),
-    drawDrm(w, placed, r).then((n) => info.push(`DRM: ${n} edges`)),
+    drawDrm(drm, placed, r).then((n) => info.push(`DRM: ${n} edges`)),
     has.has("saved_map") ? drawGrid(w).then((t) => info.push(t)) : null,
     has.has("eigenspace") ? drawEigen(w, r).then((t) => info.push(t)) : null,
   ]);
@@ -280,9 +283,9 @@ async function drawMap(refit) {
   applyLayerToggles();
 }
 
-async function drawDrm(w, placed, r) {
-  let drm;
-  try { drm = await api("GET", worldPath(w, "/drm")); } catch { return 0; }
+async function drawDrm(pending, placed, r) {
+  const drm = await pending;
+  if (!drm) return 0;
   const g = layer("drm");
   for (const e of drm.edges) {
     const a = placed[e.from], b = placed[e.to];
