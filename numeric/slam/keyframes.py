@@ -304,12 +304,14 @@ class LikelihoodField:
                 continue
             occ = np.zeros(self.shape, dtype=bool)
             occ[cells[m, 0], cells[m, 1]] = True
-            val = np.zeros(self.shape, dtype=np.float32)
-            if kf_intensity is not None:
+            if kf_intensity is None:  # the nearest return's intensity stays 0
+                d = ndimage.distance_transform_edt(~occ)
+            else:
+                val = np.zeros(self.shape, dtype=np.float32)
                 val[cells[m, 0], cells[m, 1]] = kf_intensity[m]
-            d, (ix, iy) = ndimage.distance_transform_edt(~occ, return_indices=True)
+                d, (ix, iy) = ndimage.distance_transform_edt(~occ, return_indices=True)
+                self.inten[b] = val[ix, iy]
             self.dist2[b] = np.minimum((d * res) ** 2, self.cut2)
-            self.inten[b] = val[ix, iy]
 
     def residual(self, xy: np.ndarray, intensity: np.ndarray | None, alpha: float) -> np.ndarray:
         """Per point (any leading shape, last axis 2, keyframe frame) the capped

@@ -24,6 +24,7 @@ from chizu.numeric.slam.keyframes import (
 )
 from chizu.numeric.slam.matching.likelihood_field import (
     Beams,
+    FieldArena,
     FieldPack,
     LoopGrid,
     MatchModel,
@@ -768,3 +769,40 @@ def test_relocalisation_from_where_the_old_map_never_was() -> None:
     assert len(near.reloc_refused) == 3
     assert all(shift > 20.0 and bound == pytest.approx(4.0)
                for _, shift, bound in near.reloc_refused)
+
+
+def test_a_field_arena_packs_what_field_pack_of_packs(room: World) -> None:
+    """The kept reference's packs (:class:`FieldArena`): each field copied once into a
+    growing buffer, packs of overlapping sets read the same values as
+    :meth:`FieldPack.of` of the same fields, also after the buffer grew or was compacted,
+    and a pack made earlier still reads its own values after later ones."""
+    rng = np.random.default_rng(0)
+    fields = []
+    for i in range(8):
+        p = np.array([2.0 + 0.5 * i, 3.0, 0.1 * i])
+        xy, inten = Laser(room, LASER).scan(0.0, p, p, rng).points()
+        fields.append(LikelihoodField(Keyframe(i, xy, inten), FieldConfig(),
+                                      np.array([0.0, 0.5, np.inf])))
+
+    def values(fp: FieldPack, k: int) -> tuple[np.ndarray, np.ndarray]:
+        off, nb, nx, ny = fp.meta[k]
+        n = nb * nx * ny
+        return fp.grid[off:off + n].copy(), fp.inten[off:off + n].copy()
+
+    arena = FieldArena(True)
+    sets = [[0, 1, 2], [1, 2, 3], [2, 3, 4, 5], [5, 6, 7], [0, 7], [1, 2, 3]]
+    made = []
+    for ids in sets:
+        fp = arena.pack([fields[i] for i in ids])
+        want = FieldPack.of([fields[i] for i in ids], True)
+        for k in range(len(ids)):
+            got, exp = values(fp, k), values(want, k)
+            assert np.array_equal(got[0], exp[0]) and np.array_equal(got[1], exp[1])
+        assert np.array_equal(fp.origins, want.origins) and fp.inv_res == want.inv_res
+        made.append((ids, fp, [values(fp, k) for k in range(len(ids))]))
+    for ids, fp, vals in made:  # earlier packs untouched by later ones
+        for k in range(len(ids)):
+            assert all(np.array_equal(a, b) for a, b in zip(values(fp, k), vals[k],
+                                                            strict=True))
+    assert len(arena._grid) <= 2 * FieldArena.COMPACT * sum(
+        fields[i].dist2.size for i in range(8))  # bounded by compaction

@@ -87,6 +87,53 @@ class FieldPack(NamedTuple):
         return FieldPack(grid, inten, meta, origins, 1.0 / fields[0].res)
 
 
+class FieldArena:
+    """:class:`FieldPack` s of a sequence of mostly overlapping field sets (the best
+    particle's reference, asked for on every scan), each field copied once: fields go
+    into one growing float32 buffer and a pack is their offsets in it. The buffer is only
+    appended to, or replaced by a new one when full (compacted to the asked fields when
+    it mostly holds fields no longer asked for), so a pack made earlier stays valid. A
+    pack reads the same values as :meth:`FieldPack.of` of the same fields."""
+
+    #: compact when the buffer would hold more than this many times the asked fields
+    COMPACT = 2
+
+    def __init__(self, with_intensity: bool) -> None:
+        self.with_intensity = with_intensity
+        self._grid = np.empty(0, dtype=np.float32)
+        self._inten = np.empty(0 if with_intensity else 1, dtype=np.float32)
+        self._used = 0
+        self._at: dict[int, tuple[int, LikelihoodField]] = {}  # id(field) -> offset
+
+    def pack(self, fields: list[LikelihoodField]) -> FieldPack:
+        asked = {id(f): f for f in fields}
+        live = sum(f.dist2.size for f in asked.values())
+        new = [f for k, f in asked.items() if k not in self._at]
+        need = sum(f.dist2.size for f in new)
+        if self._used + need > len(self._grid):
+            if self._used + need > self.COMPACT * live:
+                self._at, self._used, new, need = {}, 0, list(asked.values()), live
+            cap = 2 * (self._used + need)
+            grid = np.empty(cap, dtype=np.float32)
+            grid[:self._used] = self._grid[:self._used]
+            self._grid = grid
+            if self.with_intensity:
+                inten = np.empty(cap, dtype=np.float32)
+                inten[:self._used] = self._inten[:self._used]
+                self._inten = inten
+        for f in new:
+            n = f.dist2.size
+            self._grid[self._used:self._used + n] = f.dist2.ravel()
+            if self.with_intensity:
+                self._inten[self._used:self._used + n] = f.inten.ravel()
+            self._at[id(f)] = (self._used, f)  # the field kept: its id stays its own
+            self._used += n
+        meta = np.array([(self._at[id(f)][0], *f.dist2.shape) for f in fields],
+                        dtype=np.int64).reshape(-1, 4)
+        origins = np.array([f.origin for f in fields], dtype=float).reshape(-1, 2)
+        return FieldPack(self._grid, self._inten, meta, origins, 1.0 / fields[0].res)
+
+
 class MatchModel(NamedTuple):
     """The matcher's constants, derived once from its config: ``cut2`` the residual cap
     ρ_max² (m²), ``inv_2s2`` = 1 / (2σ²) of the likelihood field (1/m²) and the

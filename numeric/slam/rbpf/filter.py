@@ -44,7 +44,7 @@ from chizu.numeric.slam.alignment import (
 from chizu.numeric.slam.gated import inside_gate
 from chizu.numeric.slam.keyframes import FieldCache, Keyframes, moved, voxel_downsample
 from chizu.numeric.slam.matching.intensity_icp import Reference, intensity_icp
-from chizu.numeric.slam.matching.likelihood_field import Beams, FieldPack
+from chizu.numeric.slam.matching.likelihood_field import Beams, FieldArena, FieldPack
 from chizu.numeric.slam.pose_graph import GraphConfig
 from chizu.numeric.slam.rbpf.config import RbpfConfig
 from chizu.numeric.slam.rbpf.improved import improved_update, robust_start
@@ -100,6 +100,7 @@ class RbpfSlam(AlignedOutputs):
         #: the scan matcher's constants, derived once
         self.model = cfg.improved.model(cfg.field.cutoff_m)
         self._kept_pack: tuple[tuple[tuple[int, ...], bool], FieldPack] | None = None
+        self._arenas = {w: FieldArena(w) for w in (False, True)}  # for the kept packs
         p = cfg.particles
         self.x = np.zeros((p, 3))
         self.logw = np.zeros(p)
@@ -334,18 +335,18 @@ class RbpfSlam(AlignedOutputs):
                    keep: bool = False) -> FieldPack:
         """:meth:`FieldPack.of` the keyframes ``ids``; with ``keep`` the pack is kept for
         the next call with ``keep`` (one pack: the best particle's reference, asked for
-        on every scan and mostly the same keyframes from one scan to the next). A
-        keyframe's field never changes, so a kept pack is the one :meth:`FieldPack.of`
+        on every scan and mostly the same keyframes from one scan to the next) and made
+        by a :class:`FieldArena`, which copies only the fields the last packs lacked. A
+        keyframe's field never changes, so a kept pack reads what :meth:`FieldPack.of`
         would build; its fields are still asked of the field cache, which keeps them as
         recently used as before."""
         key = (tuple(int(k) for k in ids), with_intensity)
         fields = [self.fields.get(k) for k in key[0]]
-        if keep and self._kept_pack is not None and self._kept_pack[0] == key:
-            return self._kept_pack[1]
-        fp = FieldPack.of(fields, with_intensity)
-        if keep:
-            self._kept_pack = (key, fp)
-        return fp
+        if not keep:
+            return FieldPack.of(fields, with_intensity)
+        if self._kept_pack is None or self._kept_pack[0] != key:
+            self._kept_pack = (key, self._arenas[with_intensity].pack(fields))
+        return self._kept_pack[1]
 
     def best_map(self, u: np.ndarray, inten: np.ndarray | None,
                  ) -> tuple[np.ndarray, FieldPack, float]:
