@@ -90,13 +90,13 @@ class FieldPack(NamedTuple):
 class FieldArena:
     """:class:`FieldPack` s of a sequence of mostly overlapping field sets (the best
     particle's reference, asked for on every scan), each field copied once: fields go
-    into one growing float32 buffer and a pack is their offsets in it. The buffer is only
-    appended to, or replaced by a new one when full (compacted to the asked fields when
-    it mostly holds fields no longer asked for), so a pack made earlier stays valid. A
-    pack reads the same values as :meth:`FieldPack.of` of the same fields."""
+    into one float32 buffer and a pack is their offsets in it. When a pack's new fields
+    no longer fit, a new buffer of ``HEADROOM`` times the asked fields is made with them
+    alone (the old one stays with the packs that use it), so a pack made earlier stays
+    valid. A pack reads the same values as :meth:`FieldPack.of` of the same fields."""
 
-    #: compact when the buffer would hold more than this many times the asked fields
-    COMPACT = 2
+    #: a new buffer's size over the asked fields': room for the next fields to come
+    HEADROOM = 2.5
 
     def __init__(self, with_intensity: bool) -> None:
         self.with_intensity = with_intensity
@@ -107,20 +107,13 @@ class FieldArena:
 
     def pack(self, fields: list[LikelihoodField]) -> FieldPack:
         asked = {id(f): f for f in fields}
-        live = sum(f.dist2.size for f in asked.values())
         new = [f for k, f in asked.items() if k not in self._at]
-        need = sum(f.dist2.size for f in new)
-        if self._used + need > len(self._grid):
-            if self._used + need > self.COMPACT * live:
-                self._at, self._used, new, need = {}, 0, list(asked.values()), live
-            cap = 2 * (self._used + need)
-            grid = np.empty(cap, dtype=np.float32)
-            grid[:self._used] = self._grid[:self._used]
-            self._grid = grid
+        if self._used + sum(f.dist2.size for f in new) > len(self._grid):
+            live = sum(f.dist2.size for f in asked.values())
+            self._at, self._used, new = {}, 0, list(asked.values())
+            self._grid = np.empty(int(self.HEADROOM * live), dtype=np.float32)
             if self.with_intensity:
-                inten = np.empty(cap, dtype=np.float32)
-                inten[:self._used] = self._inten[:self._used]
-                self._inten = inten
+                self._inten = np.empty(len(self._grid), dtype=np.float32)
         for f in new:
             n = f.dist2.size
             self._grid[self._used:self._used + n] = f.dist2.ravel()
