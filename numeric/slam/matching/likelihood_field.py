@@ -96,7 +96,7 @@ class FieldArena:
     valid. A pack reads the same values as :meth:`FieldPack.of` of the same fields."""
 
     #: a new buffer's size over the asked fields': room for the next fields to come
-    HEADROOM = 2.5
+    HEADROOM = 1.5
 
     def __init__(self, with_intensity: bool) -> None:
         self.with_intensity = with_intensity

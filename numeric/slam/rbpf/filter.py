@@ -348,6 +348,14 @@ class RbpfSlam(AlignedOutputs):
             self._kept_pack = (key, self._arenas[with_intensity].pack(fields))
         return self._kept_pack[1]
 
+    def finish(self) -> int:
+        """:meth:`AlignedOutputs.finish`, the kept reference's buffers let go first: the
+        end-of-run alignment and the map built after it need the memory, and a scan
+        that comes later packs its reference anew (the same values)."""
+        self._kept_pack = None
+        self._arenas = {w: FieldArena(w) for w in (False, True)}
+        return super().finish()
+
     def best_map(self, u: np.ndarray, inten: np.ndarray | None,
                  ) -> tuple[np.ndarray, FieldPack, float]:
         """The keyframes the best particle's reference is made of at ``x_best (+) u``
