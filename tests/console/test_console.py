@@ -86,6 +86,15 @@ def api(server: LiveServer, method: str, path: str, **kw: Any) -> Any:
     return r.json() if r.content else None
 
 
+def learn(server: LiveServer, world: str) -> None:
+    """Learn ``world``'s coarse eigenspace (:data:`SMALL_EIGENSPACE`) and wait for it."""
+    job = api(server, "POST", f"/worlds/{world}/eigenspace", json=SMALL_EIGENSPACE)
+    deadline = time.monotonic() + 300
+    while api(server, "GET", f"/jobs/{job['id']}")["status"] in ("queued", "running"):
+        assert time.monotonic() < deadline
+        time.sleep(0.5)
+
+
 def test_the_demo_world_renders_its_landmarks_walls_and_drm(page: Page,
                                                             server: LiveServer) -> None:
     p = page.open()
@@ -180,11 +189,7 @@ def test_worlds_are_created_and_deleted_from_the_console(page: Page,
 def test_a_mission_started_from_the_console_shows_its_steps_live(
         page: Page, server: LiveServer) -> None:
     api(server, "POST", "/worlds", json={"name": "mission_c", "template": "mission"})
-    job = api(server, "POST", "/worlds/mission_c/eigenspace", json=SMALL_EIGENSPACE)
-    deadline = time.monotonic() + 300
-    while api(server, "GET", f"/jobs/{job['id']}")["status"] in ("queued", "running"):
-        assert time.monotonic() < deadline
-        time.sleep(0.5)
+    learn(server, "mission_c")
     p = page.open("#/mission")
     p.select_option("#world-select", "mission_c")
     p.click("#mission-form button[type=submit]")
@@ -218,14 +223,10 @@ def test_localization_once_and_as_a_session_of_stops(page: Page, server: LiveSer
     console's states and candidates are those the API gives for the same turns and the
     odometry between them (the previous stop's frame)."""
     api(server, "POST", "/worlds", json={"name": "loc_c", "template": "room_a"})
-    job = api(server, "POST", "/worlds/loc_c/eigenspace", json=SMALL_EIGENSPACE)
-    deadline = time.monotonic() + 300
-    while api(server, "GET", f"/jobs/{job['id']}")["status"] in ("queued", "running"):
-        assert time.monotonic() < deadline
-        time.sleep(0.5)
-    pt = api(server, "GET", "/worlds/loc_c/eigenspace")["points"][0]
+    learn(server, "loc_c")
+    eigenspace = api(server, "GET", "/worlds/loc_c/eigenspace")
+    pt, directions = eigenspace["points"][0], eigenspace["directions"]
     pose = {"x": round(pt["x"] + 0.3, 3), "y": round(pt["y"] + 0.2, 3), "theta": 0.5}
-    directions = api(server, "GET", "/worlds/loc_c/eigenspace")["directions"]
 
     def turn(at: dict[str, float]) -> str:
         return api(server, "POST", "/worlds/loc_c/camera", json={

@@ -101,7 +101,8 @@ class FieldArena:
     def __init__(self, with_intensity: bool) -> None:
         self.with_intensity = with_intensity
         self._grid = np.empty(0, dtype=np.float32)
-        self._inten = np.empty(0 if with_intensity else 1, dtype=np.float32)
+        # without intensities the kernels get FieldPack.of's one dummy value
+        self._inten = np.zeros(0 if with_intensity else 1, dtype=np.float32)
         self._used = 0
         self._at: dict[int, tuple[int, LikelihoodField]] = {}  # id(field) -> offset
 
