@@ -375,6 +375,70 @@ def test_the_sample_scores_are_the_matchers_scores_pose_by_pose(bands: int,
         assert out[j] == expect
 
 
+@pytest.mark.parametrize("bands,alpha", [(1, 0.0), (1, 0.05), (3, 0.05)])
+def test_the_loop_grids_cost_is_the_matchers_score(bands: int, alpha: float) -> None:
+    """The loop search's grid cost (each beam's best keyframe only, no gradient) is, to
+    the bit, what :func:`score` gives over all keyframes at each pose."""
+    from chizu.numeric.slam.matching.likelihood_field import (
+        Workspace,
+        _grid_cost,
+        score,
+    )
+
+    rng = np.random.default_rng(4)
+    res, cut2, n_k, n_b = 0.05, 0.04, 5, 50
+    metas, grids, ints, off = [], [], [], 0
+    for _ in range(n_k):
+        nx, ny = rng.integers(20, 40, size=2)
+        grids.append(rng.uniform(0.0, 0.1, bands * nx * ny).astype(np.float32))
+        ints.append(rng.uniform(0.0, 1.0, bands * nx * ny).astype(np.float32))
+        metas.append((off, bands, nx, ny))
+        off += bands * nx * ny
+    fields = FieldPack(np.concatenate(grids), np.concatenate(ints),
+                       np.array(metas, dtype=np.int64), rng.uniform(-0.6, -0.3, (n_k, 2)),
+                       1 / res)
+    th = rng.uniform(-0.2, 0.2, n_k)
+    kpose = np.column_stack([np.cos(th), np.sin(th), rng.uniform(-0.2, 0.2, (n_k, 2))])
+    beams = Beams(rng.uniform(-0.5, 0.5, (n_b, 2)), rng.uniform(0.0, 1.0, n_b), alpha)
+    ws = Workspace(np.full((n_b, 2), -1, dtype=np.int64), np.empty((6, n_b)),
+                   np.empty((2, n_b), dtype=np.int64))
+    h, g = np.zeros((3, 3)), np.zeros(3)
+    capped = 0
+    for pose in rng.uniform([-0.2, -0.2, -0.3], [0.2, 0.2, 0.3], size=(40, 3)):
+        expect, inl = score(*pose, beams, fields, kpose, cut2, 0, ws, h, g, False)
+        assert _grid_cost(*pose, beams, fields, kpose, cut2, ws) == expect
+        capped += n_b - inl
+    assert 0 < capped < 40 * n_b  # some beams capped, some not
+
+
+def test_the_starts_split_over_threads_give_the_same_increment(room: World) -> None:
+    """The multi-start match's starts are matched independently: split over two or more
+    threads they give, to the bit, the increment and winner one thread gives, also when
+    a start other than the odometry's wins."""
+    from chizu.numeric.slam.rbpf.proposal import Starts, robust_increment
+
+    p0 = np.array([4.0, 3.0, 0.3])
+    scan = Laser(room, LASER).scan(0.0, p0, p0, np.random.default_rng(3))
+    xy, _ = scan.points()
+    fp = FieldPack.of([LikelihoodField(Keyframe(0, xy, None), FieldConfig(), None)], False)
+    kf = p0.reshape(1, 1, 3)
+    beams = Beams(xy[np.linspace(0, len(xy) - 1, 90).astype(int)], np.zeros(90), 0.0)
+    model = MatchModel(0.09, 200.0, 12)
+    starts = Starts(np.array([0.0, -0.1, 0.1, -0.2, 0.2, -0.35, 0.35]),
+                    np.array([-0.6, -0.4, -0.2, 0.2, 0.4]), 50.0, True)
+    sig = np.array([0.05, 0.05, 0.05])
+    won_other = False
+    for u in ([0.0, 0.0, 0.0], [0.0, 0.0, 0.3], [0.4, 0.0, 0.0]):
+        # the robot stood still at p0; its odometry says it moved by u
+        one = robust_increment(p0, np.asarray(u), sig, beams, fp, kf, model, starts, 1)
+        won_other |= one[1] != 0
+        for threads in (2, 5):
+            more = robust_increment(p0, np.asarray(u), sig, beams, fp, kf, model, starts,
+                                    threads)
+            assert np.array_equal(one[0], more[0]) and one[1] == more[1]
+    assert won_other
+
+
 def test_a_far_wall_is_a_surface_and_a_depth_jump_is_not() -> None:
     """With ``connect_gap_m`` a keyframe's likelihood field is made of the polyline through
     its returns: a beam hitting a wall 20 m away between two returns (0.35 m apart at

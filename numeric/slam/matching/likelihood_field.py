@@ -653,8 +653,6 @@ def _loop_grid(center: np.ndarray, beams: Beams, fields: FieldPack, kpose: np.nd
     """:func:`loop_search`'s grid for the heading indices ``a_from .. a_to - 1``: its
     poses ``(N, 3)`` (heading, then x, then y) and their capped costs ``(N,)``."""
     ws = new_workspace(beams.pts.shape[0])
-    h = np.zeros((3, 3))
-    g = np.zeros(3)
     step = grid.step
     nxy = int(round(grid.radius / step))
     n = (2 * nxy + 1) * (2 * nxy + 1) * (a_to - a_from)
@@ -667,10 +665,43 @@ def _loop_grid(center: np.ndarray, beams: Beams, fields: FieldPack, kpose: np.nd
                 poses[q, 0] = center[0] + i * step
                 poses[q, 1] = center[1] + j * step
                 poses[q, 2] = center[2] + a * grid.angle_step
-                cost[q], _ = score(poses[q, 0], poses[q, 1], poses[q, 2], beams, fields,
-                                    kpose, grid.coarse2, 0, ws, h, g, False)
+                cost[q] = _grid_cost(poses[q, 0], poses[q, 1], poses[q, 2], beams, fields,
+                                     kpose, grid.coarse2, ws)
                 q += 1
     return poses, cost
+
+
+@njit(cache=True, nogil=True)
+def _grid_cost(x: float, y: float, th: float, beams: Beams, fields: FieldPack,
+               kpose: np.ndarray, cut2: float, ws: Workspace) -> float:
+    """Σ_b ρ_b at pose (x, y, th): what :func:`score` gives in mode 0, to the bit (each
+    beam's minimum over the keyframes, summed in the same order), without what only the
+    matcher reads (the second best, the gradients, the inliers)."""
+    c = math.cos(th)
+    s = math.sin(th)
+    pts = beams.pts
+    n_b = pts.shape[0]
+    work = ws.work
+    wx, wy, best = work[0], work[1], work[2]
+    for b in range(n_b):
+        wx[b] = x + c * pts[b, 0] - s * pts[b, 1]
+        wy[b] = y + s * pts[b, 0] + c * pts[b, 1]
+        best[b] = cut2
+    use_i = beams.alpha > 0.0
+    for k in range(kpose.shape[0]):
+        kf = _keyframe(kpose, fields, k)
+        geo = kf[5] == 1 and not use_i
+        for b in range(n_b):
+            qx, qy = _to_keyframe(kf, wx[b], wy[b])
+            found, val, _, _ = _beam_value(fields, kf, geo, qx, qy,
+                                           beams.li[b] if use_i else 0.0, beams.alpha,
+                                           cut2, best[b], False)
+            if found:
+                best[b] = val
+    total = 0.0
+    for b in range(n_b):
+        total += best[b]
+    return total
 
 
 @njit(cache=True, nogil=True)

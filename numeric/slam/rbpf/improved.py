@@ -47,13 +47,14 @@ def robust_start(slam: RbpfSlam, u: np.ndarray, beams: Beams, fields: FieldPack,
     map ``kf_best (K, 1, 3)``) from ``x_best (+) u``. It scores the starts with the fixed
     motion model, not the learned one: it is what finds the odometry's failures, the
     tail a spread learned from the core does not cover. Returns the increment and
-    which start won (0: the odometry's)."""
+    which start won (0: the odometry's). The starts are split over the filter's
+    threads."""
     cfg, imp = slam.config, slam.config.improved
     starts = Starts(np.asarray(imp.start_headings_rad, dtype=float),
                     np.asarray(imp.start_shifts_m, dtype=float), float(imp.start_margin), True)
     inc, won = robust_increment(slam.x[slam.best], u, cfg.motion.sigmas(u), beams, fields,
-                                np.ascontiguousarray(kf_best), slam.model, starts)
-    return np.asarray(inc), int(won)
+                                kf_best, slam.model, starts, cfg.threads)
+    return inc, won
 
 
 def improved_update(slam: RbpfSlam, u: np.ndarray, xy: np.ndarray,

@@ -75,7 +75,8 @@ class HeadingCalibration:
         # prior is off), so the best start is the one the scan alone fits best
         starts = Starts(np.asarray(self.config.lag_headings_rad, dtype=float), np.zeros(0),
                         0.0, False)
-        inc, _ = robust_increment(x0, u, np.full(3, 1e6), beams, fp, kf, slam.model, starts)
+        inc, _ = robust_increment(x0, u, np.full(3, 1e6), beams, fp, kf, slam.model, starts,
+                                  slam.config.threads)
         pose = compose(x0, np.asarray(inc))
         inl = count_inliers(pose, beams, fp, kf, (2.0 * imp.sigma_m) ** 2)
         if inl < max(imp.min_inliers, imp.min_match_fraction * len(beams.pts)):

@@ -57,11 +57,12 @@ from chizu.numeric.slam.matching.likelihood_field import (
     score_offsets,
     solve3,
 )
+from chizu.numeric.threads import thread_map
 
 _LOG_2PI = math.log(2.0 * math.pi)
 
 __all__ = ["Sampling", "Starts", "count_inliers", "gaussian_fit", "loglik_all",
-           "propose_all", "robust_increment", "sample_steps"]
+           "match_starts", "propose_all", "robust_increment", "sample_steps"]
 
 
 class Sampling(NamedTuple):
@@ -191,10 +192,9 @@ def sample_steps(h: np.ndarray, inv_s2: float, sig: np.ndarray, floor: np.ndarra
             out[i] = max(sig[i], floor[i])
 
 
-@njit(cache=True, nogil=True)
 def robust_increment(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, beams: Beams,
                      fields: FieldPack, kf_pose: np.ndarray, model: MatchModel,
-                     starts: Starts) -> tuple[np.ndarray, int]:
+                     starts: Starts, threads: int = 1) -> tuple[np.ndarray, int]:
     """The increment from ``x0`` (one particle, ``kf_pose (K, 1, 3)`` its map) to the best
     of several scan matches started at ``x0 (+) u`` turned by each of ``starts.headings``
     or moved along its heading by each of ``starts.shifts``, best by ``log p(z|m,x) +
@@ -205,21 +205,50 @@ def robust_increment(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, beams: Beam
     and odometry can read forward while the robot backs up (beyond the field's cutoff),
     so the shifted starts are matched on the scan alone, the motion model (sure of the
     wrong odometry) only scoring the result. The particles being close, one robust
-    start serves them all. Also returns which start won (0: the odometry's own)."""
+    start serves them all. Also returns which start won (0: the odometry's own).
+
+    The starts are matched independently (:func:`match_starts`), split over ``threads``
+    threads; the choice among them is the same whatever their number."""
+    kf_pose = np.ascontiguousarray(kf_pose)
+    n = starts.headings.shape[0] + starts.shifts.shape[0]
+    parts = np.array_split(np.arange(n), max(1, min(threads, n)))
+    done = thread_map(lambda q: match_starts(x0, u, sig, beams, fields, kf_pose, model,
+                                             starts, int(q[0]), int(q[-1]) + 1),
+                      parts, threads)
+    hats = np.concatenate([d[0] for d in done])
+    scores = np.concatenate([d[1] for d in done])
+    # the odometry's start wins ties and keeps a margin; among the others, the first best
+    adjusted = np.where(np.isnan(scores), -np.inf, scores)
+    adjusted[0] += starts.margin
+    won = int(np.argmax(adjusted))
+    return _increment(x0, hats[won]), won
+
+
+def _increment(x0: np.ndarray, hat: np.ndarray) -> np.ndarray:
+    """The increment from ``x0`` to ``hat`` in ``x0``'s frame."""
+    c, s = math.cos(x0[2]), math.sin(x0[2])
+    dx, dy = hat[0] - x0[0], hat[1] - x0[1]
+    return np.array([c * dx + s * dy, -s * dx + c * dy, wrap_scalar(hat[2] - x0[2])])
+
+
+@njit(cache=True, nogil=True)
+def match_starts(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, beams: Beams,
+                 fields: FieldPack, kf_pose: np.ndarray, model: MatchModel, starts: Starts,
+                 q_from: int, q_to: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`robust_increment`'s starts ``q_from .. q_to - 1`` (headings first, then
+    shifts), each matched by :func:`scan_match`: the matched poses ``(n, 3)`` and their
+    scores ``log p(z|m,x) + log p(x|x0,u)`` ``(n,)``."""
     kpose = np.empty((kf_pose.shape[0], 4))
     kposes(kf_pose, 0, kpose)
     ws = new_workspace(beams.pts.shape[0])
     h = np.zeros((3, 3))
-    c0 = math.cos(x0[2])
-    s0 = math.sin(x0[2])
     start = np.empty(3)
-    best = -np.inf
-    out = u.copy()
-    won = 0
     prior = _prior(x0, u, sig, starts.use_prior)
     free = _prior(x0, u, sig, False)
     ns = starts.headings.shape[0]
-    for q in range(ns + starts.shifts.shape[0]):
+    hats = np.empty((q_to - q_from, 3))
+    scores = np.empty(q_to - q_from)
+    for q in range(q_from, q_to):
         start[:] = prior[0]  # x0 (+) u, turned by a heading or moved along it by a shift
         if q < ns:
             start[2] += starts.headings[q]
@@ -230,18 +259,10 @@ def robust_increment(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, beams: Beam
         # odometry, would pull it back to the odometry's (wrong) place
         hat, cost, _ = scan_match(start, beams, fields, kpose, model, ws, h,
                                   prior if q < ns else free)
-        score_ = -cost * model.inv_2s2 + _motion_logp(x0, u, sig, hat[0], hat[1], hat[2])
-        if best == -np.inf:
-            score_ += starts.margin
-        if score_ > best:
-            best = score_
-            won = q
-            dx = hat[0] - x0[0]
-            dy = hat[1] - x0[1]
-            out[0] = c0 * dx + s0 * dy
-            out[1] = -s0 * dx + c0 * dy
-            out[2] = wrap_scalar(hat[2] - x0[2])
-    return out, won
+        hats[q - q_from] = hat
+        scores[q - q_from] = (-cost * model.inv_2s2
+                              + _motion_logp(x0, u, sig, hat[0], hat[1], hat[2]))
+    return hats, scores
 
 
 @njit(cache=True, nogil=True)
