@@ -21,8 +21,9 @@ from chizu.service.schemas.jobs import JobOut
 from chizu.service.settings import Settings
 from tests.conftest import make_fig1_world, observation
 
-#: a learning long enough to be caught running: full-size images, the learning strategy
-LONG = {"learning_strategy": {"target_probability": 1.0, "max_additions": 3}}
+#: a learning long enough to be caught running (full-size images on the 2 m grid, some
+#: 15 s) and short enough to run again after a restart
+LONG = {"learning_strategy": None}
 
 
 def wait_status(get: Any, statuses: tuple[str, ...], timeout_s: float = 120) -> dict[str, Any]:
