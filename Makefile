@@ -39,8 +39,8 @@ browser:
 run: install
 	$(VENV)/bin/chizu serve
 
-# two pytest workers (pytest-xdist): the suite runs in about 7 minutes instead of 11 on
-# a 2-core machine; `PYTEST_WORKERS=0 make test` runs it in one process
+# two pytest workers (pytest-xdist), one per core of the machines it runs on;
+# `PYTEST_WORKERS=0 make test` runs it in one process
 PYTEST_WORKERS ?= 2
 test: install browser
 	$(PY) -m pytest -n $(PYTEST_WORKERS)
