@@ -341,11 +341,13 @@ class SlamApi:
                 f"/worlds/{segment(world)}/slam-runs/{segment(rid)}/trajectory",
                         params={'format': format}), TrajectoryOut)
 
-    def get_map_png(self, world: str, rid: str) -> bytes:
+    def get_map_png(self, world: str, rid: str, *, max_px: int | None = None) -> bytes:
         """GET /worlds/{world}/slam-runs/{rid}/map.png: The map of the best hypothesis: free
-        white, unknown grey, walls coloured by received intensity."""
+        white, unknown grey, walls coloured by received intensity; its origin and resolution
+        are in ``map.yaml`` (ask both with the same ``max_px``)."""
         return self._t.call(Request('GET',
-                f"/worlds/{segment(world)}/slam-runs/{segment(rid)}/map.png"), bytes)
+                f"/worlds/{segment(world)}/slam-runs/{segment(rid)}/map.png",
+                        params={'max_px': max_px}), bytes)
 
     def get_map_pgm(self, world: str, rid: str) -> bytes:
         """GET /worlds/{world}/slam-runs/{rid}/map.pgm: ROS map_server image (0 occupied, 254
@@ -353,10 +355,12 @@ class SlamApi:
         return self._t.call(Request('GET',
                 f"/worlds/{segment(world)}/slam-runs/{segment(rid)}/map.pgm"), bytes)
 
-    def get_map_yaml(self, world: str, rid: str) -> bytes:
-        """GET /worlds/{world}/slam-runs/{rid}/map.yaml: ROS map_server metadata for map.pgm."""
+    def get_map_yaml(self, world: str, rid: str, *, max_px: int | None = None) -> bytes:
+        """GET /worlds/{world}/slam-runs/{rid}/map.yaml: ROS map_server metadata for map.pgm
+        (with ``max_px``, of the downsampled ``map.png``)."""
         return self._t.call(Request('GET',
-                f"/worlds/{segment(world)}/slam-runs/{segment(rid)}/map.yaml"), bytes)
+                f"/worlds/{segment(world)}/slam-runs/{segment(rid)}/map.yaml",
+                        params={'max_px': max_px}), bytes)
 
     def post_commit(self, world: str, rid: str) -> CommitOut:
         """POST /worlds/{world}/slam-runs/{rid}/commit: Make this run's map the world's map:
@@ -838,11 +842,13 @@ class AsyncSlamApi:
                 f"/worlds/{segment(world)}/slam-runs/{segment(rid)}/trajectory",
                         params={'format': format}), TrajectoryOut)
 
-    async def get_map_png(self, world: str, rid: str) -> bytes:
+    async def get_map_png(self, world: str, rid: str, *, max_px: int | None = None) -> bytes:
         """GET /worlds/{world}/slam-runs/{rid}/map.png: The map of the best hypothesis: free
-        white, unknown grey, walls coloured by received intensity."""
+        white, unknown grey, walls coloured by received intensity; its origin and resolution
+        are in ``map.yaml`` (ask both with the same ``max_px``)."""
         return await self._t.call(Request('GET',
-                f"/worlds/{segment(world)}/slam-runs/{segment(rid)}/map.png"), bytes)
+                f"/worlds/{segment(world)}/slam-runs/{segment(rid)}/map.png",
+                        params={'max_px': max_px}), bytes)
 
     async def get_map_pgm(self, world: str, rid: str) -> bytes:
         """GET /worlds/{world}/slam-runs/{rid}/map.pgm: ROS map_server image (0 occupied, 254
@@ -850,10 +856,12 @@ class AsyncSlamApi:
         return await self._t.call(Request('GET',
                 f"/worlds/{segment(world)}/slam-runs/{segment(rid)}/map.pgm"), bytes)
 
-    async def get_map_yaml(self, world: str, rid: str) -> bytes:
-        """GET /worlds/{world}/slam-runs/{rid}/map.yaml: ROS map_server metadata for map.pgm."""
+    async def get_map_yaml(self, world: str, rid: str, *, max_px: int | None = None) -> bytes:
+        """GET /worlds/{world}/slam-runs/{rid}/map.yaml: ROS map_server metadata for map.pgm
+        (with ``max_px``, of the downsampled ``map.png``)."""
         return await self._t.call(Request('GET',
-                f"/worlds/{segment(world)}/slam-runs/{segment(rid)}/map.yaml"), bytes)
+                f"/worlds/{segment(world)}/slam-runs/{segment(rid)}/map.yaml",
+                        params={'max_px': max_px}), bytes)
 
     async def post_commit(self, world: str, rid: str) -> CommitOut:
         """POST /worlds/{world}/slam-runs/{rid}/commit: Make this run's map the world's map:

@@ -68,7 +68,9 @@ class Run(ScanRun):
     slam: Slam | None = None
     #: a resumed run's poses in the world's map, once committed
     resumed: np.ndarray | None = None
-    _map: tuple[tuple[int, bool], OccupancyMap] | None = None
+    #: the run's map at (scans, aligned), and drawn at (scans, aligned, max_side)
+    _full: tuple[tuple[int, bool], OccupancyMap] | None = None
+    _map: tuple[tuple[int, bool, int], OccupancyMap] | None = None
 
     @property
     def estimator(self) -> Slam:
@@ -139,16 +141,25 @@ class SlamService(ScanRuns[Run]):
                 p = run.resumed
             return t, p
 
-    async def grid(self, world: str, rid: str) -> OccupancyMap:
+    async def grid(self, world: str, rid: str, max_side: int | None = None) -> OccupancyMap:
+        """The run's map as the estimator has it now, with at most ``max_side`` cells a
+        side if given (:meth:`OccupancyMap.downsampled`); built once per scan count and
+        size."""
         run = await self._run(world, rid)
         async with run.lock:
             if run.scans == 0:
                 raise Conflict("the run has no scans yet: post scans first", field="run")
-            key = (run.scans, run.estimator.aligned)
-            if run._map is None or run._map[0] != key:
-                g = await asyncio.to_thread(build_occupancy, run.estimator.keyframes.frames,
-                                            run.estimator.map_poses(), run.options.map_resolution_m)
-                run._map = (key, g)
+            state = (run.scans, run.estimator.aligned)
+            if run._full is None or run._full[0] != state:
+                run._full = (state, await asyncio.to_thread(
+                    build_occupancy, run.estimator.keyframes.frames,
+                    run.estimator.map_poses(), run.options.map_resolution_m))
+                run._map = None
+            if max_side is None:
+                return run._full[1]
+            if run._map is None or run._map[0] != (*state, max_side):
+                run._map = ((*state, max_side),
+                            await asyncio.to_thread(run._full[1].downsampled, max_side))
             return run._map[1]
 
     async def commit(self, world: str, rid: str) -> CommitOut:

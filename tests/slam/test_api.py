@@ -77,6 +77,26 @@ def test_maps(client: TestClient, world: str, run: str) -> None:
     assert pgm.content.startswith(b"P5\n")
     yaml = client.get(f"/worlds/{world}/slam-runs/{run}/map.yaml").text
     assert "image: map.pgm" in yaml and "origin:" in yaml
+    # a long run's map is drawn smaller: blocks of cells merged, the YAML to match
+    small = client.get(f"/worlds/{world}/slam-runs/{run}/map.png?max_px=16")
+    meta = client.get(f"/worlds/{world}/slam-runs/{run}/map.yaml?max_px=16").text
+    width, height = int.from_bytes(small.content[16:20], "big"), \
+        int.from_bytes(small.content[20:24], "big")  # the PNG's IHDR
+    full_w, full_h = int.from_bytes(png.content[16:20], "big"), \
+        int.from_bytes(png.content[20:24], "big")
+    f = -(-max(full_w, full_h) // 16)  # cells merged a side
+    assert max(width, height) <= 16 and (width, height) == (-(-full_w // f), -(-full_h // f))
+
+    def resolution(y: str) -> float:
+        return float(y.split("resolution: ")[1].split()[0])
+
+    assert resolution(meta) == pytest.approx(f * resolution(yaml))
+    assert meta.split("origin:")[1] == yaml.split("origin:")[1]  # the same corner
+    # the full-size map is still the full-size map, and a size out of range is refused
+    assert client.get(f"/worlds/{world}/slam-runs/{run}/map.png").content == png.content
+    for bad in ("0", "15", "x", "20001"):
+        r = client.get(f"/worlds/{world}/slam-runs/{run}/map.png?max_px={bad}")
+        assert r.status_code == 422 and r.json()["field"] == "max_px", (bad, r.text)
 
 
 def test_commit_asserts_facts(client: TestClient, world: str, run: str) -> None:

@@ -77,12 +77,19 @@ async def get_trajectory(world: WorldDep, rid: RunId, slam: SlamDep,
     return TrajectoryOut(t=t.tolist(), poses=np.round(p, 6).tolist())
 
 
+#: a drawing's size: a map downsampled to at most this many pixels a side
+MaxPx = Annotated[int | None, Query(ge=16, le=20_000, description="at most this many "
+                                    "pixels a side: blocks of cells merged, walls kept")]
+
+
 @router.get("/slam-runs/{rid}/map.png", response_class=Response,
             responses={200: {"content": {"image/png": {}}}})
-async def get_map_png(world: WorldDep, rid: RunId, slam: SlamDep) -> Response:
+async def get_map_png(world: WorldDep, rid: RunId, slam: SlamDep,
+                      max_px: MaxPx = None) -> Response:
     """The map of the best hypothesis: free white, unknown grey, walls coloured by
-    received intensity."""
-    return Response((await slam.grid(world, rid)).to_png(), media_type="image/png")
+    received intensity; its origin and resolution are in ``map.yaml`` (ask both with the
+    same ``max_px``)."""
+    return Response((await slam.grid(world, rid, max_px)).to_png(), media_type="image/png")
 
 
 @router.get("/slam-runs/{rid}/map.pgm", response_class=Response,
@@ -95,9 +102,11 @@ async def get_map_pgm(world: WorldDep, rid: RunId, slam: SlamDep) -> Response:
 
 @router.get("/slam-runs/{rid}/map.yaml", response_class=Response,
             responses={200: {"content": {"application/yaml": {}}}})
-async def get_map_yaml(world: WorldDep, rid: RunId, slam: SlamDep) -> Response:
-    """ROS map_server metadata for map.pgm."""
-    return Response((await slam.grid(world, rid)).to_yaml("map.pgm"),
+async def get_map_yaml(world: WorldDep, rid: RunId, slam: SlamDep,
+                       max_px: MaxPx = None) -> Response:
+    """ROS map_server metadata for map.pgm (with ``max_px``, of the downsampled
+    ``map.png``)."""
+    return Response((await slam.grid(world, rid, max_px)).to_yaml("map.pgm"),
                     media_type="application/yaml")
 
 
@@ -129,10 +138,6 @@ async def put_saved_map(world: WorldDep, request: Request, slam: SlamDep) -> Com
     or one saved from another world, is a 422 naming ``map``; nothing is changed then."""
     return await slam.upload(world, await request.body())
 
-
-#: a drawing's size: the committed map downsampled to at most this many pixels a side
-MaxPx = Annotated[int | None, Query(ge=16, le=20_000, description="at most this many "
-                                    "pixels a side: blocks of cells merged, walls kept")]
 
 
 @router.get("/map.png", response_class=Response,

@@ -3,7 +3,7 @@
 // (textContent, setAttribute), never as markup.
 
 const SVG = "http://www.w3.org/2000/svg";
-const MAP_PX = 2048; // a committed map is drawn from at most this many pixels a side
+const MAP_PX = 2048; // a map, committed or a run's, is drawn from at most this many px a side
 const $ = (sel, root = document) => root.querySelector(sel);
 
 // -- the API ------------------------------------------------------------------------
@@ -368,7 +368,7 @@ async function refreshRun() {
   try {
     const base = worldPath(w, `/slam-runs/${enc(rid)}`);
     const [t, image] = await Promise.all([api("GET", `${base}/trajectory`),
-      mapImage(`${base}/map`, "").catch(() => null)]); // no scan yet: no map
+      mapImage(`${base}/map`, `?max_px=${MAP_PX}`).catch(() => null)]); // no scan yet: no map
     if (runs.shown !== rid || state.world !== w) return;
     const line = trajectoryLine(rid, "SLAM");
     line.setAttribute("points", t.poses.map((p) => `${p[0]},${-p[1]}`).join(" "));
