@@ -336,6 +336,25 @@ def test_lookup_is_the_bilinear_minimum_over_intensity_bands() -> None:
             assert (val, gx, gy) == (bound, 0.0, 0.0)
 
 
+def random_keyframes(rng: np.random.Generator, bands: int, n_k: int,
+                     res: float) -> tuple[FieldPack, np.ndarray]:
+    """``n_k`` keyframes of random likelihood fields (``bands`` intensity bands each, cells
+    of ``res``) near the origin, and their poses as the kernels take them (cos, sin, x,
+    y)."""
+    metas, grids, ints, off = [], [], [], 0
+    for _ in range(n_k):
+        nx, ny = rng.integers(20, 40, size=2)
+        grids.append(rng.uniform(0.0, 0.1, bands * nx * ny).astype(np.float32))
+        ints.append(rng.uniform(0.0, 1.0, bands * nx * ny).astype(np.float32))
+        metas.append((off, bands, nx, ny))
+        off += bands * nx * ny
+    fields = FieldPack(np.concatenate(grids), np.concatenate(ints),
+                       np.array(metas, dtype=np.int64), rng.uniform(-0.6, -0.3, (n_k, 2)),
+                       1 / res)
+    th = rng.uniform(-0.2, 0.2, n_k)
+    return fields, np.column_stack([np.cos(th), np.sin(th), rng.uniform(-0.2, 0.2, (n_k, 2))])
+
+
 @pytest.mark.parametrize("bands,alpha", [(1, 0.0), (1, 0.05), (3, 0.05)])
 def test_the_sample_scores_are_the_matchers_scores_pose_by_pose(bands: int,
                                                                 alpha: float) -> None:
@@ -345,25 +364,14 @@ def test_the_sample_scores_are_the_matchers_scores_pose_by_pose(bands: int,
 
     rng = np.random.default_rng(3)
     res, cut2, n_k, n_b = 0.05, 0.09, 6, 40
-    metas, grids, ints, off = [], [], [], 0
-    for _ in range(n_k):
-        nx, ny = rng.integers(20, 40, size=2)
-        grids.append(rng.uniform(0.0, 0.1, bands * nx * ny).astype(np.float32))
-        ints.append(rng.uniform(0.0, 1.0, bands * nx * ny).astype(np.float32))
-        metas.append((off, bands, nx, ny))
-        off += bands * nx * ny
-    grid, gint = np.concatenate(grids), np.concatenate(ints)
-    meta = np.array(metas, dtype=np.int64)
-    origins = rng.uniform(-0.6, -0.3, size=(n_k, 2))
-    th = rng.uniform(-0.2, 0.2, n_k)
-    kpose = np.column_stack([np.cos(th), np.sin(th), rng.uniform(-0.2, 0.2, (n_k, 2))])
+    fields, kpose = random_keyframes(rng, bands, n_k, res)
     pts = rng.uniform(-0.5, 0.5, size=(n_b, 2))
     li = rng.uniform(0.0, 1.0, n_b)
     hat = np.array([0.02, -0.01, 0.03])
     h, g = np.zeros((3, 3)), np.zeros(3)
     cand = np.full((n_b, 2), -1, dtype=np.int64)
     ws = Workspace(cand, np.empty((6, n_b)), np.empty((2, n_b), dtype=np.int64))
-    beams, fields = Beams(pts, li, alpha), FieldPack(grid, gint, meta, origins, 1 / res)
+    beams = Beams(pts, li, alpha)
     score(*hat, beams, fields, kpose, cut2, 1, ws, h, g, True)
     assert (cand >= 0).any() and (cand < 0).any()
     offs = np.array([(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)],
@@ -387,18 +395,7 @@ def test_the_loop_grids_cost_is_the_matchers_score(bands: int, alpha: float) -> 
 
     rng = np.random.default_rng(4)
     res, cut2, n_k, n_b = 0.05, 0.04, 5, 50
-    metas, grids, ints, off = [], [], [], 0
-    for _ in range(n_k):
-        nx, ny = rng.integers(20, 40, size=2)
-        grids.append(rng.uniform(0.0, 0.1, bands * nx * ny).astype(np.float32))
-        ints.append(rng.uniform(0.0, 1.0, bands * nx * ny).astype(np.float32))
-        metas.append((off, bands, nx, ny))
-        off += bands * nx * ny
-    fields = FieldPack(np.concatenate(grids), np.concatenate(ints),
-                       np.array(metas, dtype=np.int64), rng.uniform(-0.6, -0.3, (n_k, 2)),
-                       1 / res)
-    th = rng.uniform(-0.2, 0.2, n_k)
-    kpose = np.column_stack([np.cos(th), np.sin(th), rng.uniform(-0.2, 0.2, (n_k, 2))])
+    fields, kpose = random_keyframes(rng, bands, n_k, res)
     beams = Beams(rng.uniform(-0.5, 0.5, (n_b, 2)), rng.uniform(0.0, 1.0, n_b), alpha)
     ws = Workspace(np.full((n_b, 2), -1, dtype=np.int64), np.empty((6, n_b)),
                    np.empty((2, n_b), dtype=np.int64))
