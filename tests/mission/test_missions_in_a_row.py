@@ -97,14 +97,16 @@ def test_out_of_replans_the_mission_ends_at_navigate(
 
 
 def test_missions_in_a_row_do_as_well_as_on_a_fresh_world(services: Services) -> None:
-    """Three seeds one after another on one world, each beside the same seed on a fresh
-    world: the history (reached and failed arcs, earlier maps) breaks none that succeeds
-    fresh, every arc driven or failed is counted in the DRM, and the world's map serves
-    the next mission's laser localization and grows with its way."""
+    """Three seeds one after another on one world: the history (reached and failed arcs,
+    earlier maps) breaks none that succeeds fresh (a seed that fails in the row is run
+    again on a fresh world, which must fail too), every arc driven or failed is counted
+    in the DRM, and the world's map serves the next mission's laser localization and
+    grows with its way."""
     rows = {seed: mission(services, "row", seed) for seed in range(3)}
     for seed, run in rows.items():
-        fresh = mission(services, f"fresh{seed}", seed)
-        assert run.success or not fresh.success, (seed, run.steps, fresh.steps)
+        if not run.success:  # only a seed that fails here needs its fresh twin to compare
+            fresh = mission(services, f"fresh{seed}", seed)
+            assert not fresh.success, (seed, run.steps, fresh.steps)
     # from the second mission on the world has a map: where the robot wakes on it, the
     # laser localizes it there, the eigenspace's answer is reported against the laser's
     # pose, and the mission's map extends the world's
