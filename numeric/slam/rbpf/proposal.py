@@ -43,7 +43,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from chizu.numeric.geometry import compose_into, wrap_scalar
+from chizu.numeric.geometry import compose_into, relative, wrap_scalar
 from chizu.numeric.slam.matching.likelihood_field import (
     Beams,
     FieldPack,
@@ -221,14 +221,7 @@ def robust_increment(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, beams: Beam
     adjusted = np.where(np.isnan(scores), -np.inf, scores)
     adjusted[0] += starts.margin
     won = int(np.argmax(adjusted))
-    return _increment(x0, hats[won]), won
-
-
-def _increment(x0: np.ndarray, hat: np.ndarray) -> np.ndarray:
-    """The increment from ``x0`` to ``hat`` in ``x0``'s frame."""
-    c, s = math.cos(x0[2]), math.sin(x0[2])
-    dx, dy = hat[0] - x0[0], hat[1] - x0[1]
-    return np.array([c * dx + s * dy, -s * dx + c * dy, wrap_scalar(hat[2] - x0[2])])
+    return relative(x0, hats[won]), won
 
 
 @njit(cache=True, nogil=True)
