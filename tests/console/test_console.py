@@ -17,6 +17,7 @@ from typing import Any
 import httpx
 import pytest
 
+from chizu.service.client import Client
 from tests.conftest import ROOT, LiveServer
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
@@ -88,11 +89,9 @@ def api(server: LiveServer, method: str, path: str, **kw: Any) -> Any:
 
 def learn(server: LiveServer, world: str) -> None:
     """Learn ``world``'s coarse eigenspace (:data:`SMALL_EIGENSPACE`) and wait for it."""
-    job = api(server, "POST", f"/worlds/{world}/eigenspace", json=SMALL_EIGENSPACE)
-    deadline = time.monotonic() + 300
-    while api(server, "GET", f"/jobs/{job['id']}")["status"] in ("queued", "running"):
-        assert time.monotonic() < deadline
-        time.sleep(0.5)
+    with Client(server.url, timeout_s=60) as c:
+        c.wait_job(c.eigenspace.post_eigenspace(world, SMALL_EIGENSPACE), timeout_s=300,
+                   poll_s=0.5)
 
 
 def test_the_demo_world_renders_its_landmarks_walls_and_drm(page: Page,
