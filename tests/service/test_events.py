@@ -79,6 +79,15 @@ def streams(server: LiveServer) -> int:
     return int(httpx.get(server.url + "/health").json()["event_streams"])
 
 
+def wait_streams(server: LiveServer, n: int, timeout_s: float = 40) -> int:
+    """The count of open streams once it is ``n`` or ``timeout_s`` has passed: a stream
+    its client left ends at the next event or keep-alive (every 15 s)."""
+    deadline = time.monotonic() + timeout_s
+    while (k := streams(server)) != n and time.monotonic() < deadline:
+        time.sleep(0.2)
+    return k
+
+
 def test_a_job_and_a_slam_run_are_seen_as_they_happen(server: LiveServer) -> None:
     c = httpx.Client(base_url=server.url, timeout=120)
     c.post("/worlds", json={"name": "ev", "template": "room_a"}).raise_for_status()
@@ -131,16 +140,15 @@ def test_every_worlds_jobs_are_on_the_service_wide_stream(server: LiveServer) ->
 def test_a_stream_ends_with_its_world_and_with_its_client(server: LiveServer) -> None:
     c = httpx.Client(base_url=server.url, timeout=60)
     c.post("/worlds", json={"name": "gone"}).raise_for_status()
-    before = streams(server)
+    assert wait_streams(server, 0) == 0  # the other tests' streams have closed
     s = Stream(server.url, "gone")
-    s.wait_for(lambda k, d: k == "open")
-    assert streams(server) == before + 1
-    c.delete("/worlds/gone").raise_for_status()
+    try:
+        s.wait_for(lambda k, d: k == "open")
+        assert streams(server) == 1
+    finally:  # the world's deletion ends the stream even when the count was wrong
+        c.delete("/worlds/gone").raise_for_status()
     s.wait_for(lambda k, d: k == "world_deleted")
-    deadline = time.monotonic() + 10
-    while streams(server) != before and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert streams(server) == before
+    assert wait_streams(server, 0, timeout_s=10) == 0
 
 
 def test_streams_are_capped_and_unknown_worlds_refused(server: LiveServer) -> None:
@@ -149,9 +157,7 @@ def test_streams_are_capped_and_unknown_worlds_refused(server: LiveServer) -> No
     r = httpx.get(server.url + "/worlds/Not-a-name/events")
     assert r.status_code == 422 and r.headers["content-type"] == "application/problem+json"
     httpx.post(server.url + "/worlds", json={"name": "capped"})
-    deadline = time.monotonic() + 30  # the other tests' streams have closed
-    while streams(server) and time.monotonic() < deadline:
-        time.sleep(0.2)
+    assert wait_streams(server, 0) == 0  # the other tests' streams have closed
     open_ = [Stream(server.url, "capped") for _ in range(3)]
     for s in open_:
         s.wait_for(lambda k, d: k == "open")
