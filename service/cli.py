@@ -325,8 +325,10 @@ def slam_localize(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .
                   out: str = typer.Option("localize-out", help="output directory")) -> None:
     """Localize LOG on a saved map, which stays as it is: global localization from an
     unknown start, tracking, and a new global fix when the robot is lost or carried
-    away. Writes OUT/trajectory.tum (the localized scans, with the log's stamps, in the
-    map's frame) and OUT/localization.json (time to the first fix, fixes, losses)."""
+    away. Writes OUT/trajectory.tum (the placed scans -- those tracked, and those
+    between tracked ones where the robot was off the map or lost, placed by local SLAM
+    and the alignment -- with the log's stamps, in the map's frame) and
+    OUT/localization.json (time to the first fix, fixes, losses)."""
     import json as json_
 
     from chizu.numeric.errors import InvalidInput
@@ -344,18 +346,20 @@ def slam_localize(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .
         raise typer.Exit(2) from None
     dest = Path(out)
     dest.mkdir(parents=True, exist_ok=True)
-    ok = run.localized
+    ok = run.placed
     write_tum(dest / "trajectory.tum", run.times[ok], run.poses[ok])
     t0 = float(run.times[0]) if len(run.times) else 0.0
     report = {"map": str(map_path(map_)), "log": data.name, "scans": len(data),
-              "localized": int(ok.sum()), "first_fix_s": run.first_fix_s(),
+              "localized": int(run.localized.sum()), "placed": int(ok.sum()),
+              "first_fix_s": run.first_fix_s(),
               "fixes_s": [round(f - t0, 3) for f in run.fixes],
               "losses_s": [round(f - t0, 3) for f in run.losses],
               "recoveries": max(0, len(run.fixes) - 1), "seconds": round(run.seconds, 3),
               "real_time_factor": round(data.duration_s / max(run.seconds, 1e-9), 1)}
     write_atomic(dest / "localization.json", json_.dumps(report, indent=1).encode())
     first = "never" if run.first_fix_s() is None else f"after {run.first_fix_s():.1f} s"
-    console.print(f"{int(ok.sum())} of {len(data)} scans localized; first fix {first}, "
+    console.print(f"{int(run.localized.sum())} of {len(data)} scans localized online, "
+                  f"{int(ok.sum())} placed; first fix {first}, "
                   f"{len(run.losses)} losses, {report['recoveries']} recoveries; "
                   f"{report['real_time_factor']}x real time; wrote {out}/trajectory.tum, "
                   "localization.json")

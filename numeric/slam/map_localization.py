@@ -30,9 +30,11 @@ AMCL reads a map (Thrun, Burgard, Fox, *Probabilistic Robotics*, §6.4):
    ``lost_scans`` scans in a row scoring below ``lost_score``, and the robot is lost:
    global localization again, at most every ``search_every_s`` of log time, until a
    new fix holds.
-5. **Alignment**, when a whole log is localized (:func:`localize_log`): graph SLAM's
-   global scan alignment (Lu & Milios 1997) of the localized scans with the map's
-   keyframes held (:func:`aligned_to_map`).
+5. **Alignment**, when a whole log is localized (:func:`localize_log`): the scans the
+   localizer could not place (off the map, or lost) placed by the motion estimate
+   between the placed ones around them (:func:`bridged`), then graph SLAM's global
+   scan alignment (Lu & Milios 1997) of every scan with the map's keyframes held
+   (:func:`align_on_map`).
 
 The map is never changed; the poses are in the map's frame.
 """
@@ -42,6 +44,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass, field
+from itertools import pairwise
 from typing import Literal
 
 import numpy as np
@@ -49,7 +52,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy import ndimage
 
 from chizu.numeric.errors import InvalidInput
-from chizu.numeric.geometry import compose, place, relative
+from chizu.numeric.geometry import compose, place, relative, wrap_angle
 from chizu.numeric.occupancy import OCCUPIED, UNKNOWN, build_occupancy_fitting
 from chizu.numeric.probability_grid import GridConfig, ProbabilityGrid, no_stamps
 from chizu.numeric.scan import LaserLog, Scan
@@ -61,6 +64,7 @@ from chizu.numeric.slam.alignment import (
     pairwise_matches,
 )
 from chizu.numeric.slam.graph.loop_closure import adaptive_voxel
+from chizu.numeric.slam.graph.scan_odometry import ScanOdometry
 from chizu.numeric.slam.keyframes import voxel_downsample
 from chizu.numeric.slam.matching.correlative import (
     Match,
@@ -89,7 +93,7 @@ class MapLocalizationConfig(BaseModel):
                                   description="points of the global search lie this near")
     global_step_rad: float = Field(float(np.deg2rad(1.0)), gt=0.0, le=0.2,
                                    description="the global search's angular step")
-    context_m: float = Field(3.0, ge=0.0, le=50.0,
+    context_m: float = Field(10.0, ge=0.0, le=50.0,
                              description="a global search matches the scans of this much "
                                          "recent travel together (odometry)")
     search_every_s: float = Field(1.0, ge=0.0,
@@ -119,13 +123,21 @@ class MapLocalizationConfig(BaseModel):
     lost_score: float = Field(0.35, gt=0.0, lt=1.0,
                               description="mean field value of the points on observed "
                                           "cells below which a scan does not fit")
-    off_map_m: float = Field(5.0, gt=0.0, description="travel off the map after which "
-                             "the pose is given up")
+    off_map_m: float = Field(60.0, gt=0.0, description="travel off the map after which "
+                             "the pose (carried by local SLAM) is given up")
     min_on_map: float = Field(0.3, ge=0.0, le=1.0,
                               description="share of a scan's points on observed cells "
                                           "below which it is off the map")
     lost_scans: int = Field(10, ge=1, le=10_000)
     gap_s: float = Field(2.0, gt=0.0, description="a longer gap in the log: relocalize")
+    bridge_m: float = Field(1.0, ge=0.0, description="scans between two placed ones are "
+                            "bridged (step 5) when local SLAM's path between them meets "
+                            "the second within this ...")
+    bridge_per_m: float = Field(0.05, ge=0.0, description="... plus this times the path's "
+                                "length ...")
+    bridge_rad: float = Field(0.2, ge=0.0, le=np.pi, description="... and this turn: else "
+                              "one of the two is in the wrong place and neither is trusted "
+                              "with the scans between")
 
 
 def likelihood_grid(saved: SavedMap, resolution_m: float, sigma_m: float
@@ -231,6 +243,10 @@ class MapLocalizer:
         self._history: list[tuple[np.ndarray, np.ndarray]] = []
         self._off_m = 0.0
         self._clouds = KeyframeClouds(self.saved, cfg.icp_keyframes, cfg.icp_radius_m)
+        self._scan_odometry: ScanOdometry | None = None
+        #: the last scan's pose by local SLAM alone (the motion estimate; its frame
+        #: starts again after a gap in the log)
+        self.odom: np.ndarray | None = None
         self._icp = IcpConfig(metric="line", max_correspondence_m=0.3)
         #: stamps of every fix taken, and of each time the robot was lost after one
         self.fixes: list[float] = []
@@ -243,20 +259,26 @@ class MapLocalizer:
     def process(self, scan: Scan) -> Step:
         xy, _ = scan.points()
         gap = self._t is not None and scan.t - self._t > self.config.gap_s
+        if self._scan_odometry is None:
+            self._scan_odometry = ScanOdometry()
+        elif gap:  # the robot may have been carried: a new local map
+            self._scan_odometry.restart()
+            self._history.clear()
+        odom = self.odom = self._scan_odometry(scan)
         if self.state != "searching" and gap:
             self._lose(scan.t)
-        prev_odom, self._odom, self._t = self._odom, scan.odom.copy(), scan.t
-        self._remember(scan.odom, xy)
+        prev_odom, self._odom, self._t = self._odom, odom.copy(), scan.t
+        self._remember(odom, xy)
         if self.state == "searching":
-            return self._search(scan, xy)
+            return self._search(scan.t, odom, xy)
         assert self.pose is not None and prev_odom is not None
-        predicted = compose(self.pose, relative(prev_odom, scan.odom))
+        predicted = compose(self.pose, relative(prev_odom, odom))
         pose, score, share = self.fit(xy, predicted)
         if share < self.config.min_on_map:
-            # off the map: odometry carries the pose until the scans see the map again,
-            # for ``off_map_m`` of travel; beyond, odometry has drifted too far to pick
-            # up the right walls on the way back, and a global search must find them
-            self._off_m += float(np.hypot(*relative(prev_odom, scan.odom)[:2]))
+            # off the map: local SLAM carries the pose until the scans see the map
+            # again, for ``off_map_m`` of travel; beyond, it may have drifted too far to
+            # pick up the right walls on the way back, and a global search must find them
+            self._off_m += float(np.hypot(*relative(prev_odom, odom)[:2]))
             if self._off_m > self.config.off_map_m:
                 self._lose(scan.t)
                 return Step(None, self.state, score)
@@ -275,7 +297,7 @@ class MapLocalizer:
         if self.state == "confirming":
             self._confirmed += 1
             if self._confirmed >= self.config.confirm_scans:
-                if not self._agrees(self.globally.fix(self._context(scan.odom)), pose):
+                if not self._agrees(self.globally.fix(self._context(odom)), pose):
                     self._lose(scan.t)
                     return Step(None, self.state, score)
                 self.state = "tracking"
@@ -293,12 +315,11 @@ class MapLocalizer:
         return bool(np.hypot(d[0], d[1]) <= self.config.unique_m
                     and abs(d[2]) <= self.config.confirm_rad)
 
-    def _search(self, scan: Scan, xy: np.ndarray) -> Step:
-        if (self._searched is not None
-                and scan.t - self._searched < self.config.search_every_s):
+    def _search(self, t: float, odom: np.ndarray, xy: np.ndarray) -> Step:
+        if self._searched is not None and t - self._searched < self.config.search_every_s:
             return Step(None, "searching", 0.0)
-        self._searched = scan.t
-        m = self.globally.fix(self._context(scan.odom))
+        self._searched = t
+        m = self.globally.fix(self._context(odom))
         if m is None:
             return Step(None, "searching", 0.0)
         pose, score, share = self.fit(xy, m.pose)
@@ -392,8 +413,8 @@ class MapLocalizer:
 
 @dataclass
 class LocalizationRun:
-    """A log localized on a map: per scan its stamp, pose (NaN where not localized)
-    and state; the stamps of the fixes and losses; seconds taken."""
+    """A log localized on a map: per scan its stamp, pose (NaN where not placed, see
+    :attr:`placed`) and online state; the stamps of the fixes and losses; seconds taken."""
 
     times: np.ndarray
     poses: np.ndarray
@@ -404,7 +425,14 @@ class LocalizationRun:
 
     @property
     def localized(self) -> np.ndarray:
+        """Per scan: the localizer was tracking it online."""
         return np.asarray([s == "tracking" for s in self.states])
+
+    @property
+    def placed(self) -> np.ndarray:
+        """Per scan: it has a pose after step 5 (tracked, or bridged between tracked
+        scans without a gap in the log)."""
+        return np.asarray(np.all(np.isfinite(self.poses), axis=1))
 
     def first_fix_s(self) -> float | None:
         """Log time from the first scan to the first fix (None: never)."""
@@ -422,29 +450,99 @@ def localize_log(saved: SavedMap, log: LaserLog,
         raise InvalidInput(why, field="map")
     t0 = time.perf_counter()
     poses = np.full((len(log), 3), np.nan)
+    odometry = np.empty((len(log), 3))
     states: list[State] = []
     for i, scan in enumerate(log.scans):
         step = loc.process(scan)
         if step.pose is not None and step.state == "tracking":
             poses[i] = step.pose
+        assert loc.odom is not None
+        odometry[i] = loc.odom
         states.append(step.state)
     c = loc.config
-    poses = aligned_to_map(saved, log, poses, AlignmentConfig(), c.icp_keyframes,
-                           c.icp_radius_m)
+    gaps = np.flatnonzero(np.diff(log.times) > c.gap_s) + 1
+    poses = bridged(poses, odometry, gaps, c)
+    pts = [voxel_downsample(s.points()[0], None, 0.05)[0] for s in log.scans]
+    poses = align_on_map(saved, pts, odometry, poses, AlignmentConfig(), c.icp_keyframes,
+                         c.icp_radius_m, starts=gaps)[0]
     return LocalizationRun(log.times, poses, states, loc.fixes, loc.losses,
                            time.perf_counter() - t0)
 
 
-def aligned_to_map(saved: SavedMap, log: LaserLog, poses: np.ndarray,
-                   config: AlignmentConfig, keyframes: int, radius_m: float) -> np.ndarray:
-    """Step 5, once the log is over: :func:`align_on_map` of the log's scans."""
-    pts = [voxel_downsample(s.points()[0], None, 0.05)[0] for s in log.scans]
-    return align_on_map(saved, pts, log.odometry, poses, config, keyframes, radius_m)[0]
+def bridged(poses: np.ndarray, odometry: np.ndarray, starts: np.ndarray,
+            config: MapLocalizationConfig) -> np.ndarray:
+    """Step 5's start, in each part of the log between ``starts`` (the first scans after
+    gaps in the log: a robot carried away is not bridged) on its own:
+
+    - The tracked stretches (runs of placed scans) must agree with local SLAM's path
+      (``odometry``) between them, as closely as its drift allows (``bridge_*``).
+      Starting from the longest, each next stretch on either side that does not is
+      dropped (its scans unplaced): it was a fix in a look-alike corridor of the map
+      while the robot was in a part the map never saw, metres and radians off where the
+      path puts it.
+    - The scans between two kept stretches follow the path dead-reckoned from both ends
+      and blended by the share of the way travelled, so that it meets both; before the
+      first kept stretch and after the last, it runs from the one end it has.
+
+    The alignment then places these scans finer by their matches to their neighbours in
+    time, as a SLAM run's scans are placed between its loop closures."""
+    out = np.full_like(poses, np.nan)
+    ok = np.all(np.isfinite(poses), axis=1)
+    for lo, hi in zip(np.concatenate([[0], starts]), np.concatenate([starts, [len(poses)]]),
+                      strict=True):
+        runs = np.flatnonzero(np.diff(np.concatenate([[0], ok[lo:hi].astype(int), [0]]))) + lo
+        stretches = list(zip(runs[::2], runs[1::2], strict=True))
+        if not stretches:
+            continue
+        best = max(range(len(stretches)), key=lambda k: stretches[k][1] - stretches[k][0])
+        kept = [stretches[best]]
+        for k in range(best + 1, len(stretches)):  # onwards from the longest
+            a, b = kept[-1][1] - 1, stretches[k][0]
+            if _meets(poses[a], poses[b], odometry[a:b + 1], config):
+                kept.append(stretches[k])
+        for k in range(best - 1, -1, -1):  # and back
+            a, b = stretches[k][1] - 1, kept[0][0]
+            if _meets(poses[a], poses[b], odometry[a:b + 1], config):
+                kept.insert(0, stretches[k])
+        for (_, a), (b, _) in pairwise(kept):
+            out[a - 1:b + 1] = _blend(poses[a - 1], poses[b], odometry[a - 1:b + 1])
+        for a, b in kept:
+            out[a:b] = poses[a:b]
+        first, last = kept[0][0], kept[-1][1] - 1
+        out[lo:first] = compose(poses[first], relative(odometry[first], odometry[lo:first]))
+        out[last + 1:hi] = compose(poses[last], relative(odometry[last],
+                                                         odometry[last + 1:hi]))
+    return out
+
+
+def _meets(start: np.ndarray, end: np.ndarray, odometry: np.ndarray,
+           config: MapLocalizationConfig) -> bool:
+    """Whether the path ``odometry`` (``(n, 3)``) from ``start`` ends near ``end``."""
+    misfit = relative(compose(start, relative(odometry[0], odometry[-1])), end)
+    path = float(np.hypot(*np.diff(odometry[:, :2], axis=0).T).sum())
+    return bool(np.hypot(misfit[0], misfit[1]) <= config.bridge_m + config.bridge_per_m * path
+                and abs(misfit[2]) <= config.bridge_rad)
+
+
+def _blend(start: np.ndarray, end: np.ndarray, odometry: np.ndarray) -> np.ndarray:
+    """The poses along ``odometry`` (``(n, 3)``) from ``start`` to ``end``: dead
+    reckoned forwards from ``start`` and backwards from ``end``, weighed by the share of
+    the odometry's path travelled (by turning, where it does not move)."""
+    fwd = compose(start, relative(odometry[0], odometry))
+    back = compose(end, relative(odometry[-1], odometry))
+    step = np.hypot(*np.diff(odometry[:, :2], axis=0).T)
+    if step.sum() < 1e-6:
+        step = np.abs(wrap_angle(np.diff(odometry[:, 2])))
+    path = np.concatenate([[0.0], np.cumsum(step)])
+    w = path / path[-1] if path[-1] > 0 else np.linspace(0.0, 1.0, len(odometry))
+    xy = (1 - w)[:, None] * fwd[:, :2] + w[:, None] * back[:, :2]
+    th = fwd[:, 2] + w * wrap_angle(back[:, 2] - fwd[:, 2])
+    return np.column_stack([xy, wrap_angle(th)])
 
 
 def align_on_map(saved: SavedMap, points: list[np.ndarray], odometry: np.ndarray,
                  poses: np.ndarray, config: AlignmentConfig, keyframes: int,
-                 radius_m: float, move_map: bool = False
+                 radius_m: float, move_map: bool = False, starts: np.ndarray | None = None
                  ) -> tuple[np.ndarray, list[PairwiseMatch], np.ndarray]:
     """Graph SLAM's global scan alignment (:mod:`chizu.numeric.slam.alignment`, Lu & Milios
     1997) of each stretch of placed scans (rows of ``poses`` that are finite; robot-frame
@@ -457,12 +555,17 @@ def align_on_map(saved: SavedMap, points: list[np.ndarray], odometry: np.ndarray
     overlap no single keyframe), and all are solved for at once. With ``move_map`` the
     keyframes are not held but bound by the map's own constraints, so a map that was
     off where the scans show it moves (a map being extended; localization leaves it as
-    it is). Returns the poses, the matches between the map and a scan (``a`` a
-    keyframe, ``b`` the scan: the pairwise ones, and each match to the nearest
-    keyframes' returns as one to the nearest keyframe), and the keyframes' poses."""
+    it is). A stretch also ends before each scan of ``starts`` (after a gap in the
+    log, where the motion estimate starts again). Returns the poses, the matches between
+    the map and a scan (``a`` a keyframe, ``b`` the scan: the pairwise ones, and each
+    match to the nearest keyframes' returns as one to the nearest keyframe), and the
+    keyframes' poses."""
     out = poses.copy()
     ok = np.all(np.isfinite(poses), axis=1)
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(int), [0]])))
+    runs = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(int), [0]])))
+    cuts = np.asarray([] if starts is None else starts, dtype=np.int64)
+    stretches = [(int(a), int(b)) for lo, hi in zip(runs[::2], runs[1::2], strict=True)
+                 for a, b in pairwise([lo, *cuts[(cuts > lo) & (cuts < hi)], hi])]
     held = len(saved)
     clouds = KeyframeClouds(saved, keyframes, radius_m)
     to_map: list[PairwiseMatch] = []
@@ -475,7 +578,7 @@ def align_on_map(saved: SavedMap, points: list[np.ndarray], odometry: np.ndarray
     map_edges = ([(int(a), int(b), d, cov, bool(k == loop))
                   for a, b, d, cov, k in zip(c.a, c.b, rest, c.cov, c.kind, strict=True)]
                  if move_map else None)
-    for lo, hi in zip(edges[::2], edges[1::2], strict=True):
+    for lo, hi in stretches:
         if hi - lo < 2:
             continue
         pts = points[lo:hi]

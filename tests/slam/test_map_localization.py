@@ -12,16 +12,22 @@ import pytest
 from typer.testing import CliRunner
 
 from chizu.numeric.errors import InvalidInput
-from chizu.numeric.geometry import compose
+from chizu.numeric.geometry import compose, relative, wrap_angle
 from chizu.numeric.scan import LaserLog
 from chizu.numeric.slam import saved_map as sm
-from chizu.numeric.slam.map_localization import LocalizationRun, localize_log
+from chizu.numeric.slam.graph import ScanOdometry
+from chizu.numeric.slam.map_localization import (
+    LocalizationRun,
+    MapLocalizationConfig,
+    bridged,
+    localize_log,
+)
 from chizu.numeric.slam.runner import SlamOptions, run_log
 from chizu.numeric.slam.simulate import drive, simulated_log
 from chizu.numeric.world import World
 from chizu.numeric.worlds import room_a
 from chizu.service.cli import app as cli
-from tests.slam.drives import MODERATE_ODOMETRY, ROOM_A_TOUR
+from tests.slam.drives import MODERATE_ODOMETRY, ODOMETRY_QUALITIES, ROOM_A_TOUR
 
 CLIP = Path(__file__).resolve().parents[2] / "examples" / "aces-clip.clf"
 #: where the second robot's odometry starts, unknown to the method
@@ -97,7 +103,8 @@ def test_the_cli_localizes_a_log_on_a_saved_map(tmp_path: Path) -> None:
     assert report["scans"] == 350 and report["localized"] > 300
     assert report["first_fix_s"] is not None and report["first_fix_s"] < 5.0
     lines = (tmp_path / "loc" / "trajectory.tum").read_text().splitlines()
-    assert len([ln for ln in lines if not ln.startswith("#")]) == report["localized"]
+    assert report["placed"] >= report["localized"]
+    assert len([ln for ln in lines if not ln.startswith("#")]) == report["placed"]
 
 
 @pytest.mark.parametrize("bad", ["missing", "garbage"])
@@ -110,3 +117,48 @@ def test_the_cli_refuses_a_bad_map_and_writes_nothing(tmp_path: Path, bad: str) 
                                    "--out", str(tmp_path / "loc")])
     assert res.exit_code == 2 and "map" in res.output
     assert not (tmp_path / "loc").exists()
+
+
+def test_local_slam_predicts_better_than_drifting_odometry() -> None:
+    """The localizer's motion estimate (local SLAM alone) keeps the heading where the
+    odometry's random-walks, and holds no submap grid it no longer matches against."""
+    b = drive(World(room_a()), ROOM_A_TOUR, ODOMETRY_QUALITIES["drifting"], None, 0.5,
+              np.random.default_rng(5), "drifting")
+    so = ScanOdometry()
+    est = np.array([so(s) for s in b.scans])
+
+    def heading_drift(p: np.ndarray) -> float:
+        d = relative(p[0], p)[:, 2] - relative(b.truth[0], b.truth)[:, 2]
+        return float(np.max(np.abs(wrap_angle(d))))
+
+    assert heading_drift(est) < 0.5 * heading_drift(b.odometry)
+    slam = so._slam
+    assert len(slam.submaps) > 3
+    assert all(not s.grid.prob.size for s in slam.submaps if s.finished)
+    so.restart()
+    assert np.allclose(so(b.scans[10]), b.scans[10].odom)
+
+
+def test_scans_between_placed_ones_are_bridged_within_stretches() -> None:
+    """Unplaced scans between two placed ones follow the motion estimate and meet both
+    ends; before the first and after the last placed scan of a part of the log they run
+    from the one end; a part with no placed scan stays unplaced."""
+    n = 40
+    odometry = np.column_stack([0.1 * np.arange(n), np.zeros(n), np.zeros(n)])
+    truth = compose(np.array([5.0, 2.0, 0.5]), odometry)
+    poses = np.full((n, 3), np.nan)
+    poses[[3, 10, 11]] = truth[[3, 10, 11]]
+    poses[10, :2] += 0.07  # the map's fix disagrees a little with the odometry
+    cfg = MapLocalizationConfig()
+    out = bridged(poses, odometry, np.array([20, 30]), cfg)
+    assert np.array_equal(out[[3, 10, 11]], poses[[3, 10, 11]])
+    assert np.allclose(out[:3], truth[:3]) and np.allclose(out[12:20], truth[12:20])
+    step = np.hypot(*np.diff(out[3:11, :2], axis=0).T)
+    assert np.all(np.abs(step - 0.1) < 0.02)  # the misfit spread along the way
+    assert np.isnan(out[20:]).all()
+    # a fix in the wrong place (turned, metres off), shorter than the right ones
+    # around it that agree with each other through the path, is dropped
+    poses[[14, 15, 16]] = truth[[14, 15, 16]]
+    poses[10:12] = compose(poses[10:12], np.array([3.0, 1.0, 1.2]))
+    out = bridged(poses, odometry, np.array([20, 30]), cfg)
+    assert np.allclose(out[:20], truth[:20]) and np.isnan(out[20:]).all()

@@ -11,6 +11,8 @@ One module per stage:
   Algorithms 2-3), with uniqueness, confirmation and a drift bound on the window;
 - :mod:`~chizu.numeric.slam.graph.slam`: the estimator, the pose graph on GTSAM's iSAM2
   (:mod:`chizu.numeric.slam.pose_graph`) and its outputs;
+- :mod:`~chizu.numeric.slam.graph.scan_odometry`: local SLAM alone as a motion estimate
+  (what localization on a saved map predicts each scan with);
 - :mod:`~chizu.numeric.slam.graph.config`: the parameters, one nested model per stage.
 """
 
@@ -22,9 +24,10 @@ from chizu.numeric.slam.graph.config import (
     SubmapConfig,
 )
 from chizu.numeric.slam.graph.loop_closure import LoopClosure, adaptive_voxel, tie
+from chizu.numeric.slam.graph.scan_odometry import ScanOdometry
 from chizu.numeric.slam.graph.slam import GraphSlam
 from chizu.numeric.slam.graph.submaps import LoopMap, Submap
 
 __all__ = ["GraphSlam", "GraphSlamConfig", "LocalSlamConfig", "LoopClosure",
-           "LoopClosureConfig", "LoopMap", "OdometryModelConfig", "Submap", "SubmapConfig",
-           "adaptive_voxel", "tie"]
+           "LoopClosureConfig", "LoopMap", "OdometryModelConfig", "ScanOdometry", "Submap",
+           "SubmapConfig", "adaptive_voxel", "tie"]

@@ -101,7 +101,9 @@ class LoopClosureConfig(BaseModel):
     """Loop closure (Hess et al. §V): branch-and-bound matches of nodes against finished
     submaps, verified before they become edges."""
 
-    every: int = Field(4, ge=1, description="nodes between loop-closure searches")
+    every: int | None = Field(4, ge=1, description="nodes between loop-closure searches "
+                              "(None: no loop closure -- local SLAM alone, "
+                              ":class:`~chizu.numeric.slam.graph.scan_odometry.ScanOdometry`)")
     max_distance_m: float = Field(15.0, gt=0)
     max_submaps: int = Field(1000, ge=1, description="nearest finished submaps searched in "
                              "the full window per node (tracked ones: all)")

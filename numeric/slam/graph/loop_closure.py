@@ -118,7 +118,7 @@ class LoopClosing:
                 # stitched grids overlap: each search round takes every (n+1)-th
                 # submap in turn, whose grids still cover all of them
                 stride = cfg.loop.neighbours + 1
-                if k % stride != (node // cfg.loop.every) % stride:
+                if k % stride != (node // (cfg.loop.every or 1)) % stride:
                     continue
                 wide += 1
             # the node's pose in the submap's (local-SLAM) frame, from the global estimate

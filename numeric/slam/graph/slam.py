@@ -121,7 +121,8 @@ class GraphSlam(Submaps, LocalSlam, LoopClosing, AlignedOutputs):
                                  else rotate_xy(weak, -self.local[last][2]))
         self.graph.add_odometry(last, node, u, self.odometry_sigmas(u))
         self.calibrate_odometry(u, self._free_heading if cfg.local.matching else None)
-        if node % cfg.loop.every == 0 and self.search_loops(node, pts):
+        if (cfg.loop.every is not None and node % cfg.loop.every == 0
+                and self.search_loops(node, pts)):
             self.graph.update()
             est = self.graph.estimate()
             self._global = est
@@ -191,6 +192,13 @@ class GraphSlam(Submaps, LocalSlam, LoopClosing, AlignedOutputs):
                            np.array([x[1] for x in e], dtype=np.int64),
                            np.array([x[2] for x in e]), np.array([x[3] for x in e]),
                            np.array([x[4] for x in e], dtype=np.int8))
+
+    def local_pose(self) -> np.ndarray:
+        """The latest scan's pose in the local-SLAM frame: local SLAM's estimate alone,
+        which no loop closure moves (zero before the first scan)."""
+        if not self._scan_node:
+            return np.zeros(3)
+        return compose(self.local[self._scan_node[-1]], self._scan_delta[-1])
 
     def _online_pose(self) -> np.ndarray:
         """The latest scan's pose on iSAM2's current estimate of its node."""
