@@ -244,13 +244,16 @@ class MapLocalizer:
         self._off_m = 0.0
         self._clouds = KeyframeClouds(self.saved, cfg.icp_keyframes, cfg.icp_radius_m)
         self._scan_odometry: ScanOdometry | None = None
-        #: the last scan's pose by local SLAM alone (the motion estimate; its frame
-        #: starts again after a gap in the log)
-        self.odom: np.ndarray | None = None
         self._icp = IcpConfig(metric="line", max_correspondence_m=0.3)
         #: stamps of every fix taken, and of each time the robot was lost after one
         self.fixes: list[float] = []
         self.losses: list[float] = []
+
+    @property
+    def odom(self) -> np.ndarray | None:
+        """The last scan's pose by local SLAM alone (the motion estimate; its frame
+        starts again after a gap in the log)."""
+        return self._odom
 
     def check_laser(self, laser: Laser) -> str | None:
         """What keeps this laser's scans from matching the map (None: nothing)."""
@@ -264,7 +267,7 @@ class MapLocalizer:
         elif gap:  # the robot may have been carried: a new local map
             self._scan_odometry.restart()
             self._history.clear()
-        odom = self.odom = self._scan_odometry(scan)
+        odom = self._scan_odometry(scan)
         if self.state != "searching" and gap:
             self._lose(scan.t)
         prev_odom, self._odom, self._t = self._odom, odom.copy(), scan.t
@@ -487,11 +490,9 @@ def bridged(poses: np.ndarray, odometry: np.ndarray, starts: np.ndarray,
     The alignment then places these scans finer by their matches to their neighbours in
     time, as a SLAM run's scans are placed between its loop closures."""
     out = np.full_like(poses, np.nan)
-    ok = np.all(np.isfinite(poses), axis=1)
     for lo, hi in zip(np.concatenate([[0], starts]), np.concatenate([starts, [len(poses)]]),
                       strict=True):
-        runs = np.flatnonzero(np.diff(np.concatenate([[0], ok[lo:hi].astype(int), [0]]))) + lo
-        stretches = list(zip(runs[::2], runs[1::2], strict=True))
+        stretches = [(a + lo, b + lo) for a, b in placed_runs(poses[lo:hi])]
         if not stretches:
             continue
         best = max(range(len(stretches)), key=lambda k: stretches[k][1] - stretches[k][0])
@@ -513,6 +514,14 @@ def bridged(poses: np.ndarray, odometry: np.ndarray, starts: np.ndarray,
         out[last + 1:hi] = compose(poses[last], relative(odometry[last],
                                                          odometry[last + 1:hi]))
     return out
+
+
+def placed_runs(poses: np.ndarray) -> list[tuple[int, int]]:
+    """The runs of rows of ``poses`` ``(n, 3)`` that are finite, as ``(first, past the
+    last)``."""
+    ok = np.all(np.isfinite(poses), axis=1).astype(int)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], ok, [0]])))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
 def _meets(start: np.ndarray, end: np.ndarray, odometry: np.ndarray,
@@ -561,10 +570,8 @@ def align_on_map(saved: SavedMap, points: list[np.ndarray], odometry: np.ndarray
     match to the nearest keyframes' returns as one to the nearest keyframe), and the
     keyframes' poses."""
     out = poses.copy()
-    ok = np.all(np.isfinite(poses), axis=1)
-    runs = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(int), [0]])))
     cuts = np.asarray([] if starts is None else starts, dtype=np.int64)
-    stretches = [(int(a), int(b)) for lo, hi in zip(runs[::2], runs[1::2], strict=True)
+    stretches = [(int(a), int(b)) for lo, hi in placed_runs(poses)
                  for a, b in pairwise([lo, *cuts[(cuts > lo) & (cuts < hi)], hi])]
     held = len(saved)
     clouds = KeyframeClouds(saved, keyframes, radius_m)
