@@ -244,8 +244,8 @@ def slam(log: str = typer.Argument(..., help="CARMEN .clf/.log or ROS .bag (or b
         from chizu.numeric.slam.merge import resume as resume_map
 
         try:
-            with console.status(f"placing {data.name} in {resume} and aligning"):
-                new, poses = resume_map(old, new, data)
+            with console.status(f"placing {data.name} in {resume} and closing loops"):
+                new, poses = resume_map(old, new)
         except InvalidInput as e:
             console.print(f"[red]{e}[/red]")
             raise typer.Exit(2) from None

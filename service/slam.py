@@ -25,11 +25,11 @@ import numpy as np
 
 from chizu.numeric.errors import Conflict, InvalidInput, NotFound
 from chizu.numeric.occupancy import OccupancyMap, build_occupancy
-from chizu.numeric.scan import LaserLog, Scan
+from chizu.numeric.scan import Scan
 from chizu.numeric.slam.merge import resume, runs_of
 from chizu.numeric.slam.runner import Slam, create, warm_up
 from chizu.numeric.slam.saved_map import SavedMap, from_bytes, saved_map, to_bytes
-from chizu.service.scan_runs import ScanRun, ScanRuns, to_scan
+from chizu.service.scan_runs import ScanRun, ScanRuns
 from chizu.service.schemas.common import PoseOut
 from chizu.service.schemas.slam import CommitOut, ScanIn, SlamRunIn, SlamRunListed, SlamRunOut
 from chizu.service.store import Store
@@ -186,12 +186,9 @@ class SlamService(ScanRuns[Run]):
             if f"SLAM run {rid}" in runs_of(base):
                 raise Conflict(f"SLAM run {rid!r} is already part of the world's map: a "
                                "resumed run joins it once", field="run")
-            rows = self.store.scans(self.kind, rid)
 
             def join() -> tuple[SavedMap, np.ndarray, OccupancyMap]:
-                log = LaserLog(f"SLAM run {rid}",
-                               [to_scan(ScanIn.model_validate(r)) for r in rows])
-                both, mine = resume(base, saved, log)
+                both, mine = resume(base, saved)
                 return both, mine, both.occupancy(run.options.map_resolution_m)
 
             saved, mine, g = await asyncio.to_thread(join)

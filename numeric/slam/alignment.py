@@ -275,8 +275,7 @@ def align_globally(poses: np.ndarray, odometry: np.ndarray, matches: Sequence[Pa
                    cfg: AlignmentConfig, noise: GraphConfig | None = None,
                    held: int = 0,
                    priors: Sequence[tuple[int, np.ndarray, np.ndarray]] = (),
-                   held_edges: Sequence[tuple[int, int, np.ndarray, np.ndarray, bool]] | None
-                   = None) -> np.ndarray:
+                   breaks: Sequence[int] = ()) -> np.ndarray:
     """Step 3: every scan's pose ``(N, 3)`` after one batch optimisation, from the
     online estimate ``poses``; ``odometry`` ``(N, 3)`` the scans' odometry readings,
     ``closures`` ``(a, b, delta)`` the online run's loop closures between scans, both
@@ -284,10 +283,9 @@ def align_globally(poses: np.ndarray, odometry: np.ndarray, matches: Sequence[Pa
     pose is anchored; with ``held`` > 0 the first ``held`` poses are a saved map's
     keyframes, each anchored where it is, and the odometry chain starts after them.
     ``priors`` ``(k, pose, covariance)`` place single scans in the world frame (a
-    scan matched to a saved map), Huber-robust like the matches. With ``held_edges``
-    ``(a, b, delta, covariance, robust)`` the first ``held`` poses are not anchored but
-    bound by these edges (a saved map's pose graph; only the first pose is anchored),
-    so the map moves with what is aligned to it."""
+    scan matched to a saved map), Huber-robust like the matches. The odometry chain
+    starts again at each scan of ``breaks`` (another run's first scan: nothing but the
+    matches, the closures and the priors ties it to the scan before)."""
     noise = GraphConfig() if noise is None else noise
     n = len(poses)
     if n < 2:
@@ -297,18 +295,15 @@ def align_globally(poses: np.ndarray, odometry: np.ndarray, matches: Sequence[Pa
     for k in range(n):
         values.insert(k, as_pose2(poses[k]))
     anchor = gtsam.noiseModel.Diagonal.Sigmas(ANCHOR_SIGMAS)
-    for k in range(1 if held_edges is not None else max(1, held)):
+    for k in range(max(1, held)):
         graph.add(gtsam.PriorFactorPose2(k, as_pose2(poses[k]), anchor))
     huber = gtsam.noiseModel.mEstimator.Huber.Create(cfg.huber_k)
-    loop_huber = gtsam.noiseModel.mEstimator.Huber.Create(noise.huber_k)
-    for a, b, delta, cov, is_loop in held_edges or ():
-        base = gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov, dtype=float))
-        graph.add(gtsam.BetweenFactorPose2(int(a), int(b), as_pose2(delta),
-                                           gtsam.noiseModel.Robust.Create(loop_huber, base)
-                                           if is_loop else base))
     u = relative(odometry[:-1], odometry[1:])
     sig = noise.odometry_sigmas(u)
+    cut = set(breaks)
     for k in range(held + 1 if held else 1, n):
+        if k in cut:
+            continue
         graph.add(gtsam.BetweenFactorPose2(k - 1, k, as_pose2(u[k - 1]),
                                            gtsam.noiseModel.Diagonal.Sigmas(sig[k - 1])))
     for m in matches:

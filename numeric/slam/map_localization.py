@@ -41,7 +41,6 @@ The map is never changed; the poses are in the map's frame.
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from dataclasses import dataclass, field
 from itertools import pairwise
@@ -58,7 +57,6 @@ from chizu.numeric.probability_grid import GridConfig, ProbabilityGrid, no_stamp
 from chizu.numeric.scan import LaserLog, Scan
 from chizu.numeric.slam.alignment import (
     AlignmentConfig,
-    PairwiseMatch,
     align_globally,
     match_pair,
     pairwise_matches,
@@ -73,7 +71,7 @@ from chizu.numeric.slam.matching.correlative import (
     refine,
 )
 from chizu.numeric.slam.matching.intensity_icp import IcpConfig, Reference, intensity_icp
-from chizu.numeric.slam.saved_map import EDGE_KINDS, Laser, SavedMap
+from chizu.numeric.slam.saved_map import Laser, SavedMap
 
 State = Literal["searching", "confirming", "tracking"]
 
@@ -467,7 +465,7 @@ def localize_log(saved: SavedMap, log: LaserLog,
     poses = bridged(poses, odometry, gaps, c)
     pts = [voxel_downsample(s.points()[0], None, 0.05)[0] for s in log.scans]
     poses = align_on_map(saved, pts, odometry, poses, AlignmentConfig(), c.icp_keyframes,
-                         c.icp_radius_m, starts=gaps)[0]
+                         c.icp_radius_m, starts=gaps)
     return LocalizationRun(log.times, poses, states, loc.fixes, loc.losses,
                            time.perf_counter() - t0)
 
@@ -551,8 +549,7 @@ def _blend(start: np.ndarray, end: np.ndarray, odometry: np.ndarray) -> np.ndarr
 
 def align_on_map(saved: SavedMap, points: list[np.ndarray], odometry: np.ndarray,
                  poses: np.ndarray, config: AlignmentConfig, keyframes: int,
-                 radius_m: float, move_map: bool = False, starts: np.ndarray | None = None
-                 ) -> tuple[np.ndarray, list[PairwiseMatch], np.ndarray]:
+                 radius_m: float, starts: np.ndarray | None = None) -> np.ndarray:
     """Graph SLAM's global scan alignment (:mod:`chizu.numeric.slam.alignment`, Lu & Milios
     1997) of each stretch of placed scans (rows of ``poses`` that are finite; robot-frame
     ``points``, ``odometry`` per scan), with the saved map's keyframes among the scans
@@ -561,60 +558,34 @@ def align_on_map(saved: SavedMap, points: list[np.ndarray], odometry: np.ndarray
     overlaps as the SLAM run's scans were, and to the returns of its ``keyframes``
     nearest keyframes within ``radius_m`` together (a pose in the map's frame, with the
     match's own covariance: what holds a stretch driven the other way, whose scans
-    overlap no single keyframe), and all are solved for at once. With ``move_map`` the
-    keyframes are not held but bound by the map's own constraints, so a map that was
-    off where the scans show it moves (a map being extended; localization leaves it as
-    it is). A stretch also ends before each scan of ``starts`` (after a gap in the
-    log, where the motion estimate starts again). Returns the poses, the matches between
-    the map and a scan (``a`` a keyframe, ``b`` the scan: the pairwise ones, and each
-    match to the nearest keyframes' returns as one to the nearest keyframe), and the
-    keyframes' poses."""
+    overlap no single keyframe), and all are solved for at once. A stretch also ends
+    before each scan of ``starts`` (after a gap in the log, where the motion estimate
+    starts again). Returns the poses."""
     out = poses.copy()
     cuts = np.asarray([] if starts is None else starts, dtype=np.int64)
     stretches = [(int(a), int(b)) for lo, hi in placed_runs(poses)
                  for a, b in pairwise([lo, *cuts[(cuts > lo) & (cuts < hi)], hi])]
     held = len(saved)
     clouds = KeyframeClouds(saved, keyframes, radius_m)
-    to_map: list[PairwiseMatch] = []
-    kf_pose = saved.kf_pose.copy()
-    c = saved.constraints
-    loop = EDGE_KINDS.index("loop")
-    # the map's constraints at rest where the map's keyframes are: their covariances say
-    # how stiff the map is, its (aligned) poses what shape it keeps without new evidence
-    rest = relative(kf_pose[c.a], kf_pose[c.b]) if len(c) else np.zeros((0, 3))
-    map_edges = ([(int(a), int(b), d, cov, bool(k == loop))
-                  for a, b, d, cov, k in zip(c.a, c.b, rest, c.cov, c.kind, strict=True)]
-                 if move_map else None)
     for lo, hi in stretches:
         if hi - lo < 2:
             continue
         pts = points[lo:hi]
-        allp = np.vstack([kf_pose, poses[lo:hi]])
+        allp = np.vstack([saved.kf_pose, poses[lo:hi]])
         matches = [m for m in pairwise_matches(saved.kf_xy + pts, [None] * (held + hi - lo),
                                                allp, config)
                    if m.b >= held]
-        to_map += [dataclasses.replace(m, b=m.b - held + lo) for m in matches if m.a < held]
         priors = []
         for j, xy in enumerate(pts):
             ref = clouds.around(poses[lo + j])
             found = None if ref is None or len(xy) < 10 else match_pair(ref, xy, None,
                                                                         poses[lo + j], config)
             if found is not None:
-                # also as a match to the map's nearest keyframe (a saved map keeps those;
-                # a map that moves carries the scan with it)
-                k = int(np.argmin(np.hypot(*(kf_pose[:, :2] - found[0][:2]).T)))
-                m = PairwiseMatch(k, lo + j, relative(kf_pose[k], found[0]), found[1])
-                to_map.append(m)
-                if move_map:
-                    matches.append(dataclasses.replace(m, b=held + j))
-                else:
-                    priors.append((held + j, found[0], found[1]))
+                priors.append((held + j, found[0], found[1]))
         both = align_globally(allp, np.vstack([saved.kf_odom, odometry[lo:hi]]), matches,
-                              [], config, held=held, priors=priors, held_edges=map_edges)
+                              [], config, held=held, priors=priors)
         out[lo:hi] = both[held:]
-        if move_map:  # the next stretch starts from the map as this one moved it
-            kf_pose = both[:held]
-    return out, to_map, kf_pose
+    return out
 
 
 class KeyframeClouds:

@@ -12,21 +12,22 @@ graph SLAM on its own, or a second saved map):
    unique fix is a transform from B's frame to A's; the one the most fixes agree with
    (within ``agree_m`` and ``agree_rad``) is taken, and at least ``min_agree`` must.
    Without it the maps share no place that tells where: refused (field ``map``).
-2. **B fitted to A** (:func:`fitted_to_map`): one transform is not enough where the two
-   runs drifted differently; each of B's keyframes is matched to A as a localized scan is
-   (refined on A's likelihood field, then ICP against A's nearest keyframes), and B's
-   pose graph (its own constraints) is solved with those matches as Huber-robust priors,
-   ``fit_rounds`` times -- each round starts nearer and matches more keyframes.
-3. **One alignment** (:func:`~chizu.numeric.slam.map_localization.align_on_map`): B's scans
-   (resume: every scan of the new log; merge: B's keyframes) placed by that transform,
-   matched to their neighbours, to A's keyframes they overlap and to A's nearest
-   keyframes' returns, and solved for at once with A's keyframes bound by A's own pose
-   graph (Lu & Milios 1997): B's loops close against A's keyframes where they overlap,
-   and where A was off (a map of part of a building, without the loops the rest
-   closes) A moves with them.
-4. **The merged map** (:func:`merged`): A's keyframes and constraints, B's keyframes at
-   their aligned poses with B's own constraints and the matches between A's keyframes
-   and B's as loop constraints, and every scan of both runs with its pose in A's frame.
+2. **One pose graph, its loops closed** (:class:`JoinedMaps`): A's keyframes are graph
+   SLAM's nodes again, inserted into submaps at A's poses as A's run built them; B's
+   keyframes follow, placed by that transform, the first held there loosely; each map's
+   own constraints bind its keyframes at rest where the map has them (their covariances
+   say how stiff the map is). Then B's keyframes are searched against A's submaps by
+   graph SLAM's own loop closure (Hess et al. §V; :mod:`~chizu.numeric.slam.graph.loop_closure`:
+   the same windows growing with the path since the trajectory was tied to a submap,
+   uniqueness and confirmation), as the nodes of a run that continued A's would be, B's
+   first keyframe tied where it was found. One transform is not enough where the two runs
+   drifted differently, and a place A passed twice without closing the loop (two versions
+   of it, a metre apart) is pulled together only by matches to each version apart.
+3. **One alignment** (:func:`aligned`): graph SLAM's end-of-run scan alignment (Lu &
+   Milios 1997) over both maps' keyframes, with both maps' loops and the new closures.
+4. **The merged map** (:func:`merged`): both maps' keyframes at their aligned poses
+   (every scan moved with the keyframe it follows), both runs' constraints, and the
+   closures as loop constraints between A's submap anchors and B's keyframes.
 """
 
 from __future__ import annotations
@@ -34,24 +35,18 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import gtsam
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from chizu.numeric.errors import InvalidInput
 from chizu.numeric.geometry import compose, invert, place, relative, wrap_angle
-from chizu.numeric.scan import LaserLog
-from chizu.numeric.slam.alignment import AlignmentConfig, PairwiseMatch, match_pair
+from chizu.numeric.slam.alignment import AlignmentConfig, align_globally, pairwise_matches
+from chizu.numeric.slam.graph.config import GraphSlamConfig
+from chizu.numeric.slam.graph.loop_closure import LoopClosing, LoopClosure, tie
+from chizu.numeric.slam.graph.submaps import Submap, Submaps
 from chizu.numeric.slam.keyframes import voxel_downsample
-from chizu.numeric.slam.map_localization import (
-    KeyframeClouds,
-    MapLocalizationConfig,
-    MapLocalizer,
-    PreparedMap,
-    align_on_map,
-)
-from chizu.numeric.slam.pose_graph import as_pose2
-from chizu.numeric.slam.saved_map import EDGE_KINDS, Constraints, Laser, SavedMap
+from chizu.numeric.slam.map_localization import MapLocalizationConfig, PreparedMap
+from chizu.numeric.slam.saved_map import EDGE_KINDS, Constraints, SavedMap
 
 
 class MergeConfig(BaseModel):
@@ -66,9 +61,9 @@ class MergeConfig(BaseModel):
                            "within this distance at B's keyframes ...")
     agree_rad: float = Field(0.05, gt=0.0, le=math.pi, description="... and this angle")
     min_agree: int = Field(3, ge=1, description="fixes that must agree")
-    fit_rounds: int = Field(3, ge=0, le=20, description="rounds of step 2")
-    icp_keyframes: int = Field(4, ge=0, le=50)
-    icp_radius_m: float = Field(4.0, gt=0.0)
+    placed_sigma_m: float = Field(1.0, gt=0.0, description="B's first keyframe is held "
+                                  "where step 1 placed it with this sigma ...")
+    placed_sigma_rad: float = Field(0.1, gt=0.0, description="... and this one")
 
 
 @dataclass(frozen=True)
@@ -133,98 +128,124 @@ def _agrees(t: np.ndarray, u: np.ndarray, kf_pose: np.ndarray, cfg: MergeConfig)
     return bool(np.hypot(*d.T).max() <= cfg.agree_m)
 
 
-def fitted_to_map(a: PreparedMap, kf_xy: list[np.ndarray], start: np.ndarray,
-                  constraints: Constraints, config: MergeConfig) -> np.ndarray:
-    """Step 2: B's keyframe poses in A's frame, from ``start`` (B's keyframes placed by
-    the transform of step 1), B's pose graph (``constraints``) and each keyframe's
-    match to A."""
-    loc = MapLocalizer(a.saved, a.config, a)
-    clouds = KeyframeClouds(a.saved, config.icp_keyframes, config.icp_radius_m)
-    align = AlignmentConfig()
-    pts = [voxel_downsample(xy, None, 0.05)[0] for xy in kf_xy]
-    poses = start.copy()
-    for _ in range(config.fit_rounds):
-        priors = []
-        for k, xy in enumerate(kf_xy):
-            pose, score, share = loc.fit(xy, poses[k])
-            if score < loc.config.lost_score or share < loc.config.min_on_map:
+class JoinedMaps(Submaps, LoopClosing):
+    """Step 2: graph SLAM's submaps, pose graph and loop closure over the keyframes of
+    two saved maps (:meth:`add_map` A, then B, then :meth:`close_loops`)."""
+
+    submaps: list[Submap]
+    closures: list[LoopClosure]
+
+    def __init__(self, config: GraphSlamConfig | None = None,
+                 loop_log: list[tuple[int, int, str, float]] | None = None) -> None:
+        cfg = (config or GraphSlamConfig()).model_copy(deep=True)
+        cfg.submaps.trim_share = None  # both maps are kept whole
+        self.config = cfg
+        self.loop_log = loop_log
+        self.submaps, self.closures = [], []
+        self.searches, self.degeneracies = 0, []
+        self.start_loops()
+
+    def add_map(self, saved: SavedMap, poses: np.ndarray, into_submaps: bool) -> int:
+        """``saved``'s keyframes as nodes at ``poses`` (in this graph's frame), bound by
+        its constraints at rest there; with ``into_submaps`` their returns are inserted
+        into submaps (all finished at the end: what later nodes are searched against).
+        Returns the first node."""
+        first = len(self.local)
+        travel = self._travel[-1] if self._travel else 0.0
+        for k, p in enumerate(poses):
+            if k:
+                travel += float(np.hypot(*(p[:2] - poses[k - 1][:2])))
+            self._travel.append(travel)
+            self.local.append(p.copy())
+            self.graph.add_node(p)
+            if into_submaps and len(saved.kf_xy[k]):
+                self.insert(first + k, saved.kf_xy[k], saved.kf_misses[k])
+        self._global = np.vstack([self._global, poses])
+        for s in self.active():
+            s.finished, s.grid = True, s.grid.cropped().frozen()
+        c = saved.constraints
+        for a, b, d, cov, kind in zip(c.a, c.b, relative(poses[c.a], poses[c.b]), c.cov,
+                                      c.kind, strict=True):
+            self.graph.add_constraint(first + int(a), first + int(b), d, cov, int(kind))
+        return first
+
+    def close_loops(self, first: int, kf_xy: list[np.ndarray], sigmas: np.ndarray) -> None:
+        """The nodes from ``first`` on (returns ``kf_xy``, robot frame) searched against
+        the submaps as graph SLAM searches its nodes, every ``loop.every``-th; the first
+        held where it was placed with ``sigmas`` and tied to the submap it lies in."""
+        p0 = self._global[first]
+        near = int(np.argmin(np.hypot(*(self._global[:first, :2] - p0[:2]).T)))
+        for k, s in enumerate(self.submaps):
+            if near in s.nodes:
+                tie(self._tied_at, self._span_lo, self._span_hi, k, self._travel[first])
+        self.graph.add_prior(first, p0, sigmas)
+        self.graph.update()
+        self._global = self.graph.poses_now()
+        every = self.config.loop.every or 1
+        for j, xy in enumerate(kf_xy):
+            node = first + j
+            if node % every or len(xy) < 8:
                 continue
-            ref = clouds.around(pose)
-            found = None if ref is None or len(pts[k]) < 10 else match_pair(
-                ref, pts[k], None, pose, align)
-            if found is not None:
-                priors.append((k, found[0], found[1]))
-        poses = _solve(poses, constraints, priors, align.huber_k)
-    return poses
+            pts, _ = voxel_downsample(xy, None, self.config.local.voxel_m)
+            if self.search_loops(node, pts):
+                self.graph.update()
+                self._global = self.graph.estimate()
 
 
-def _solve(poses: np.ndarray, c: Constraints, priors: list[tuple[int, np.ndarray, np.ndarray]],
-           huber_k: float) -> np.ndarray:
-    """B's pose graph with the priors (Huber-robust, as are its loop constraints),
-    solved by Levenberg-Marquardt; a loose prior on the first node keeps it determined
-    where nothing matched."""
-    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-    for k, p in enumerate(poses):
-        values.insert(k, as_pose2(p))
-    graph.add(gtsam.PriorFactorPose2(0, as_pose2(poses[0]),
-                                     gtsam.noiseModel.Diagonal.Sigmas(np.array([10.0, 10.0, 1.0]))))
-    huber = gtsam.noiseModel.mEstimator.Huber.Create(huber_k)
-    loop = EDGE_KINDS.index("loop")
-    for a, b, d, cov, kind in zip(c.a, c.b, c.delta, c.cov, c.kind, strict=True):
-        noise: gtsam.noiseModel.Base = gtsam.noiseModel.Gaussian.Covariance(
-            np.asarray(cov, dtype=float))
-        if kind == loop:
-            noise = gtsam.noiseModel.Robust.Create(huber, noise)
-        graph.add(gtsam.BetweenFactorPose2(int(a), int(b), as_pose2(d), noise))
-    for k, pose, cov in priors:
-        graph.add(gtsam.PriorFactorPose2(int(k), as_pose2(pose), gtsam.noiseModel.Robust.Create(
-            huber, gtsam.noiseModel.Gaussian.Covariance(cov))))
-    out = gtsam.LevenbergMarquardtOptimizer(graph, values,
-                                            gtsam.LevenbergMarquardtParams()).optimize()
-    return np.array([[p.x(), p.y(), p.theta()] for p in (out.atPose2(k)
-                                                         for k in range(len(poses)))])
-
-
-def _placed(a: SavedMap, b: SavedMap, laser: Laser, cfg: MergeConfig,
-            localization: MapLocalizationConfig | None) -> tuple[Placement, np.ndarray]:
-    """Steps 1-2 for B (whose scans a ``laser`` took): where it lies in A, and its
-    keyframes' poses fitted to A. Another laser than A's is refused (field ``map``)."""
-    why = a.laser.compatible(laser)
+def _joined(a: SavedMap, b: SavedMap, cfg: MergeConfig,
+            localization: MapLocalizationConfig | None
+            ) -> tuple[Placement, np.ndarray, np.ndarray, list[LoopClosure]]:
+    """Steps 1-2 for B: where it lies in A, both maps' keyframe poses in A's frame, and
+    the closures between them. Another laser than A's is refused (field ``map``)."""
+    why = a.laser.compatible(b.laser)
     if why is not None:
         raise InvalidInput(why, field="map")
     prepared = PreparedMap.of(a, localization or MapLocalizationConfig())
     placed = frame_transform(prepared, b.kf_xy, b.kf_pose, cfg)
-    return placed, fitted_to_map(prepared, b.kf_xy, compose(placed.transform, b.kf_pose),
-                                 b.constraints, cfg)
+    g = JoinedMaps()
+    g.add_map(a, a.kf_pose, into_submaps=True)
+    first = g.add_map(b, compose(placed.transform, b.kf_pose), into_submaps=False)
+    sigmas = np.array([cfg.placed_sigma_m, cfg.placed_sigma_m, cfg.placed_sigma_rad])
+    g.close_loops(first, b.kf_xy, sigmas)
+    poses = aligned(a, b, g.graph.poses_now(), g.closures, g.config, sigmas)
+    return placed, poses[:first], poses[first:], g.closures
 
 
-def resume(a: SavedMap, b: SavedMap, log: LaserLog,
-           config: MergeConfig | None = None,
+def aligned(a: SavedMap, b: SavedMap, poses: np.ndarray, closures: list[LoopClosure],
+            config: GraphSlamConfig, sigmas: np.ndarray) -> np.ndarray:
+    """Step 3: graph SLAM's global scan alignment (Lu & Milios 1997,
+    :mod:`chizu.numeric.slam.alignment`) of both maps' keyframes from ``poses``, as a run
+    ends: each matched to the keyframes it overlaps, of either map, with each map's
+    odometry chain, both maps' loop constraints and the ``closures`` between them; B's
+    first keyframe held loosely (``sigmas``) where step 2 put it, its odometry chain
+    starting there."""
+    held = len(a)
+    acfg = config.alignment or AlignmentConfig()
+    pts = [voxel_downsample(xy, None, config.local.voxel_m)[0] for xy in a.kf_xy + b.kf_xy]
+    matches = pairwise_matches(pts, [None] * len(pts), poses, acfg)
+    loop = EDGE_KINDS.index("loop")
+    own = [(int(i) + off, int(j) + off, d) for m, off in ((a, 0), (b, held))
+           for i, j, d, k in zip(m.constraints.a, m.constraints.b, m.constraints.delta,
+                                 m.constraints.kind, strict=True) if k == loop]
+    cross = [(c.anchor, c.node, c.delta) for c in closures]
+    return align_globally(poses, np.vstack([a.kf_odom, b.kf_odom]), matches, own + cross,
+                          acfg, config.graph, priors=[(held, poses[held], np.diag(sigmas**2))],
+                          breaks=[held])
+
+
+def resume(a: SavedMap, b: SavedMap, config: MergeConfig | None = None,
            localization: MapLocalizationConfig | None = None) -> tuple[SavedMap, np.ndarray]:
-    """A saved map ``a`` continued with ``log``, which graph SLAM mapped on its own into
-    ``b`` (its scans' poses in the log's frame): the merged map, and the log's scans'
-    poses in ``a``'s frame."""
-    cfg = config or MergeConfig()
-    place_b, kf = _placed(a, b, Laser.of(log), cfg, localization)
-    pts = [voxel_downsample(s.points()[0], None, 0.05)[0] for s in log.scans]
-    poses, matches, a_kf = align_on_map(a, pts, log.odometry, _follow(b, kf),
-                                        AlignmentConfig(), cfg.icp_keyframes,
-                                        cfg.icp_radius_m, move_map=True)
-    return merged(a, a_kf, b, poses, matches, place_b), poses
+    """A saved map ``a`` continued with a log that graph SLAM mapped on its own into
+    ``b``: the merged map, and the log's scans' poses in ``a``'s frame."""
+    m, _ = merge(a, b, config, localization)
+    return m, m.poses[len(a.poses):]
 
 
 def merge(a: SavedMap, b: SavedMap, config: MergeConfig | None = None,
           localization: MapLocalizationConfig | None = None) -> tuple[SavedMap, Placement]:
     """Two saved maps of one building in unrelated frames as one, in ``a``'s frame."""
-    cfg = config or MergeConfig()
-    place_b, kf = _placed(a, b, b.laser, cfg, localization)
-    kf_poses, matches, a_kf = align_on_map(a, b.kf_xy, b.kf_odom, kf, AlignmentConfig(),
-                                           cfg.icp_keyframes, cfg.icp_radius_m,
-                                           move_map=True)
-    scan_poses = _follow(b, kf_poses)
-    kf_matches = [PairwiseMatch(m.a, int(b.kf_scan[m.b]), m.delta, m.covariance)
-                  for m in matches]
-    return merged(a, a_kf, b, scan_poses, kf_matches, place_b), place_b
+    placed, a_kf, b_kf, closures = _joined(a, b, config or MergeConfig(), localization)
+    return merged(a, a_kf, b, b_kf, closures, placed), placed
 
 
 def _follow(b: SavedMap, kf_poses: np.ndarray) -> np.ndarray:
@@ -242,38 +263,37 @@ def runs_of(m: SavedMap) -> list[str]:
     return [str(m.meta.get("source", "a map"))]
 
 
-def merged(a: SavedMap, a_kf: np.ndarray, b: SavedMap, b_poses: np.ndarray,
-           matches: list[PairwiseMatch], placement: Placement) -> SavedMap:
-    """Step 4: ``a``'s keyframes at ``a_kf`` (its scans moved with them) and ``b``'s at
-    the poses its scans now have (``b_poses``, one per scan of ``b``), both runs'
-    constraints, and the ``matches`` between ``a``'s keyframes and ``b``'s scans that
-    are keyframes as loop constraints."""
+def merged(a: SavedMap, a_kf: np.ndarray, b: SavedMap, b_kf: np.ndarray,
+           closures: list[LoopClosure], placement: Placement) -> SavedMap:
+    """Step 4: ``a``'s keyframes at ``a_kf`` and ``b``'s at ``b_kf`` (every scan moved
+    with the keyframe it follows), both runs' constraints, and the ``closures`` (nodes
+    numbered ``a``'s keyframes first) as loop constraints."""
     held = len(a)
-    kf_of_scan = {int(s): held + i for i, s in enumerate(b.kf_scan)}
-    cross = [(m.a, kf_of_scan[m.b], m.delta, m.covariance) for m in matches
-             if m.b in kf_of_scan]
     loop = EDGE_KINDS.index("loop")
+    g = GraphSlamConfig().graph
+    cov = np.diag(np.array([g.loop_sigma_m, g.loop_sigma_m, g.loop_sigma_rad]) ** 2)
     ca, cb = a.constraints, b.constraints
+    n = len(closures)
     cons = Constraints(
-        np.concatenate([ca.a, cb.a + held, [c[0] for c in cross]]).astype(np.int64),
-        np.concatenate([ca.b, cb.b + held, [c[1] for c in cross]]).astype(np.int64),
-        np.vstack([ca.delta, cb.delta, *[c[2][None] for c in cross]]).reshape(-1, 3),
-        np.vstack([ca.cov, cb.cov, *[c[3][None] for c in cross]]).reshape(-1, 3, 3),
-        np.concatenate([ca.kind, cb.kind, np.full(len(cross), loop)]).astype(np.int8))
+        np.concatenate([ca.a, cb.a + held, [c.anchor for c in closures]]).astype(np.int64),
+        np.concatenate([ca.b, cb.b + held, [c.node for c in closures]]).astype(np.int64),
+        np.vstack([ca.delta, cb.delta, *[c.delta[None] for c in closures]]).reshape(-1, 3),
+        np.vstack([ca.cov, cb.cov, np.broadcast_to(cov, (n, 3, 3))]).reshape(-1, 3, 3),
+        np.concatenate([ca.kind, cb.kind, np.full(n, loop)]).astype(np.int8))
     n_a = len(a.times)
     inten = (a.kf_intensity + b.kf_intensity
              if a.kf_intensity is not None and b.kf_intensity is not None else None)
     meta = {**a.meta, "runs": runs_of(a) + runs_of(b),
             "placement": {"transform": [round(float(v), 6) for v in placement.transform],
                           "agree": placement.agree, "fixes": placement.fixes,
-                          "searched": placement.searched}}
+                          "searched": placement.searched, "closures": n}}
     return SavedMap(
         laser=a.laser, resolution_m=a.resolution_m,
         kf_scan=np.concatenate([a.kf_scan, b.kf_scan + n_a]).astype(np.int64),
         kf_time=np.concatenate([a.kf_time, b.kf_time]),
-        kf_pose=np.vstack([a_kf, b_poses[b.kf_scan]]),
+        kf_pose=np.vstack([a_kf, b_kf]),
         kf_odom=np.vstack([a.kf_odom, b.kf_odom]),
         kf_xy=a.kf_xy + b.kf_xy, kf_intensity=inten, kf_misses=a.kf_misses + b.kf_misses,
         times=np.concatenate([a.times, b.times]),
-        poses=np.vstack([_follow(a, a_kf), b_poses]),
+        poses=np.vstack([_follow(a, a_kf), _follow(b, b_kf)]),
         constraints=cons, meta=meta)

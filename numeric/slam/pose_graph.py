@@ -141,6 +141,25 @@ class PoseGraph:
         self._graph.add(gtsam.BetweenFactorPose2(a, b, as_pose2(delta), noise))
         self.edges.append((a, b, np.array(delta, dtype=float), np.diag(sig**2), kind))
 
+    def add_constraint(self, a: int, b: int, delta: np.ndarray, cov: np.ndarray,
+                       kind: int) -> None:
+        """An edge of a saved map (``kind`` as :meth:`add_between`'s, 2 a loop: Huber-
+        robust, as the closures are) with its full covariance."""
+        cov = np.asarray(cov, dtype=float)
+        noise: gtsam.noiseModel.Base = gtsam.noiseModel.Gaussian.Covariance(cov)
+        if kind == 2:
+            noise = gtsam.noiseModel.Robust.Create(
+                gtsam.noiseModel.mEstimator.Huber.Create(self.config.huber_k), noise)
+        self._graph.add(gtsam.BetweenFactorPose2(a, b, as_pose2(delta), noise))
+        self.edges.append((a, b, np.array(delta, dtype=float), cov, kind))
+        self._dirty = True
+
+    def add_prior(self, k: int, pose: np.ndarray, sigmas: np.ndarray) -> None:
+        """Node ``k`` held near ``pose`` with ``sigmas`` (x, y, theta)."""
+        self._graph.add(gtsam.PriorFactorPose2(k, as_pose2(pose), gtsam.noiseModel.Diagonal.Sigmas(
+            np.asarray(sigmas, dtype=float))))
+        self._dirty = True
+
     def add_local(self, a: int, b: int, delta: np.ndarray,
                   weak: np.ndarray | None = None) -> None:
         """A local-SLAM edge; ``weak`` (unit (2,), node a's frame) is a direction the

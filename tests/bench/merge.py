@@ -54,7 +54,7 @@ def one_case(name: str, share: float, whole: tuple[np.ndarray, np.ndarray],
         return e.trans_m, e.rot_deg, s.trans_m, s.rot_deg
 
     t0 = time.perf_counter()
-    r, poses = resume(a, b, second)  # type: ignore[arg-type]
+    r, poses = resume(a, b)  # type: ignore[arg-type]
     resume_s = time.perf_counter() - t0 + b_s  # the second log's graph SLAM included
     res = errors(np.concatenate([first.times, second.times]),
                  np.vstack([r.poses[:len(first)], poses]))

@@ -72,7 +72,7 @@ def second(second_log: LaserLog) -> sm.SavedMap:
 
 def test_a_log_resumes_a_map_in_its_frame(first: sm.SavedMap, first_log: LaserLog,
                                           second: sm.SavedMap, second_log: LaserLog) -> None:
-    m, poses = resume(first, second, second_log)
+    m, poses = resume(first, second)
     assert np.array_equal(m.poses[len(first.poses):], poses)
     both = np.vstack([first_log.truth, second_log.truth])[:, :2]
     e = rigid_errors(m.poses[:, :2], both)

@@ -80,9 +80,30 @@ class LoopClosing:
     _tied_at: np.ndarray
     _last_closed: dict[int, int]
     _pending: dict[int, LoopClosure]
+    _loop_maps: dict[tuple[int, tuple[int, ...]], LoopMap]
+    _cells: dict[int, np.ndarray]
+    _covered: np.ndarray
 
     if TYPE_CHECKING:
         def loop_map(self, k: int, node: int) -> LoopMap: ...
+
+    def start_loops(self) -> None:
+        """The empty pose graph, submaps and loop-closure state of a new run (the
+        submaps, closures and search counts are the estimator's own fields)."""
+        self.graph = PoseGraph(self.config.graph)
+        self.local = []  # node poses in the local-SLAM frame
+        self._global = np.zeros((0, 3))
+        self._loop_maps = {}
+        self._cells = {}
+        self._covered = np.zeros(0, dtype=np.int64)
+        self._last_closed = {}  # submap -> last node closed against it
+        self._pending = {}  # submap -> match awaiting confirmation
+        self._travel = []  # path length (local frame) up to each node
+        # per submap: the path lengths of its first and last nodes, and where the
+        # trajectory was tied to it by a closure (drift_path)
+        self._span_lo = np.zeros(0)
+        self._span_hi = np.zeros(0)
+        self._tied_at = np.zeros(0)
 
     def search_loops(self, node: int, xy: np.ndarray) -> int:
         """Branch-and-bound matches of ``node`` (its returns ``xy``, robot frame)

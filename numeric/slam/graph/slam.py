@@ -24,9 +24,9 @@ from chizu.numeric.slam.alignment import AlignedOutputs, AlignmentConfig, ScanSt
 from chizu.numeric.slam.graph.config import GraphSlamConfig
 from chizu.numeric.slam.graph.local_slam import LocalSlam, rotate_xy
 from chizu.numeric.slam.graph.loop_closure import LoopClosing, LoopClosure
-from chizu.numeric.slam.graph.submaps import LoopMap, Submap, Submaps
+from chizu.numeric.slam.graph.submaps import Submap, Submaps
 from chizu.numeric.slam.keyframes import Keyframes, moved, voxel_downsample
-from chizu.numeric.slam.pose_graph import GraphConfig, OdometryCalibration, PoseGraph
+from chizu.numeric.slam.pose_graph import GraphConfig, OdometryCalibration
 from chizu.numeric.slam.saved_map import Constraints
 
 
@@ -50,8 +50,7 @@ class GraphSlam(Submaps, LocalSlam, LoopClosing, AlignedOutputs):
     def __post_init__(self) -> None:
         cfg = self.config
         self.keyframes = Keyframes(cfg.map)
-        self.graph = PoseGraph(cfg.graph)
-        self.local: list[np.ndarray] = []  # node poses in the local-SLAM frame
+        self.start_loops()
         self.node_odom: list[np.ndarray] = []
         self.node_time: list[float] = []
         self._node_scan: list[int] = []
@@ -61,20 +60,8 @@ class GraphSlam(Submaps, LocalSlam, LoopClosing, AlignedOutputs):
         # every scan's points (down-sampled), intensities and odometry, for finish()
         self.scans = ScanStore()
         self._redundant: deque[int] = deque()  # nodes to forget on a long run (forget)
-        self._global = np.zeros((0, 3))
-        self._loop_maps: dict[tuple[int, tuple[int, ...]], LoopMap] = {}
-        self._cells: dict[int, np.ndarray] = {}
-        self._covered = np.zeros(0, dtype=np.int64)
-        self._last_closed: dict[int, int] = {}  # submap -> last node closed against it
-        self._pending: dict[int, LoopClosure] = {}  # submap -> match awaiting confirmation
         self._prev: tuple[np.ndarray, np.ndarray | None] | None = None  # for alpha > 0
         self.rng = np.random.default_rng(self.seed)
-        self._travel: list[float] = []  # path length (local frame) up to each node
-        # per submap: the path lengths of its first and last nodes, and where the
-        # trajectory was tied to it by a closure (GraphSlam.drift_path)
-        self._span_lo = np.zeros(0)
-        self._span_hi = np.zeros(0)
-        self._tied_at = np.zeros(0)
         # per recent node: did the search beat the odometry by odometry_score_margin?
         self._search_won: deque[bool] = deque(maxlen=self.config.odometry.rate_nodes)
         self.odometry = OdometryCalibration(cfg.odometry.window, cfg.odometry.min_scale,
