@@ -135,12 +135,11 @@ class JoinedMaps(Submaps, LoopClosing):
     submaps: list[Submap]
     closures: list[LoopClosure]
 
-    def __init__(self, config: GraphSlamConfig | None = None,
-                 loop_log: list[tuple[int, int, str, float]] | None = None) -> None:
-        cfg = (config or GraphSlamConfig()).model_copy(deep=True)
+    def __init__(self) -> None:
+        cfg = GraphSlamConfig()
         cfg.submaps.trim_share = None  # both maps are kept whole
         self.config = cfg
-        self.loop_log = loop_log
+        self.loop_log = None
         self.submaps, self.closures = [], []
         self.searches, self.degeneracies = 0, []
         self.start_loops()
@@ -163,7 +162,7 @@ class JoinedMaps(Submaps, LoopClosing):
         self._global = np.vstack([self._global, poses])
         for s in self.active():
             s.finished, s.grid = True, s.grid.cropped().frozen()
-        c = saved.constraints
+        c = constraints_of(saved)
         for a, b, d, cov, kind in zip(c.a, c.b, relative(poses[c.a], poses[c.b]), c.cov,
                                       c.kind, strict=True):
             self.graph.add_constraint(first + int(a), first + int(b), d, cov, int(kind))
@@ -192,10 +191,25 @@ class JoinedMaps(Submaps, LoopClosing):
                 self._global = self.graph.estimate()
 
 
+def constraints_of(m: SavedMap) -> Constraints:
+    """A map's pose-graph constraints; a map of an estimator that kept no pose graph (the
+    RBPF, gated SLAM) is bound by its odometry between consecutive keyframes, with the
+    odometry model's sigmas."""
+    if len(m.constraints) or len(m) < 2:
+        return m.constraints
+    d = relative(m.kf_odom[:-1], m.kf_odom[1:])
+    sig = GraphSlamConfig().graph.odometry_sigmas(d)
+    cov = np.zeros((len(d), 3, 3))
+    cov[:, [0, 1, 2], [0, 1, 2]] = sig**2
+    k = np.arange(len(d), dtype=np.int64)
+    return Constraints(k, k + 1, d, cov, np.full(len(d), EDGE_KINDS.index("odometry"),
+                                                 dtype=np.int8))
+
+
 def _joined(a: SavedMap, b: SavedMap, cfg: MergeConfig,
             localization: MapLocalizationConfig | None
             ) -> tuple[Placement, np.ndarray, np.ndarray, list[LoopClosure]]:
-    """Steps 1-2 for B: where it lies in A, both maps' keyframe poses in A's frame, and
+    """Steps 1-3 for B: where it lies in A, both maps' keyframe poses in A's frame, and
     the closures between them. Another laser than A's is refused (field ``map``)."""
     why = a.laser.compatible(b.laser)
     if why is not None:
@@ -215,22 +229,27 @@ def aligned(a: SavedMap, b: SavedMap, poses: np.ndarray, closures: list[LoopClos
             config: GraphSlamConfig, sigmas: np.ndarray) -> np.ndarray:
     """Step 3: graph SLAM's global scan alignment (Lu & Milios 1997,
     :mod:`chizu.numeric.slam.alignment`) of both maps' keyframes from ``poses``, as a run
-    ends: each matched to the keyframes it overlaps, of either map, with each map's
-    odometry chain, both maps' loop constraints and the ``closures`` between them; B's
-    first keyframe held loosely (``sigmas``) where step 2 put it, its odometry chain
-    starting there."""
+    ends: each matched to the keyframes it overlaps, of either map, with each run's
+    odometry chain, both maps' loop constraints and the ``closures`` between them. Each
+    run's first keyframe but A's first -- B's, and those of the runs a merged A already
+    holds: a keyframe with no odometry edge from the one before -- starts an odometry
+    chain of its own and is held loosely (``sigmas``) where step 2 put it."""
     held = len(a)
     acfg = config.alignment or AlignmentConfig()
     pts = [voxel_downsample(xy, None, config.local.voxel_m)[0] for xy in a.kf_xy + b.kf_xy]
     matches = pairwise_matches(pts, [None] * len(pts), poses, acfg)
-    loop = EDGE_KINDS.index("loop")
-    own = [(int(i) + off, int(j) + off, d) for m, off in ((a, 0), (b, held))
-           for i, j, d, k in zip(m.constraints.a, m.constraints.b, m.constraints.delta,
-                                 m.constraints.kind, strict=True) if k == loop]
+    loop, odometry = EDGE_KINDS.index("loop"), EDGE_KINDS.index("odometry")
+    edges = [(int(i) + off, int(j) + off, d, int(k))
+             for c, off in ((constraints_of(a), 0), (constraints_of(b), held))
+             for i, j, d, k in zip(c.a, c.b, c.delta, c.kind, strict=True)]
+    chained = {j for i, j, _, k in edges if k == odometry and j == i + 1}
+    starts = [k for k in range(1, len(poses)) if k not in chained]
+    own = [(i, j, d) for i, j, d, k in edges if k == loop]
     cross = [(c.anchor, c.node, c.delta) for c in closures]
+    cov = np.diag(sigmas**2)
     return align_globally(poses, np.vstack([a.kf_odom, b.kf_odom]), matches, own + cross,
-                          acfg, config.graph, priors=[(held, poses[held], np.diag(sigmas**2))],
-                          breaks=[held])
+                          acfg, config.graph, priors=[(k, poses[k], cov) for k in starts],
+                          breaks=starts)
 
 
 def resume(a: SavedMap, b: SavedMap, config: MergeConfig | None = None,
@@ -272,7 +291,7 @@ def merged(a: SavedMap, a_kf: np.ndarray, b: SavedMap, b_kf: np.ndarray,
     loop = EDGE_KINDS.index("loop")
     g = GraphSlamConfig().graph
     cov = np.diag(np.array([g.loop_sigma_m, g.loop_sigma_m, g.loop_sigma_rad]) ** 2)
-    ca, cb = a.constraints, b.constraints
+    ca, cb = constraints_of(a), constraints_of(b)
     n = len(closures)
     cons = Constraints(
         np.concatenate([ca.a, cb.a + held, [c.anchor for c in closures]]).astype(np.int64),

@@ -101,6 +101,36 @@ def test_two_maps_merge_in_the_first_ones_frame(first: sm.SavedMap, first_log: L
                       - second_log.truth[second.kf_scan[0], :2])) < 0.2
 
 
+def test_a_map_without_a_pose_graph_merges_on_its_odometry(
+        first: sm.SavedMap, first_log: LaserLog, second: sm.SavedMap,
+        second_log: LaserLog) -> None:
+    """A map of the RBPF or gated SLAM keeps no constraints: its keyframes are bound by
+    the odometry between them, and the merged map holds those edges."""
+    bare = dataclasses.replace(first, constraints=sm.Constraints.empty())
+    m, _ = merge(bare, second)
+    both = np.vstack([first_log.truth, second_log.truth])[:, :2]
+    e = rigid_errors(m.poses[:, :2], both)
+    assert np.median(e) < 0.05 and e.max() < 0.25
+    odometry = sm.EDGE_KINDS.index("odometry")
+    chain = (m.constraints.kind == odometry) & (m.constraints.b < len(first))
+    assert chain.sum() == len(first) - 1
+
+
+def test_a_third_run_joins_a_merged_map(first: sm.SavedMap, first_log: LaserLog,
+                                        second: sm.SavedMap, second_log: LaserLog) -> None:
+    """A merged map holds two runs, each with its own odometry: a third joins it, and
+    no odometry edge is made across a join."""
+    two, _ = merge(first, second)
+    three, _ = merge(two, first)
+    truth = np.vstack([first_log.truth, second_log.truth, first_log.truth])[:, :2]
+    e = rigid_errors(three.poses[:, :2], truth)
+    assert np.median(e) < 0.05 and e.max() < 0.25
+    c = three.constraints
+    odometry = c.kind == sm.EDGE_KINDS.index("odometry")
+    starts = {len(first), len(first) + len(second)}
+    assert not (set(c.b[odometry].tolist()) & starts)
+
+
 def test_maps_that_share_no_place_are_refused(first: sm.SavedMap) -> None:
     corridor = mapped(simulated_log("corridor", speed_m_s=1.0))
     with pytest.raises(InvalidInput) as e:
