@@ -25,6 +25,7 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
+from chizu.numeric.errors import InvalidInput  # noqa: E402
 from chizu.numeric.scan import LaserLog  # noqa: E402
 from chizu.numeric.slam.evaluation import relation_errors  # noqa: E402
 from chizu.numeric.slam.logs import read_log, read_relations  # noqa: E402
@@ -53,8 +54,16 @@ def one_case(name: str, share: float, whole: tuple[np.ndarray, np.ndarray],
         s = relation_errors(times, poses, rel[0][span], rel[1][span])
         return e.trans_m, e.rot_deg, s.trans_m, s.rot_deg
 
+    g = relation_errors(*whole, *rel)
+    gs = relation_errors(*whole, rel[0][span], rel[1][span])
+    row: dict[str, object] = {
+        "case": f"{name}, split at {share:.0%}", "scans": f"{len(first)} + {len(second)}",
+        "graph": (g.trans_m, g.rot_deg, gs.trans_m, gs.rot_deg, g.n, int(span.sum()))}
     t0 = time.perf_counter()
-    r, poses = resume(a, b)  # type: ignore[arg-type]
+    try:
+        r, poses = resume(a, b)  # type: ignore[arg-type]
+    except InvalidInput as e:  # the maps share no place found: reported, not a crash
+        return {**row, "refused": str(e)}
     resume_s = time.perf_counter() - t0 + b_s  # the second log's graph SLAM included
     res = errors(np.concatenate([first.times, second.times]),
                  np.vstack([r.poses[:len(first)], poses]))
@@ -63,11 +72,7 @@ def one_case(name: str, share: float, whole: tuple[np.ndarray, np.ndarray],
     merge_s = time.perf_counter() - t0
     order = np.argsort(m.times, kind="stable")
     mer = errors(m.times[order], m.poses[order])
-    g = relation_errors(*whole, *rel)
-    gs = relation_errors(*whole, rel[0][span], rel[1][span])
-    return {"case": f"{name}, split at {share:.0%}", "scans": f"{len(first)} + {len(second)}",
-            "graph": (g.trans_m, g.rot_deg, gs.trans_m, gs.rot_deg, g.n, int(span.sum())),
-            "resume": res, "merge": mer, "agree": f"{placed.agree}/{placed.searched}",
+    return {**row, "resume": res, "merge": mer, "agree": f"{placed.agree}/{placed.searched}",
             "resume_rt": second.duration_s / max(resume_s, 1e-9), "merge_s": merge_s}
 
 
@@ -100,11 +105,15 @@ def main() -> None:
         "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         gt, gr, gst, gsr, n, ns = r["graph"]  # type: ignore[misc]
+        graph = (f"| {r['case']} | {r['scans']} | {gt:.4f} / {gr:.3f} ({gst:.4f} / {gsr:.3f}; "
+                 f"{n} relations, {ns} spanning) | ")
+        if "refused" in r:
+            body.append(graph + f"refused: {r['refused']} | | | | | | |")
+            continue
         rt, rr, rst, rsr = r["resume"]  # type: ignore[misc]
         mt, mr, mst, msr = r["merge"]  # type: ignore[misc]
         body.append(
-            f"| {r['case']} | {r['scans']} | {gt:.4f} / {gr:.3f} ({gst:.4f} / {gsr:.3f}; "
-            f"{n} relations, {ns} spanning) | {rt:.4f} / {rr:.3f} ({rst:.4f} / {rsr:.3f}) | "
+            graph + f"{rt:.4f} / {rr:.3f} ({rst:.4f} / {rsr:.3f}) | "
             f"{rt / gt:.2f} | {mt:.4f} / {mr:.3f} ({mst:.4f} / {msr:.3f}) | {mt / gt:.2f} | "
             f"{r['agree']} | {r['resume_rt']:.0f} | {r['merge_s']:.0f} |")
     print("\n".join(body))
