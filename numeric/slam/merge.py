@@ -161,17 +161,18 @@ class JoinedMaps(Submaps, LoopClosing):
                 self.insert(first + k, saved.kf_xy[k], saved.kf_misses[k])
         self._global = np.vstack([self._global, poses])
         for s in self.active():
-            s.finished, s.grid = True, s.grid.cropped().frozen()
+            s.finish()
         c = constraints_of(saved)
         for a, b, d, cov, kind in zip(c.a, c.b, relative(poses[c.a], poses[c.b]), c.cov,
                                       c.kind, strict=True):
             self.graph.add_constraint(first + int(a), first + int(b), d, cov, int(kind))
         return first
 
-    def close_loops(self, first: int, kf_xy: list[np.ndarray], sigmas: np.ndarray) -> None:
-        """The nodes from ``first`` on (returns ``kf_xy``, robot frame) searched against
-        the submaps as graph SLAM searches its nodes, every ``loop.every``-th; the first
-        held where it was placed with ``sigmas`` and tied to the submap it lies in."""
+    def close_loops(self, first: int, pts: list[np.ndarray], sigmas: np.ndarray) -> None:
+        """The nodes from ``first`` on (returns ``pts``, robot frame, down-sampled to
+        local SLAM's voxel) searched against the submaps as graph SLAM searches its
+        nodes, every ``loop.every``-th; the first held where it was placed with
+        ``sigmas`` and tied to the submap it lies in."""
         p0 = self._global[first]
         near = int(np.argmin(np.hypot(*(self._global[:first, :2] - p0[:2]).T)))
         for k, s in enumerate(self.submaps):
@@ -181,12 +182,11 @@ class JoinedMaps(Submaps, LoopClosing):
         self.graph.update()
         self._global = self.graph.poses_now()
         every = self.config.loop.every or 1
-        for j, xy in enumerate(kf_xy):
+        for j, xy in enumerate(pts):
             node = first + j
             if node % every or len(xy) < 8:
                 continue
-            pts, _ = voxel_downsample(xy, None, self.config.local.voxel_m)
-            if self.search_loops(node, pts):
+            if self.search_loops(node, xy):
                 self.graph.update()
                 self._global = self.graph.estimate()
 
@@ -220,23 +220,27 @@ def _joined(a: SavedMap, b: SavedMap, cfg: MergeConfig,
     g.add_map(a, a.kf_pose, into_submaps=True)
     first = g.add_map(b, compose(placed.transform, b.kf_pose), into_submaps=False)
     sigmas = np.array([cfg.placed_sigma_m, cfg.placed_sigma_m, cfg.placed_sigma_rad])
-    g.close_loops(first, b.kf_xy, sigmas)
-    poses = aligned(a, b, g.graph.poses_now(), g.closures, g.config, sigmas)
+    # every keyframe's returns at local SLAM's voxel, as graph SLAM keeps a node's for
+    # its loop search (step 2) and for the end-of-run alignment (step 3)
+    pts = [voxel_downsample(xy, None, g.config.local.voxel_m)[0] for xy in a.kf_xy + b.kf_xy]
+    g.close_loops(first, pts[first:], sigmas)
+    poses = aligned(a, b, pts, g.graph.poses_now(), g.closures, g.config, sigmas)
     return placed, poses[:first], poses[first:], g.closures
 
 
-def aligned(a: SavedMap, b: SavedMap, poses: np.ndarray, closures: list[LoopClosure],
-            config: GraphSlamConfig, sigmas: np.ndarray) -> np.ndarray:
+def aligned(a: SavedMap, b: SavedMap, pts: list[np.ndarray], poses: np.ndarray,
+            closures: list[LoopClosure], config: GraphSlamConfig, sigmas: np.ndarray
+            ) -> np.ndarray:
     """Step 3: graph SLAM's global scan alignment (Lu & Milios 1997,
-    :mod:`chizu.numeric.slam.alignment`) of both maps' keyframes from ``poses``, as a run
-    ends: each matched to the keyframes it overlaps, of either map, with each run's
-    odometry chain, both maps' loop constraints and the ``closures`` between them. Each
+    :mod:`chizu.numeric.slam.alignment`) of both maps' keyframes (returns ``pts``,
+    down-sampled) from ``poses``, as a run ends: each matched to the keyframes it
+    overlaps, of either map, with each run's odometry chain, both maps' loop constraints
+    and the ``closures`` between them. Each
     run's first keyframe but A's first -- B's, and those of the runs a merged A already
     holds: a keyframe with no odometry edge from the one before -- starts an odometry
     chain of its own and is held loosely (``sigmas``) where step 2 put it."""
     held = len(a)
     acfg = config.alignment or AlignmentConfig()
-    pts = [voxel_downsample(xy, None, config.local.voxel_m)[0] for xy in a.kf_xy + b.kf_xy]
     matches = pairwise_matches(pts, [None] * len(pts), poses, acfg)
     loop, odometry = EDGE_KINDS.index("loop"), EDGE_KINDS.index("odometry")
     edges = [(int(i) + off, int(j) + off, d, int(k))
@@ -289,8 +293,7 @@ def merged(a: SavedMap, a_kf: np.ndarray, b: SavedMap, b_kf: np.ndarray,
     numbered ``a``'s keyframes first) as loop constraints."""
     held = len(a)
     loop = EDGE_KINDS.index("loop")
-    g = GraphSlamConfig().graph
-    cov = np.diag(np.array([g.loop_sigma_m, g.loop_sigma_m, g.loop_sigma_rad]) ** 2)
+    cov = np.diag(GraphSlamConfig().graph.loop_sigmas() ** 2)
     ca, cb = constraints_of(a), constraints_of(b)
     n = len(closures)
     cons = Constraints(

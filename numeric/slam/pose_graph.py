@@ -39,11 +39,14 @@ class GraphConfig(BaseModel):
         return np.stack([s, s, self.odom_sigma_rad
                          + self.odom_sigma_rad_per_rad * np.abs(d[..., 2])], axis=-1)
 
+    def loop_sigmas(self, weight: float = 1.0) -> np.ndarray:
+        """A loop closure's sigmas (x, y, theta) over ``weight``."""
+        return np.array([self.loop_sigma_m, self.loop_sigma_m, self.loop_sigma_rad]) / weight
+
     def loop_noise(self, weight: float = 1.0) -> gtsam.noiseModel.Base:
-        """A loop closure's noise: its sigmas over ``weight``, Huber-robust."""
-        sigmas = np.array([self.loop_sigma_m, self.loop_sigma_m, self.loop_sigma_rad]) / weight
+        """A loop closure's noise: :meth:`loop_sigmas`, Huber-robust."""
         return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(
-            self.huber_k), gtsam.noiseModel.Diagonal.Sigmas(sigmas))
+            self.huber_k), gtsam.noiseModel.Diagonal.Sigmas(self.loop_sigmas(weight)))
 
 
 @dataclass
@@ -193,8 +196,7 @@ class PoseGraph:
     def add_loop(self, a: int, b: int, delta: np.ndarray, weight: float = 1.0) -> None:
         self._graph.add(gtsam.BetweenFactorPose2(a, b, as_pose2(delta),
                                                  self.config.loop_noise(weight)))
-        c = self.config
-        sig = np.array([c.loop_sigma_m, c.loop_sigma_m, c.loop_sigma_rad]) / weight
+        sig = self.config.loop_sigmas(weight)
         self.edges.append((a, b, np.array(delta, dtype=float), np.diag(sig**2), 2))
         self.closures += 1
         self._dirty = True

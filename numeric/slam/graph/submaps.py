@@ -43,6 +43,11 @@ class Submap:
     #: its grid was dropped: older submaps had observed what it did (Submaps.trim)
     trimmed: bool = False
 
+    def finish(self) -> None:
+        """No more scans go in: the grid cropped to what it observed, and frozen."""
+        self.finished = True
+        self.grid = self.grid.cropped().frozen()
+
 
 @dataclass
 class LoopMap:
@@ -111,8 +116,7 @@ class Submaps:
         for k in range(len(self.submaps) - len(act), len(self.submaps)):
             s = self.submaps[k]
             if len(s.nodes) >= cfg.submaps.scans:
-                s.finished = True
-                s.grid = s.grid.cropped().frozen()
+                s.finish()
                 if cfg.submaps.trim_share is not None:
                     self.trim(k)
 
