@@ -14,6 +14,8 @@ import gtsam
 import numpy as np
 from pydantic import BaseModel, Field
 
+from chizu.numeric.geometry import compose, relative
+
 
 class GraphConfig(BaseModel):
     """Noise of the edges (standard deviations, m and rad) and iSAM2's settings."""
@@ -31,6 +33,8 @@ class GraphConfig(BaseModel):
                            "small, so a wrong closure pulls no harder than a 0.1-sigma one")
     relinearize_threshold: float = Field(0.01, gt=0)
     extra_updates: int = Field(3, ge=0, description="iSAM2 sweeps after a loop closure")
+    compact_nodes: int = Field(500, ge=1, description="nodes taken out (PoseGraph.remove) "
+                               "before iSAM2 is rebuilt without them")
 
     def odometry_sigmas(self, delta: np.ndarray) -> np.ndarray:
         """Sigmas (x, y, theta) of odometry increments ``delta`` ``(..., 3)``."""
@@ -105,62 +109,100 @@ def as_pose2(p: np.ndarray) -> gtsam.Pose2:
 
 @dataclass
 class PoseGraph:
-    """Add nodes and edges in order; :meth:`estimate` is the current optimum."""
+    """Add nodes and edges in order; :meth:`estimate` is the current optimum.
+
+    A long run takes out nodes whose place the map already holds (:meth:`remove`, as
+    Cartographer's trimmer deletes the nodes of trimmed submaps): once ``compact_nodes``
+    are queued, iSAM2 is rebuilt from the edges between the nodes that stay and the
+    removed nodes' marginal (:meth:`_compact`). A removed node then rides with the kept
+    node before it, at the relative pose it had when it was taken out.
+    """
 
     config: GraphConfig = field(default_factory=GraphConfig)
     closures: int = 0
 
     def __post_init__(self) -> None:
-        params = gtsam.ISAM2Params()
-        params.setRelinearizeThreshold(self.config.relinearize_threshold)
-        params.relinearizeSkip = 1
-        self.isam = gtsam.ISAM2(params)
+        self.isam = gtsam.ISAM2(self._params())
         self._graph = gtsam.NonlinearFactorGraph()
         self._values = gtsam.Values()
         self._poses = np.zeros((0, 3))
         self._dirty = False
+        #: the prior factors, as (node, pose, sigmas), for a rebuild
+        self._priors: list[tuple[int, np.ndarray, np.ndarray]] = []
+        # per node: taken out of iSAM2 (remove), and then the kept node it rides with
+        # (-1 while kept) at which relative pose
+        self._removed = np.zeros(0, dtype=np.bool_)
+        self._ref = np.zeros(0, dtype=np.int64)
+        self._rel = np.zeros((0, 3))
+        self._leaving: list[int] = []  # queued by remove, still in iSAM2
+        #: what removed nodes said of the kept ones (_compact)
+        self._marginals: list[gtsam.NonlinearFactor] = []
         #: every edge as (a, b, delta, covariance, kind), kind 0 odometry, 1 local, 2
         #: loop (a loop's covariance is its Gaussian core; the Huber loss is not stored)
         self.edges: list[tuple[int, int, np.ndarray, np.ndarray, int]] = []
 
+    def _params(self) -> gtsam.ISAM2Params:
+        params = gtsam.ISAM2Params()
+        params.setRelinearizeThreshold(self.config.relinearize_threshold)
+        params.relinearizeSkip = 1
+        return params
+
     def __len__(self) -> int:
         return len(self._poses)
+
+    def held(self) -> int:
+        """The nodes iSAM2 holds: all but those taken out (:meth:`remove`)."""
+        return int(len(self._poses) - self._removed.sum())
 
     def add_node(self, initial: np.ndarray, prior: bool = False) -> int:
         """A new node with its initial estimate (world frame); the first is anchored."""
         k = len(self._poses)
         self._values.insert(k, as_pose2(initial))
         self._poses = np.vstack([self._poses, initial[None, :]])
+        self._removed = np.append(self._removed, False)
+        self._ref = np.append(self._ref, -1)
+        self._rel = np.vstack([self._rel, np.zeros((1, 3))])
         if prior or k == 0:
-            noise = gtsam.noiseModel.Diagonal.Sigmas(ANCHOR_SIGMAS)
-            self._graph.add(gtsam.PriorFactorPose2(k, as_pose2(initial), noise))
+            self._add_prior(k, initial, ANCHOR_SIGMAS)
         return k
+
+    def _add_prior(self, k: int, pose: np.ndarray, sigmas: np.ndarray) -> None:
+        pose, sigmas = np.array(pose, dtype=float), np.asarray(sigmas, dtype=float)
+        self._graph.add(gtsam.PriorFactorPose2(k, as_pose2(pose),
+                                               gtsam.noiseModel.Diagonal.Sigmas(sigmas)))
+        self._priors.append((k, pose, sigmas))
+
+    def _factor(self, a: int, b: int, delta: np.ndarray, cov: np.ndarray,
+                kind: int) -> gtsam.BetweenFactorPose2:
+        """The between-factor of an edge: Gaussian with ``cov``, Huber-robust for a loop."""
+        noise: gtsam.noiseModel.Base = gtsam.noiseModel.Gaussian.Covariance(cov)
+        if kind == 2:
+            noise = gtsam.noiseModel.Robust.Create(
+                gtsam.noiseModel.mEstimator.Huber.Create(self.config.huber_k), noise)
+        return gtsam.BetweenFactorPose2(a, b, as_pose2(delta), noise)
+
+    def _edge(self, a: int, b: int, delta: np.ndarray, cov: np.ndarray, kind: int) -> None:
+        """Add an edge (stored for saved maps and rebuilds) and its factor."""
+        assert not (self._removed[a] or self._removed[b]), "an edge to a removed node"
+        delta, cov = np.array(delta, dtype=float), np.asarray(cov, dtype=float)
+        self._graph.add(self._factor(a, b, delta, cov, kind))
+        self.edges.append((a, b, delta, cov, kind))
 
     def add_between(self, a: int, b: int, delta: np.ndarray, sigmas: np.ndarray,
                     kind: int = 0) -> None:
         """An edge saying node ``b`` is at ``delta`` in node ``a``'s frame."""
-        sig = np.asarray(sigmas, dtype=float)
-        noise = gtsam.noiseModel.Diagonal.Sigmas(sig)
-        self._graph.add(gtsam.BetweenFactorPose2(a, b, as_pose2(delta), noise))
-        self.edges.append((a, b, np.array(delta, dtype=float), np.diag(sig**2), kind))
+        self._edge(a, b, delta, np.diag(np.asarray(sigmas, dtype=float)**2), kind)
 
     def add_constraint(self, a: int, b: int, delta: np.ndarray, cov: np.ndarray,
                        kind: int) -> None:
         """An edge of a saved map (``kind`` as :meth:`add_between`'s, 2 a loop: Huber-
         robust, as the closures are) with its full covariance."""
-        cov = np.asarray(cov, dtype=float)
-        noise: gtsam.noiseModel.Base = gtsam.noiseModel.Gaussian.Covariance(cov)
-        if kind == 2:
-            noise = gtsam.noiseModel.Robust.Create(
-                gtsam.noiseModel.mEstimator.Huber.Create(self.config.huber_k), noise)
-        self._graph.add(gtsam.BetweenFactorPose2(a, b, as_pose2(delta), noise))
-        self.edges.append((a, b, np.array(delta, dtype=float), cov, kind))
+        self._edge(a, b, delta, cov, kind)
         self._dirty = True
 
     def add_prior(self, k: int, pose: np.ndarray, sigmas: np.ndarray) -> None:
         """Node ``k`` held near ``pose`` with ``sigmas`` (x, y, theta)."""
-        self._graph.add(gtsam.PriorFactorPose2(k, as_pose2(pose), gtsam.noiseModel.Diagonal.Sigmas(
-            np.asarray(sigmas, dtype=float))))
+        self._add_prior(k, pose, sigmas)
         self._dirty = True
 
     def add_local(self, a: int, b: int, delta: np.ndarray,
@@ -177,9 +219,7 @@ class PoseGraph:
         cov[:2, :2] = (self.odometry_sigmas(delta)[0]**2 * np.outer(weak, weak)
                        + s**2 * np.outer(lateral, lateral))
         cov[2, 2] = c.local_sigma_rad**2
-        noise = gtsam.noiseModel.Gaussian.Covariance(cov)
-        self._graph.add(gtsam.BetweenFactorPose2(a, b, as_pose2(delta), noise))
-        self.edges.append((a, b, np.array(delta, dtype=float), cov, 1))
+        self._edge(a, b, delta, cov, 1)
 
     def odometry_sigmas(self, delta: np.ndarray) -> np.ndarray:
         """Sigmas (x, y, theta) of an odometry increment ``delta``."""
@@ -194,10 +234,7 @@ class PoseGraph:
                          else sigmas)
 
     def add_loop(self, a: int, b: int, delta: np.ndarray, weight: float = 1.0) -> None:
-        self._graph.add(gtsam.BetweenFactorPose2(a, b, as_pose2(delta),
-                                                 self.config.loop_noise(weight)))
-        sig = self.config.loop_sigmas(weight)
-        self.edges.append((a, b, np.array(delta, dtype=float), np.diag(sig**2), 2))
+        self._edge(a, b, delta, np.diag(self.config.loop_sigmas(weight)**2), 2)
         self.closures += 1
         self._dirty = True
 
@@ -213,9 +250,95 @@ class PoseGraph:
                 self.isam.update()
             self._refresh()
             self._dirty = False
+        if len(self._leaving) >= self.config.compact_nodes:
+            self._compact()
 
     def _refresh(self) -> None:
-        self._poses = gtsam.utilities.extractPose2(self.isam.calculateEstimate()).reshape(-1, 3)
+        est = gtsam.utilities.extractPose2(self.isam.calculateEstimate()).reshape(-1, 3)
+        if not self._removed.any():
+            self._poses = est
+            return
+        # iSAM2 holds the kept nodes, in key order; the removed ride with theirs
+        self._poses[~self._removed] = est
+        gone = np.flatnonzero(self._removed)
+        self._poses[gone] = compose(self._poses[self._ref[gone]], self._rel[gone])
+
+    def remove(self, nodes: list[int]) -> None:
+        """Take ``nodes`` out of the graph (their poses stay readable): queued, and once
+        ``compact_nodes`` are, the next :meth:`update` rebuilds iSAM2 without them
+        (:meth:`_compact`; not here: the newest node may not have its edges yet)."""
+        self._leaving.extend(int(n) for n in nodes if not self._removed[n])
+
+    def _compact(self) -> None:
+        """Rebuild iSAM2 without the queued nodes, marginalised out: the factors that
+        touch them (their edges, and earlier marginals) linearised at the current
+        estimate and the nodes eliminated, which leaves one Gaussian factor on the kept
+        nodes they were tied to (their neighbours in the chain and the anchors of their
+        loop closures) holding what the removed nodes said of them -- the exact
+        marginal at that linearisation point, as GTSAM's fixed-lag smoothers keep it.
+        Called by :meth:`update` with nothing pending."""
+        self._refresh()
+        est = self._poses
+        leaving = np.zeros(len(est), dtype=np.bool_)
+        leaving[self._leaving] = True
+        self._leaving = []
+        kept = np.flatnonzero(~(self._removed | leaving))
+        if not len(kept):
+            return
+        touching = lambda keys: any(leaving[k] for k in keys)  # noqa: E731
+        out = gtsam.NonlinearFactorGraph()
+        for a, b, d, c, kind in self.edges:
+            if leaving[a] or leaving[b]:
+                out.add(self._factor(a, b, d, c, kind))
+        for k, pose, sig in self._priors:
+            if leaving[k]:
+                out.add(gtsam.PriorFactorPose2(k, as_pose2(pose),
+                                               gtsam.noiseModel.Diagonal.Sigmas(sig)))
+        for f in self._marginals:
+            if touching(f.keys()):
+                out.add(f)
+        keys = sorted({int(k) for i in range(out.size()) for k in out.at(i).keys()})
+        point = gtsam.Values()
+        for k in keys:
+            point.insert(k, as_pose2(est[k]))
+        order = gtsam.Ordering()
+        for k in keys:
+            if leaving[k]:
+                order.push_back(k)
+        _, rest = out.linearize(point).eliminatePartialMultifrontal(order)
+        blanket = gtsam.Values()
+        for k in keys:
+            if not leaving[k]:
+                blanket.insert(k, as_pose2(est[k]))
+        marginal = gtsam.LinearContainerFactor.ConvertLinearGraph(rest, blanket)
+        self._marginals = [f for f in self._marginals if not touching(f.keys())]
+        self._marginals += [marginal.at(i) for i in range(marginal.size())]
+        # the removed nodes (now and before) ride with the nearest kept node before them
+        # (after them, before the first)
+        self._removed |= leaving
+        gone = np.flatnonzero(self._removed)
+        ref = kept[np.clip(np.searchsorted(kept, gone) - 1, 0, len(kept) - 1)]
+        self._ref[gone] = ref
+        self._rel[gone] = relative(est[ref], est[gone])
+        # the graph of the kept nodes
+        self.edges = [e for e in self.edges if not (leaving[e[0]] or leaving[e[1]])]
+        self._priors = [p for p in self._priors if not leaving[p[0]]]
+        graph = gtsam.NonlinearFactorGraph()
+        for a, b, d, c, kind in self.edges:
+            graph.add(self._factor(a, b, d, c, kind))
+        for k, pose, sig in self._priors:
+            graph.add(gtsam.PriorFactorPose2(k, as_pose2(pose),
+                                             gtsam.noiseModel.Diagonal.Sigmas(sig)))
+        for f in self._marginals:
+            graph.add(f)
+        values = gtsam.Values()
+        for n in kept:
+            values.insert(int(n), as_pose2(est[n]))
+        self.isam = gtsam.ISAM2(self._params())
+        self.isam.update(graph, values)
+        for _ in range(self.config.extra_updates):
+            self.isam.update()
+        self._refresh()
 
     def estimate(self) -> np.ndarray:
         """Current optimised poses ``(N, 3)`` (the initial guesses for nodes added since
@@ -226,6 +349,8 @@ class PoseGraph:
         """iSAM2's current estimate of node ``k`` (what :meth:`poses_now` would say of
         it), without solving for the others."""
         self.update()
+        if self._removed[k]:
+            return compose(self.pose_of(int(self._ref[k])), self._rel[k])
         p = self.isam.calculateEstimatePose2(k)
         return np.array([p.x(), p.y(), p.theta()])
 

@@ -74,7 +74,8 @@ def one(name: str, passes: int, trim: bool) -> list[dict[str, Any]]:
                      "seconds": seconds, "realtime": log.duration_s / seconds,
                      "submaps": len(slam.submaps),
                      "trimmed": sum(s.trimmed for s in slam.submaps),
-                     "closures": len(slam.closures), "nodes": len(slam.local)})
+                     "closures": len(slam.closures), "nodes": len(slam.local),
+                     "graph_nodes": slam.graph.held()})
         print(json.dumps(rows[-1]), flush=True)
     slam.finish()  # the end-of-run alignment over the scans it kept
     _, poses = slam.trajectory()
@@ -111,15 +112,18 @@ def main() -> None:
              "the pass's own poses on the log's relations, online and after the end-of-run "
              "alignment of the whole run (the trimmed run, which forgets what the map "
              "holds past 10 000 scans, held the points of "
-             f"{rows[-1]['scans_kept'] if rows else 0} of its scans).", "",
-             "| submaps | pass | trans (m) | rot (deg) | trans aligned (m) | resident (MB) | "
-             "peak (MB) | submaps (trimmed) | loop closures | seconds | x real time |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             f"{rows[-1]['scans_kept'] if rows else 0} of its scans); nodes: the run's, and "
+             "those its pose graph holds (the others taken out with their trimmed submaps).",
+             "", "| submaps | pass | trans (m) | rot (deg) | trans aligned (m) | resident (MB) | "
+             "peak (MB) | submaps (trimmed) | nodes (in the graph) | loop closures | seconds | "
+             "x real time |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {'trimmed' if r['trim'] else 'all kept'} | {r['pass']} | "
                      f"{r['trans']:.4f} | {r['rot']:.3f} | {r['aligned_trans']:.4f} | "
                      f"{r['rss_mb']:.0f} | "
                      f"{r['peak_mb']:.0f} | {r['submaps']} ({r['trimmed']}) | "
+                     f"{r['nodes']} ({r['graph_nodes']}) | "
                      f"{r['closures']} | {r['seconds']:.0f} | {r['realtime']:.1f} |")
     print("\n".join(lines))
     default = a.log == "aces" and a.passes == 3

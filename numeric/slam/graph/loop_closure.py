@@ -23,7 +23,7 @@ import numpy as np
 
 from chizu.numeric.geometry import compose, invert, relative
 from chizu.numeric.slam.graph.config import GraphSlamConfig
-from chizu.numeric.slam.graph.submaps import LoopMap, Submap
+from chizu.numeric.slam.graph.submaps import LoopMap, ObservedCells, Submap
 from chizu.numeric.slam.keyframes import voxel_downsample
 from chizu.numeric.slam.matching.correlative import Match, refine
 from chizu.numeric.slam.pose_graph import PoseGraph
@@ -81,8 +81,7 @@ class LoopClosing:
     _last_closed: dict[int, int]
     _pending: dict[int, LoopClosure]
     _loop_maps: dict[tuple[int, tuple[int, ...]], LoopMap]
-    _cells: dict[int, np.ndarray]
-    _covered: np.ndarray
+    _cells: dict[int, ObservedCells]
 
     if TYPE_CHECKING:
         def loop_map(self, k: int, node: int) -> LoopMap: ...
@@ -95,7 +94,6 @@ class LoopClosing:
         self._global = np.zeros((0, 3))
         self._loop_maps = {}
         self._cells = {}
-        self._covered = np.zeros(0, dtype=np.int64)
         self._last_closed = {}  # submap -> last node closed against it
         self._pending = {}  # submap -> match awaiting confirmation
         self._travel = []  # path length (local frame) up to each node

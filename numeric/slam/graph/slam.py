@@ -140,22 +140,26 @@ class GraphSlam(Submaps, LocalSlam, LoopClosing, AlignedOutputs):
     def forget(self, nodes: list[int]) -> None:
         """``nodes`` are held only by trimmed submaps: the map already had their place.
         Once the run is past ``forget_after_scans`` scans their returns are forgotten
-        (:meth:`_forget_queued`), those queued before first. The nodes stay in the pose
-        graph and their scans in the trajectory."""
+        and they leave the pose graph (:meth:`_forget_queued`), those queued before
+        first. Their scans stay in the trajectory."""
         self._redundant.extend(nodes)
         self._forget_queued()
 
     def _forget_queued(self) -> None:
         """On a run past ``forget_after_scans`` scans, forget the queued nodes' returns:
         their keyframes' points (the keyframes stay, empty) and their scans' (from the
-        node's scan to the next node's) for the end-of-run alignment."""
-        if len(self.times) <= self.config.submaps.forget_after_scans:
+        node's scan to the next node's) for the end-of-run alignment; and take the nodes
+        out of the pose graph (:meth:`~chizu.numeric.slam.pose_graph.PoseGraph.remove`:
+        their poses then ride with the kept node before them)."""
+        if len(self.times) <= self.config.submaps.forget_after_scans or not self._redundant:
             return
-        while self._redundant:
-            n = self._redundant.popleft()
+        nodes = list(self._redundant)
+        self._redundant.clear()
+        for n in nodes:
             self.keyframes.forget(n)
             if self.config.alignment is not None and n + 1 < len(self._node_scan):
                 self.scans.forget(self._node_scan[n], self._node_scan[n + 1])
+        self.graph.remove(nodes)
 
     # -- outputs ------------------------------------------------------------------------
     def optimise(self) -> np.ndarray:

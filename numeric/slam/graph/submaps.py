@@ -9,12 +9,13 @@ across itself and leaves it free along it. Loop closure matches against a submap
 stitched with its neighbours in time (:meth:`Submaps.loop_map`).
 
 On a long run over the same building a finished submap that observed almost nothing the
-older submaps had not is trimmed (:meth:`Submaps.trim`, after Cartographer's overlapping
-submaps trimmer): its grid is dropped and loop closure no longer searches it, and on a
-run past ``forget_after_scans`` scans the returns of its nodes no kept submap holds are
-forgotten, while the nodes stay in the pose graph (and their scans in the trajectory).
-Memory and the loop searches then grow with the building, not with the hours the robot
-drives through it.
+older submaps had not (placed where the pose graph has them now) is trimmed
+(:meth:`Submaps.trim`, after Cartographer's overlapping submaps trimmer): its grid is
+dropped and loop closure no longer searches it, and on a run past ``forget_after_scans``
+scans the returns of its nodes no kept submap holds are forgotten and the nodes leave
+the pose graph, their marginal kept (:meth:`~chizu.numeric.slam.pose_graph.PoseGraph.remove`;
+their scans stay in the trajectory). Memory and the loop searches then grow with the
+building, not with the hours the robot drives through it.
 """
 
 from __future__ import annotations
@@ -66,6 +67,50 @@ class LoopMap:
                        if isinstance(v, np.ndarray) and v.flags.owndata))
 
 
+@dataclass(frozen=True)
+class ObservedCells:
+    """The cells of ``cell_m`` a finished submap observed, in the local-SLAM frame, one
+    bit each (what :meth:`Submaps.trim` compares; a few kilobytes a submap)."""
+
+    origin: np.ndarray
+    shape: tuple[int, int]
+    cell_m: float
+    bits: np.ndarray
+
+    @classmethod
+    def of(cls, grid: ProbabilityGrid, cell_m: float) -> ObservedCells:
+        """A grid's observed cells, on cells ``cell_m`` wide (any fine cell observed)."""
+        coarse = grid.coarsened(max(1, int(round(cell_m / grid.resolution_m))))
+        known = coarse.known()
+        return cls(coarse.origin.copy(), (int(known.shape[0]), int(known.shape[1])),
+                   coarse.resolution_m, np.packbits(known, axis=None))
+
+    def mask(self) -> np.ndarray:
+        n = self.shape[0] * self.shape[1]
+        return np.unpackbits(self.bits, count=n).reshape(self.shape).astype(np.bool_)
+
+    def centres(self) -> np.ndarray:
+        """The observed cells' centres ``(n, 2)`` (local-SLAM frame, m)."""
+        ii, jj = np.nonzero(self.mask())
+        return self.origin + (np.stack([ii, jj], axis=1) + 0.5) * self.cell_m
+
+    def bounds(self, to_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The world box holding the cells when the local frame is placed by
+        ``to_world``."""
+        size = np.array(self.shape) * self.cell_m
+        corners = self.origin + np.array([[0, 0], [size[0], 0], [0, size[1]], size])
+        w = place(corners, to_world)
+        return w.min(axis=0), w.max(axis=0)
+
+    def holds(self, xy: np.ndarray) -> np.ndarray:
+        """Whether each point ``xy (n, 2)`` (local-SLAM frame) lies in an observed cell."""
+        c = np.floor((xy - self.origin) / self.cell_m).astype(np.int64)
+        ok = np.all((c >= 0) & (c < np.array(self.shape)), axis=1)
+        out = np.zeros(len(xy), dtype=np.bool_)
+        out[ok] = self.mask()[c[ok, 0], c[ok, 1]]
+        return out
+
+
 class Submaps:
     """The submap steps of :class:`~chizu.numeric.slam.graph.slam.GraphSlam`."""
 
@@ -78,10 +123,8 @@ class Submaps:
     _tied_at: np.ndarray
     _loop_maps: dict[tuple[int, tuple[int, ...]], LoopMap]
     _global: np.ndarray
-    #: the coarse world cells each kept finished submap observed, and their union over
-    #: the kept submaps old enough to count (Submaps.trim)
-    _cells: dict[int, np.ndarray]
-    _covered: np.ndarray
+    #: the coarse cells each finished submap observed (Submaps.trim)
+    _cells: dict[int, ObservedCells]
 
     if TYPE_CHECKING:
         def forget(self, nodes: list[int]) -> None: ...
@@ -120,43 +163,54 @@ class Submaps:
                 if cfg.submaps.trim_share is not None:
                     self.trim(k)
 
-    def observed_cells(self, k: int) -> np.ndarray:
-        """The cells of ``trim_cell_m`` in the world frame that submap ``k`` observed,
-        as sorted keys: its grid's observed cells placed by its anchor node's current
-        global pose."""
-        s, cell = self.submaps[k], self.config.submaps.trim_cell_m
-        g = s.grid
-        ii, jj = np.nonzero(g.known())
-        local = g.origin + (np.stack([ii, jj], axis=1) + 0.5) * g.resolution_m
-        world = place(local, compose(self._global[s.anchor], invert(self.local[s.anchor])))
-        c = np.floor(world / cell).astype(np.int64)
-        return np.unique(c[:, 0] * 2_000_003 + c[:, 1])
+    def to_world(self, k: int) -> np.ndarray:
+        """The transform from the local-SLAM frame to the world for submap ``k``: its
+        anchor node's current global pose over its local one."""
+        a = self.submaps[k].anchor
+        return compose(self._global[a], invert(self.local[a]))
+
+    def covered_share(self, k: int, cells: ObservedCells) -> float:
+        """The share of ``cells`` (submap ``k``'s) that submaps finished before its two
+        neighbours in time observed, each placed where the pose graph has it now: a
+        loop closure that moved the older submaps moves what they cover with them."""
+        centres = cells.centres()
+        if not len(centres):
+            return 1.0
+        mine = self.to_world(k)
+        world = place(centres, mine)
+        lo, hi = world.min(axis=0), world.max(axis=0)
+        covered = np.zeros(len(centres), dtype=np.bool_)
+        for j, other in self._cells.items():
+            if j >= k - 2:
+                continue
+            theirs = self.to_world(j)
+            blo, bhi = other.bounds(theirs)
+            if np.any(bhi < lo) or np.any(blo > hi):
+                continue
+            covered |= other.holds(place(centres, compose(invert(theirs), mine)))
+        return float(covered.mean())
 
     def trim(self, k: int) -> None:
         """Trim the submap ``k`` just finished when at least ``trim_share`` of the cells
-        it observed were observed by kept submaps finished before its two neighbours in
-        time (a submap always overlaps the one before it by half, and a robot turning in
-        a room fills the next with the same cells): its grid is dropped, loop closure
+        it observed were observed by submaps finished before its two neighbours in time
+        (a submap always overlaps the one before it by half, and a robot turning in a
+        room fills the next with the same cells): its grid is dropped, loop closure
         skips it, and on a long run the returns of its nodes no kept submap holds are
-        forgotten (:meth:`~chizu.numeric.slam.graph.slam.GraphSlam.forget`). Else its cells join the
-        cover."""
+        forgotten (:meth:`~chizu.numeric.slam.graph.slam.GraphSlam.forget`). Its cells
+        count as observed for the submaps after it, trimmed or not: a trimmed submap
+        adds at most ``1 - trim_share`` of cells beyond the older ones, and those would
+        otherwise be new again to every later pass through the place."""
         cfg = self.config.submaps
-        keys = self.observed_cells(k)
-        old = [j for j in self._cells if j < k - 2]
-        for j in old:  # old enough now: into the cover
-            self._covered = np.union1d(self._covered, self._cells.pop(j))
-        share = (np.isin(keys, self._covered, assume_unique=True).mean() if len(keys)
-                 else 1.0)
         assert cfg.trim_share is not None
-        if share >= cfg.trim_share:
-            s = self.submaps[k]
+        s = self.submaps[k]
+        cells = ObservedCells.of(s.grid, cfg.trim_cell_m)
+        if self.covered_share(k, cells) >= cfg.trim_share:
             s.trimmed = True
             s.grid = ProbabilityGrid(s.grid.config)
             near = [self.submaps[j] for j in (k - 1, k + 1) if 0 <= j < len(self.submaps)]
             self.forget([n for n in s.nodes if all(
                 o.trimmed for o in near if o.nodes and o.nodes[0] <= n <= o.nodes[-1])])
-        else:
-            self._cells[k] = keys
+        self._cells[k] = cells
 
     def loop_map(self, k: int, node: int) -> LoopMap:
         """Submap ``k`` stitched with its finished neighbours in time, ``loop.neighbours``
