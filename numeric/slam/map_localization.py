@@ -171,15 +171,17 @@ class GlobalSearch:
         self.centre = np.array([*(g.origin + size / 2), 0.0])
         self.window_m = float(np.max(size) / 2)
 
-    def fix(self, xy: np.ndarray) -> Match | None:
+    def fix(self, xy: np.ndarray, min_score: float | None = None) -> Match | None:
         """The best pose of robot-frame points ``xy`` anywhere in the map, or None when
-        it scores too little or is not unique."""
+        it scores below ``min_score`` (``global_min_score`` unless given) or is not
+        unique."""
         cfg = self.config
         near = xy[np.hypot(xy[:, 0], xy[:, 1]) <= cfg.global_range_m]
         pts = adaptive_voxel(near, cfg.global_points, self.search.grid.resolution_m)
         if len(pts) < 8:
             return None
-        best = self.search.match(pts, self.centre, self.window_m, np.pi, cfg.global_min_score,
+        best = self.search.match(pts, self.centre, self.window_m, np.pi,
+                                 cfg.global_min_score if min_score is None else min_score,
                                  cfg.global_step_rad)
         if best is None:
             return None

@@ -9,9 +9,11 @@ graph SLAM on its own, or a second saved map):
    (:mod:`chizu.numeric.slam.map_localization`, step 2: branch and bound over the whole map and
    every heading, with its uniqueness test) of B's keyframes, each with the returns of
    B's keyframes within ``context_m`` of travel around it placed by B's own poses. Each
-   unique fix is a transform from B's frame to A's; the one the most fixes agree with
-   (within ``agree_m`` and ``agree_rad``) is taken, and at least ``min_agree`` must.
-   Without it the maps share no place that tells where: refused (field ``map``).
+   unique fix scoring ``min_score`` is a transform from B's frame to A's; the one the
+   most fixes agree with (within ``agree_m`` and ``agree_rad`` where both were found) is
+   taken, and at least ``min_agree`` must. No fix counts alone, so a fix may score less
+   than map localization asks of the one it acts on. Without such agreement the maps
+   share no place that tells where: refused (field ``map``).
 2. **One pose graph, its loops closed** (:class:`JoinedMaps`): A's keyframes are graph
    SLAM's nodes again, inserted into submaps at A's poses as A's run built them; B's
    keyframes follow, placed by that transform, the first held there loosely; each map's
@@ -53,12 +55,14 @@ class MergeConfig(BaseModel):
     """The steps' parameters (m, rad); one set for every pair of maps."""
 
     model_config = ConfigDict(extra="forbid")
-    context_m: float = Field(3.0, ge=0.0, description="a keyframe is searched for with "
+    context_m: float = Field(10.0, ge=0.0, description="a keyframe is searched for with "
                              "the returns of this much of B's travel around it")
     searches: int = Field(60, ge=1, le=10_000, description="B's keyframes searched for, "
                           "at most (spread evenly)")
+    min_score: float = Field(0.4, gt=0.0, lt=1.0, description="a keyframe's fix scores at "
+                             "least this (no fix is taken alone: min_agree must agree)")
     agree_m: float = Field(0.5, gt=0.0, description="two fixes agree on the transform "
-                           "within this distance at B's keyframes ...")
+                           "within this distance at both fixes' keyframes ...")
     agree_rad: float = Field(0.05, gt=0.0, le=math.pi, description="... and this angle")
     min_agree: int = Field(3, ge=1, description="fixes that must agree")
     placed_sigma_m: float = Field(1.0, gt=0.0, description="B's first keyframe is held "
@@ -97,11 +101,12 @@ def frame_transform(a: PreparedMap, kf_xy: list[np.ndarray], kf_pose: np.ndarray
     n = len(have)
     picks = have[np.unique(np.linspace(0, n - 1, min(n, config.searches)).round().astype(int))
                  ] if n else np.zeros(0, dtype=int)
-    found: list[np.ndarray] = []
+    found: list[tuple[np.ndarray, int]] = []  # (transform, keyframe)
     for k in picks:
-        m = a.globally.fix(_context(kf_xy, kf_pose, int(k), config.context_m))
+        m = a.globally.fix(_context(kf_xy, kf_pose, int(k), config.context_m),
+                           config.min_score)
         if m is not None:
-            found.append(compose(np.asarray(m.pose), invert(kf_pose[k])))
+            found.append((compose(np.asarray(m.pose), invert(kf_pose[k])), int(k)))
     best, support = None, 0
     for t in found:
         agree = sum(_agrees(t, u, kf_pose, config) for u in found)
@@ -113,18 +118,23 @@ def frame_transform(a: PreparedMap, kf_xy: list[np.ndarray], kf_pose: np.ndarray
             f"{len(picks)} places searched for, {len(found)} were found uniquely and at most "
             f"{support} agree ({config.min_agree} needed)", field="map")
     # the agreeing fixes' mean transform (headings averaged on the circle)
-    ts = np.array([t for t in found if _agrees(best, t, kf_pose, config)])
+    ts = np.array([u[0] for u in found if _agrees(best, u, kf_pose, config)])
     mean = np.array([ts[:, 0].mean(), ts[:, 1].mean(),
                      math.atan2(np.sin(ts[:, 2]).mean(), np.cos(ts[:, 2]).mean())])
     return Placement(mean, support, len(found), len(picks))
 
 
-def _agrees(t: np.ndarray, u: np.ndarray, kf_pose: np.ndarray, cfg: MergeConfig) -> bool:
-    """Whether transforms ``t`` and ``u`` put B's keyframes within ``agree_m`` of each
-    other (at the farthest) and turn them by the same heading within ``agree_rad``."""
-    if abs(float(wrap_angle(t[2] - u[2]))) > cfg.agree_rad:
+def _agrees(t: tuple[np.ndarray, int], u: tuple[np.ndarray, int], kf_pose: np.ndarray,
+            cfg: MergeConfig) -> bool:
+    """Whether two fixes' transforms (each with the keyframe it was found from) put both
+    keyframes within ``agree_m`` of each other and turn them by the same heading within
+    ``agree_rad``. Compared where the fixes were made, not over all of B: B's own map
+    bends a little along hundreds of metres, and its far ends would part two right
+    fixes."""
+    if abs(float(wrap_angle(t[0][2] - u[0][2]))) > cfg.agree_rad:
         return False
-    d = compose(t, kf_pose)[:, :2] - compose(u, kf_pose)[:, :2]
+    at = kf_pose[[t[1], u[1]]]
+    d = compose(t[0], at)[:, :2] - compose(u[0], at)[:, :2]
     return bool(np.hypot(*d.T).max() <= cfg.agree_m)
 
 

@@ -314,7 +314,9 @@ class PoseGraph:
         self._marginals = [f for f in self._marginals if not touching(f.keys())]
         self._marginals += [marginal.at(i) for i in range(marginal.size())]
         # the removed nodes (now and before) ride with the nearest kept node before them
-        # (after them, before the first)
+        # (after them, before the first): a run of removed neighbours in time rides with
+        # one node and keeps its shape, where the kept node nearest each in space (on
+        # another lap) moves each its own way
         self._removed |= leaving
         gone = np.flatnonzero(self._removed)
         ref = kept[np.clip(np.searchsorted(kept, gone) - 1, 0, len(kept) - 1)]
