@@ -695,9 +695,10 @@ def test_a_room_driven_again_trims_its_submaps_and_keeps_its_accuracy() -> None:
     submaps observe what the first pass's did and are trimmed (their grids dropped, no
     loop search against them, the returns of the nodes only they hold forgotten), so
     the grids held stay as large as after the first pass, and the second pass is as
-    accurate as the first, its forgotten nodes out of the pose graph -- online, after the end-of-run alignment (the run counts as
-    long after one pass here: from then on it forgets the returns of the nodes only
-    trimmed submaps hold), and localized on the run's saved map."""
+    accurate as the first, its forgotten nodes out of the pose graph -- online, after
+    the end-of-run alignment (the run counts as long after one pass here: from then on
+    it forgets the returns of the nodes only trimmed submaps hold), and localized on the
+    run's saved map."""
     from dataclasses import replace
 
     from chizu.numeric.scan import LaserLog
