@@ -107,6 +107,10 @@ def as_pose2(p: np.ndarray) -> gtsam.Pose2:
     return gtsam.Pose2(float(p[0]), float(p[1]), float(p[2]))
 
 
+def _prior_factor(k: int, pose: np.ndarray, sigmas: np.ndarray) -> gtsam.PriorFactorPose2:
+    return gtsam.PriorFactorPose2(k, as_pose2(pose), gtsam.noiseModel.Diagonal.Sigmas(sigmas))
+
+
 @dataclass
 class PoseGraph:
     """Add nodes and edges in order; :meth:`estimate` is the current optimum.
@@ -167,10 +171,9 @@ class PoseGraph:
         return k
 
     def _add_prior(self, k: int, pose: np.ndarray, sigmas: np.ndarray) -> None:
-        pose, sigmas = np.array(pose, dtype=float), np.asarray(sigmas, dtype=float)
-        self._graph.add(gtsam.PriorFactorPose2(k, as_pose2(pose),
-                                               gtsam.noiseModel.Diagonal.Sigmas(sigmas)))
-        self._priors.append((k, pose, sigmas))
+        prior = (k, np.array(pose, dtype=float), np.asarray(sigmas, dtype=float))
+        self._graph.add(_prior_factor(*prior))
+        self._priors.append(prior)
 
     def _factor(self, a: int, b: int, delta: np.ndarray, cov: np.ndarray,
                 kind: int) -> gtsam.BetweenFactorPose2:
@@ -285,15 +288,17 @@ class PoseGraph:
         kept = np.flatnonzero(~(self._removed | leaving))
         if not len(kept):
             return
-        touching = lambda keys: any(leaving[k] for k in keys)  # noqa: E731
+
+        def touching(keys: gtsam.KeyVector) -> bool:
+            return any(leaving[k] for k in keys)
+
         out = gtsam.NonlinearFactorGraph()
         for a, b, d, c, kind in self.edges:
             if leaving[a] or leaving[b]:
                 out.add(self._factor(a, b, d, c, kind))
-        for k, pose, sig in self._priors:
-            if leaving[k]:
-                out.add(gtsam.PriorFactorPose2(k, as_pose2(pose),
-                                               gtsam.noiseModel.Diagonal.Sigmas(sig)))
+        for prior in self._priors:
+            if leaving[prior[0]]:
+                out.add(_prior_factor(*prior))
         for f in self._marginals:
             if touching(f.keys()):
                 out.add(f)
@@ -328,9 +333,8 @@ class PoseGraph:
         graph = gtsam.NonlinearFactorGraph()
         for a, b, d, c, kind in self.edges:
             graph.add(self._factor(a, b, d, c, kind))
-        for k, pose, sig in self._priors:
-            graph.add(gtsam.PriorFactorPose2(k, as_pose2(pose),
-                                             gtsam.noiseModel.Diagonal.Sigmas(sig)))
+        for prior in self._priors:
+            graph.add(_prior_factor(*prior))
         for f in self._marginals:
             graph.add(f)
         values = gtsam.Values()
