@@ -23,9 +23,11 @@ AMCL reads a map (Thrun, Burgard, Fox, *Probabilistic Robotics*, §6.4):
    by Gauss-Newton on the field (:func:`~chizu.numeric.slam.matching.correlative.refine`);
    when the refined score is poor, a correlative search of a small window first; then
    point-to-line ICP against the returns of the nearest keyframes, finer than the
-   grid's cells. The score counts only the points on cells the map observed: a scan
-   reaching into parts of the building the map never saw is neither for nor against
-   a pose, and one mostly off the map is carried by odometry.
+   grid's cells. A match that moves the pose far from the prediction (``trust_m``,
+   ``trust_rad``) is taken only when it scores ``trust_score``: a mediocre one is the
+   scan's walls sliding along the map's. The score counts only the points on cells the
+   map observed: a scan reaching into parts of the building the map never saw is
+   neither for nor against a pose, and one mostly off the map is carried by odometry.
 4. **Recovery**: a scan after a gap in the log longer than ``gap_s``, or
    ``lost_scans`` scans in a row scoring below ``lost_score``, and the robot is lost:
    global localization again, at most every ``search_every_s`` of log time, until a
@@ -121,6 +123,12 @@ class MapLocalizationConfig(BaseModel):
     lost_score: float = Field(0.35, gt=0.0, lt=1.0,
                               description="mean field value of the points on observed "
                                           "cells below which a scan does not fit")
+    trust_m: float = Field(0.08, gt=0.0, description="a match that moves the pose farther "
+                           "than this from local SLAM's prediction ...")
+    trust_rad: float = Field(0.05, gt=0.0, le=np.pi, description="... or turns it more "
+                             "than this ...")
+    trust_score: float = Field(0.55, gt=0.0, lt=1.0, description="... is taken only when "
+                               "it scores at least this; else the prediction is kept")
     off_map_m: float = Field(60.0, gt=0.0, description="travel off the map after which "
                              "the pose (carried by local SLAM) is given up")
     min_on_map: float = Field(0.3, ge=0.0, le=1.0,
@@ -296,6 +304,8 @@ class MapLocalizer:
             self.pose = predicted  # a poor match is not trusted: dead reckoning
             return Step(predicted.copy(), self.state, score)
         self._low = 0
+        if score < self.config.trust_score and self._moves_far(predicted, pose):
+            pose = predicted
         self.pose = pose
         if self.state == "confirming":
             self._confirmed += 1
@@ -306,6 +316,17 @@ class MapLocalizer:
                 self.state = "tracking"
                 self.fixes.append(scan.t)
         return Step(pose.copy(), self.state, score)
+
+    def _moves_far(self, predicted: np.ndarray, pose: np.ndarray) -> bool:
+        """Whether the map's answer moves the pose farther from local SLAM's prediction
+        than one scan's motion estimate errs (``trust_m``, ``trust_rad``). Taken from a
+        mediocre match, such a move is the scan's walls sliding along the map's (a
+        corridor, a room the map saw only from afar), step by step away from where the
+        robot is; local SLAM's prediction is the better answer (the gate of Hara et
+        al. §6, eq. 5, with the map's match in the place of the scan matcher's)."""
+        d = relative(predicted, pose)
+        return bool(np.hypot(d[0], d[1]) > self.config.trust_m
+                    or abs(d[2]) > self.config.trust_rad)
 
     def _agrees(self, second: Match | None, tracked: np.ndarray) -> bool:
         """Whether a second global search, on a later scan, finds the pose the first fix

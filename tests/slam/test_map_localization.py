@@ -19,6 +19,7 @@ from chizu.numeric.slam.graph import ScanOdometry
 from chizu.numeric.slam.map_localization import (
     LocalizationRun,
     MapLocalizationConfig,
+    MapLocalizer,
     bridged,
     localize_log,
 )
@@ -79,6 +80,32 @@ def test_a_robot_carried_away_is_found_again(room_map: sm.SavedMap,
     after = run.times >= run.fixes[1]
     ok = run.localized & after
     assert np.median(np.hypot(*(run.poses[ok, :2] - cut.truth[ok, :2]).T)) < 0.08
+
+
+@pytest.mark.parametrize(("shift_m", "score", "taken"),
+                         [(0.2, 0.45, False), (0.2, 0.7, True), (0.03, 0.45, True)])
+def test_a_mediocre_match_does_not_move_the_pose_far(
+        room_map: sm.SavedMap, other_drive: LaserLog, monkeypatch: pytest.MonkeyPatch,
+        shift_m: float, score: float, taken: bool) -> None:
+    """While tracking, the map's answer is taken when it stays near local SLAM's
+    prediction or scores well; a mediocre one that moves the pose far (walls sliding
+    along walls) leaves the prediction."""
+    loc = MapLocalizer(room_map)
+    k = 0
+    while loc.state != "tracking":
+        loc.process(other_drive.scans[k])
+        k += 1
+    seen: dict[str, np.ndarray] = {}
+
+    def fit(xy: np.ndarray, predicted: np.ndarray) -> tuple[np.ndarray, float, float]:
+        seen["predicted"] = predicted.copy()
+        return compose(predicted, np.array([shift_m, 0.0, 0.0])), score, 0.9
+
+    monkeypatch.setattr(loc, "fit", fit)
+    step = loc.process(other_drive.scans[k])
+    moved = compose(seen["predicted"], np.array([shift_m, 0.0, 0.0]))
+    assert step.state == "tracking" and step.pose is not None
+    assert np.allclose(step.pose, moved if taken else seen["predicted"])
 
 
 def test_a_log_of_another_laser_is_refused(room_map: sm.SavedMap,
