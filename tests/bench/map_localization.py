@@ -25,14 +25,19 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
-from chizu.numeric.geometry import compose  # noqa: E402
+from chizu.numeric.geometry import compose, place  # noqa: E402
 from chizu.numeric.scan import LaserLog  # noqa: E402
 from chizu.numeric.slam.datasets import slam_data_dir  # noqa: E402
 from chizu.numeric.slam.evaluation import relation_errors  # noqa: E402
 from chizu.numeric.slam.logs import read_log, read_relations  # noqa: E402
-from chizu.numeric.slam.map_localization import LocalizationRun, localize_log  # noqa: E402
+from chizu.numeric.slam.map_localization import (  # noqa: E402
+    LocalizationRun,
+    MapLocalizationConfig,
+    PreparedMap,
+    localize_log,
+)
 from chizu.numeric.slam.runner import SlamOptions, run_log  # noqa: E402
-from chizu.numeric.slam.saved_map import saved_map_of_log  # noqa: E402
+from chizu.numeric.slam.saved_map import SavedMap, saved_map_of_log  # noqa: E402
 from tests.bench.results import mode, write_page  # noqa: E402
 
 DATA = slam_data_dir() or Path("../shared/data/slam")
@@ -60,6 +65,25 @@ def kidnapped(log: LaserLog) -> tuple[LaserLog, float]:
     keep = [s for s in log.scans if not (mid <= s.t < mid + KIDNAP_S)]
     after = next(s.t for s in keep if s.t >= mid + KIDNAP_S)
     return LaserLog(f"{log.name}-kidnapped", keep), after
+
+
+def back_on_map(m: SavedMap, log: LaserLog, run: LocalizationRun, after: float
+                ) -> float | None:
+    """Log time from ``after`` to the first scan the map could place: its returns, where
+    the undisturbed ``run`` of ``log`` placed it, on cells the map observed for at least
+    the localizer's ``min_on_map`` share (None: no such scan)."""
+    cfg = MapLocalizationConfig()
+    prepared = PreparedMap.of(m, cfg)
+    g = prepared.grid
+    for scan, t, pose in zip(log.scans, run.times, run.poses, strict=True):
+        if t < after or not np.all(np.isfinite(pose)):
+            continue
+        c = np.floor(g.to_cells(place(scan.points()[0], pose))).astype(np.int64)
+        inside = np.all((c >= 0) & (c < np.array(g.shape)), axis=1)
+        if inside.any() and (prepared.known[c[inside, 0], c[inside, 1]].sum()
+                             >= cfg.min_on_map * len(c)):
+            return float(t - after)
+    return None
 
 
 def errors(run: LocalizationRun, rel: tuple[np.ndarray, np.ndarray],
@@ -96,6 +120,7 @@ def one_case(name: str, share: float, whole: tuple[np.ndarray, np.ndarray],
             "share": float(run.localized.mean()), "placed": float(run.placed.mean()),
             "rt": second.duration_s / max(run.seconds, 1e-9), "mapping_s": mapping_s,
             "refix": None if not refix else refix[0] - after,
+            "on_map": back_on_map(m, second, run, after),
             "refix_off": float(np.median(off)) if off else None}
 
 
@@ -126,15 +151,18 @@ def main() -> None:
         "errors (Kümmerle et al. 2009: mean translational m / rotational deg) on the "
         "relations within the second log, beside graph SLAM run over the whole log on the "
         f"same relations. Kidnapped: {KIDNAP_S:.0f} s of scans dropped from the second "
-        "log's middle; time from the first scan after the gap to the new fix, and the "
-        "median distance of the poses after it from the undisturbed run's. Scans "
+        "log's middle; time from the first scan after the gap to the new fix, the time "
+        "until the robot is back on the map (the first scan, where the undisturbed run "
+        f"placed it, with {MapLocalizationConfig().min_on_map:.0%} of its returns on cells "
+        "the map observed: no method can place it before), and the median distance of "
+        "the poses after the fix from the undisturbed run's. Scans "
         "localized: tracked on the map online; placed: with a pose once the log is over "
         "(also those off the map or lost between tracked ones, by local SLAM and the "
         "alignment); the errors are the placed scans'.", "",
         "| case | scans | keyframes | localization: trans / rot (relations, without pose) "
         "| graph SLAM, whole log | ratio | first fix | scans localized / placed | losses "
-        "| x real time | kidnapped: new fix after | off by |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+        "| x real time | kidnapped: new fix after | back on the map after | off by |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lt, lr, n, miss = r["loc"]  # type: ignore[misc]
         gt, gr = r["graph"]  # type: ignore[misc]
@@ -142,7 +170,8 @@ def main() -> None:
             f"| {r['case']} | {r['scans']} | {r['keyframes']} | {lt:.4f} / {lr:.3f} ({n}, "
             f"{miss}) | {gt:.4f} / {gr:.3f} | {lt / gt:.2f} | {f(r['first_fix'], '.1f')} s | "
             f"{r['share']:.1%} / {r['placed']:.1%} | {r['losses']} | {r['rt']:.0f} | "
-            f"{f(r['refix'], '.1f')} s | {f(r['refix_off'], '.3f')} m |")
+            f"{f(r['refix'], '.1f')} s | {f(r['on_map'], '.1f')} s | "
+            f"{f(r['refix_off'], '.3f')} m |")
     print("\n".join(body))
     write_page("map_localization", "Localization only, on a saved map", body,
                mode(p, args, {"quick": "the middle split of each log only"}))
