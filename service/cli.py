@@ -15,7 +15,6 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from chizu.numeric.viewpoint.planner import BUILTIN_OBJECT_TYPES
 from chizu.service.settings import get_settings
 
 app = typer.Typer(help="chizu: hybrid symbolic-numeric planner for mobile robots.",
@@ -483,8 +482,6 @@ def slam_sim(template: str = typer.Argument("corridor", help="built-in world"),
     console.print(f"wrote {out} ({len(log)} scans) and {out}.truth.tum")
 
 
-DEFAULT_TYPES = BUILTIN_OBJECT_TYPES
-
 
 def _world_description(name: str):  # type: ignore[no-untyped-def]
     """A stored world of the data directory, else a built-in template."""
@@ -588,7 +585,7 @@ def summarise(world: str = typer.Argument(..., help="stored world or template, e
 
     from chizu.numeric.figures import run_figure
     from chizu.numeric.viewpoint.online import Summariser, SummaryConfig
-    from chizu.numeric.viewpoint.planner import ObjectType
+    from chizu.numeric.viewpoint.planner import BUILTIN_OBJECT_TYPES, ObjectType
     from chizu.numeric.world import World
     from chizu.numeric.worlds import SUMMARY_DOOR
     from chizu.service.viewpoint import local_grouper
@@ -604,7 +601,7 @@ def summarise(world: str = typer.Argument(..., help="stored world or template, e
         console.print(f"[red]--door must be x,y, not {door!r}[/red]")
         raise typer.Exit(2) from None
     w = World(_world_description(world))
-    types = [ObjectType.model_validate(t) for t in DEFAULT_TYPES]
+    types = [ObjectType.model_validate(t) for t in BUILTIN_OBJECT_TYPES]
     cfg = SummaryConfig(time_limit_s=time_limit, loss=loss, seed=seed)
     grouper, kb = local_grouper(get_settings().prolog_dir)
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn

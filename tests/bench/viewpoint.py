@@ -36,16 +36,20 @@ from chizu.numeric.viewpoint.plan import (  # noqa: E402
     solve_bnb,
     solve_exhaustive,
 )
-from chizu.numeric.viewpoint.planner import PlanRequest, ViewpointPlanner, geodesic  # noqa: E402
+from chizu.numeric.viewpoint.planner import (  # noqa: E402
+    BUILTIN_OBJECT_TYPES,  # noqa: E402
+    PlanRequest,
+    ViewpointPlanner,
+    geodesic,
+)
 from chizu.numeric.viewpoint.verification import TableCache  # noqa: E402
 from chizu.numeric.world import World  # noqa: E402
 from chizu.numeric.worlds import SUMMARY_DOOR, summary_room  # noqa: E402
-from chizu.service.cli import DEFAULT_TYPES  # noqa: E402
 from chizu.service.viewpoint import local_grouper  # noqa: E402
 from tests.bench.results import FULL, write_page  # noqa: E402
 
 OUT = ROOT / "bench-out"
-TYPES = DEFAULT_TYPES
+TYPES = BUILTIN_OBJECT_TYPES
 DOOR = list(SUMMARY_DOOR)
 
 
