@@ -69,9 +69,10 @@ def kidnapped(log: LaserLog) -> tuple[LaserLog, float]:
 
 def back_on_map(m: SavedMap, log: LaserLog, run: LocalizationRun, after: float
                 ) -> float | None:
-    """Log time from ``after`` to the first scan the map could place: its returns, where
-    the undisturbed ``run`` of ``log`` placed it, on cells the map observed for at least
-    the localizer's ``min_on_map`` share (None: no such scan)."""
+    """Log time from ``after`` to the first scan the map could fix: where the undisturbed
+    ``run`` of ``log`` placed it, at least the localizer's ``min_on_map`` share of its
+    returns on cells the map observed, scoring at least ``global_min_score`` there
+    (None: no such scan)."""
     cfg = MapLocalizationConfig()
     prepared = PreparedMap.of(m, cfg)
     g = prepared.grid
@@ -79,9 +80,11 @@ def back_on_map(m: SavedMap, log: LaserLog, run: LocalizationRun, after: float
         if t < after or not np.all(np.isfinite(pose)):
             continue
         c = np.floor(g.to_cells(place(scan.points()[0], pose))).astype(np.int64)
-        inside = np.all((c >= 0) & (c < np.array(g.shape)), axis=1)
-        if inside.any() and (prepared.known[c[inside, 0], c[inside, 1]].sum()
-                             >= cfg.min_on_map * len(c)):
+        c = c[np.all((c >= 0) & (c < np.array(g.shape)), axis=1)]
+        seen = c[prepared.known[c[:, 0], c[:, 1]]]
+        n = len(scan.points()[0])
+        if (n and len(seen) >= cfg.min_on_map * n
+                and g.prob[seen[:, 0], seen[:, 1]].mean() >= cfg.global_min_score):
             return float(t - after)
     return None
 
@@ -141,6 +144,8 @@ def main() -> None:
                 rows.append(one_case(name, share, whole, rel, log))
                 print(rows[-1], flush=True)
 
+    cfg = MapLocalizationConfig()
+
     def f(v: object, fmt: str) -> str:
         return "-" if v is None else format(v, fmt)
 
@@ -153,8 +158,9 @@ def main() -> None:
         f"same relations. Kidnapped: {KIDNAP_S:.0f} s of scans dropped from the second "
         "log's middle; time from the first scan after the gap to the new fix, the time "
         "until the robot is back on the map (the first scan, where the undisturbed run "
-        f"placed it, with {MapLocalizationConfig().min_on_map:.0%} of its returns on cells "
-        "the map observed: no method can place it before), and the median distance of "
+        f"placed it, with {cfg.min_on_map:.0%} of its returns on cells the map observed, "
+        f"scoring {cfg.global_min_score} there as a global fix must: the map cannot fix "
+        "it before), and the median distance of "
         "the poses after the fix from the undisturbed run's. Scans "
         "localized: tracked on the map online; placed: with a pose once the log is over "
         "(also those off the map or lost between tracked ones, by local SLAM and the "
