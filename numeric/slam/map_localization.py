@@ -110,6 +110,10 @@ class MapLocalizationConfig(BaseModel):
                                description="a fix is tracked this many scans, then a "
                                            "second global search must find it again")
     confirm_rad: float = Field(0.1, gt=0.0, le=np.pi)
+    confirm_min_score: float = Field(0.4, gt=0.0, lt=1.0, description="the second "
+                                     "search's best pose scores at least this: it must "
+                                     "agree with the first, so it need not score as a "
+                                     "fix alone must")
     track_points: int = Field(400, ge=10, le=5000)
     track_min_score: float = Field(0.5, gt=0.0, lt=1.0,
                                    description="below it the scan is searched in a window")
@@ -310,7 +314,8 @@ class MapLocalizer:
         if self.state == "confirming":
             self._confirmed += 1
             if self._confirmed >= self.config.confirm_scans:
-                if not self._agrees(self.globally.fix(self._context(odom)), pose):
+                second = self.globally.fix(self._context(odom), self.config.confirm_min_score)
+                if not self._agrees(second, pose):
                     self._lose(scan.t)
                     return Step(None, self.state, score)
                 self.state = "tracking"
