@@ -436,6 +436,30 @@ def test_the_starts_split_over_threads_give_the_same_increment(room: World) -> N
     assert won_other
 
 
+@pytest.mark.parametrize(("min_along", "shift_wins"), [(0.0, True), (30.0, True),
+                                                       (1e6, False)])
+def test_a_shifted_start_wins_only_where_the_scan_pins_it_along_the_heading(
+        room: World, min_along: float, shift_wins: bool) -> None:
+    """The robot stood still and its odometry reads 0.8 m forward: a start shifted back
+    along the heading wins where its match is pinned down along the heading at least
+    ``min_along`` (the room's walls across the heading pin it); asked for more than the
+    scan gives, the shift cannot win."""
+    from chizu.numeric.slam.rbpf.proposal import Starts, robust_increment
+
+    p0 = np.array([4.0, 3.0, 0.3])
+    scan = Laser(room, LASER).scan(0.0, p0, p0, np.random.default_rng(3))
+    xy, _ = scan.points()
+    fp = FieldPack.of([LikelihoodField(Keyframe(0, xy, None), FieldConfig(), None)], False)
+    beams = Beams(xy[np.linspace(0, len(xy) - 1, 90).astype(int)], np.zeros(90), 0.0)
+    starts = Starts(np.array([0.0]), np.array([-0.6, -0.4, -0.2]), 50.0, True, min_along)
+    inc, won = robust_increment(p0, np.array([0.8, 0.0, 0.0]), np.array([0.05, 0.05, 0.05]),
+                                beams, fp, p0.reshape(1, 1, 3), MatchModel(0.09, 200.0, 12),
+                                starts, 1)
+    assert (won != 0) == shift_wins
+    if shift_wins:
+        assert np.hypot(inc[0], inc[1]) < 0.05  # back where the robot stood
+
+
 def test_a_far_wall_is_a_surface_and_a_depth_jump_is_not() -> None:
     """With ``connect_gap_m`` a keyframe's likelihood field is made of the polyline through
     its returns: a beam hitting a wall 20 m away between two returns (0.35 m apart at

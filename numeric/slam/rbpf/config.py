@@ -172,6 +172,10 @@ class ImprovedConfig(BaseModel):
         description="further starts of that match, moved along the predicted heading by "
                     "these distances and matched on the scan alone (odometry that reads "
                     "forward while the robot backs up)")
+    start_min_along: float = Field(0.0, ge=0, description="a shifted start wins only "
+                                   "where its match pins the position down along the "
+                                   "shift: the smallest ``J^T J`` along the heading, in "
+                                   "beams (a corridor has ~0; 0: no test)")
     start_headings_rad: tuple[float, ...] = Field(
         (0.0, -0.1, 0.1, -0.2, 0.2, -0.35, 0.35),
         description="heading offsets of the multi-start match that corrects the odometry "
@@ -249,9 +253,13 @@ class RbpfConfig(BaseModel):
         the loop start every sixth update (its wide search is most of an update's time),
         no relocalisation and no learned odometry sigma (a particle cloud's spread; one
         hypothesis has none), the scans between updates on odometry, as §6 has them, and
-        no end-of-run alignment: an online estimate, update by update."""
+        no end-of-run alignment: an online estimate, update by update. A shifted start of
+        the multi-start match wins only where its match pins the position down along the
+        heading (``start_min_along``): one hypothesis cannot recover from a slide along a
+        corridor that a particle cloud would outvote."""
         imp = ImprovedConfig(loop=LoopStartConfig(every=6), reloc=None,
-                             odometry=OdometryCalibrationConfig(window=0))
+                             odometry=OdometryCalibrationConfig(window=0),
+                             start_min_along=30.0)
         return cls(particles=1, alpha=alpha, seed=seed, improved=imp, track_scans=False,
                    alignment=None)
 

@@ -51,7 +51,8 @@ def robust_start(slam: RbpfSlam, u: np.ndarray, beams: Beams, fields: FieldPack,
     threads."""
     cfg, imp = slam.config, slam.config.improved
     starts = Starts(np.asarray(imp.start_headings_rad, dtype=float),
-                    np.asarray(imp.start_shifts_m, dtype=float), float(imp.start_margin), True)
+                    np.asarray(imp.start_shifts_m, dtype=float), float(imp.start_margin), True,
+                    float(imp.start_min_along))
     inc, won = robust_increment(slam.x[slam.best], u, cfg.motion.sigmas(u), beams, fields,
                                 kf_best, slam.model, starts, cfg.threads)
     return inc, won

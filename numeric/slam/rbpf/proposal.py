@@ -83,6 +83,7 @@ class Starts(NamedTuple):
     shifts: np.ndarray
     margin: float
     use_prior: bool
+    min_along: float = 0.0
 
 
 @njit(cache=True, nogil=True)
@@ -255,6 +256,10 @@ def match_starts(x0: np.ndarray, u: np.ndarray, sig: np.ndarray, beams: Beams,
         hats[q - q_from] = hat
         scores[q - q_from] = (-cost * model.inv_2s2
                               + _motion_logp(x0, u, sig, hat[0], hat[1], hat[2]))
+        if q >= ns:  # a shift along a direction the scan does not pin down says nothing
+            c, s = math.cos(prior[0, 2]), math.sin(prior[0, 2])
+            if c * c * h[0, 0] + 2.0 * c * s * h[0, 1] + s * s * h[1, 1] < starts.min_along:
+                scores[q - q_from] = np.nan
     return hats, scores
 
 
