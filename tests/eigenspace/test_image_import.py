@@ -211,16 +211,22 @@ def _wait(client: TestClient, location: str) -> dict[str, Any]:
     raise AssertionError("learning job did not finish")
 
 
-def test_rest_upload_learns_and_localizes_uploaded_images(client: TestClient,
-                                                          exported: Any) -> None:
-    folder = exported[0]
+@pytest.fixture(scope="module")
+def cam_a(client: TestClient, exported: Any) -> dict[str, Any]:
+    """World ``cam_a`` learned over REST from the exported images: its learning job (the
+    tests that use it may run on different pytest workers, each with its own service)."""
     assert client.post("/worlds", json={"name": "cam_a", "template": "room_a"}).status_code \
         == 201
-    r = client.post("/worlds/cam_a/eigenspace/images", files=_files(folder),
+    r = client.post("/worlds/cam_a/eigenspace/images", files=_files(exported[0]),
                     data={"config": json.dumps({"learning": {"k": 12}})})
     assert r.status_code == 202, r.text
-    job = _wait(client, r.headers["location"])
-    assert job["status"] == "done", job
+    return _wait(client, r.headers["location"])
+
+
+def test_rest_upload_learns_and_localizes_uploaded_images(
+        client: TestClient, exported: Any, cam_a: dict[str, Any]) -> None:
+    folder = exported[0]
+    assert cam_a["status"] == "done", cam_a
     s = client.get("/worlds/cam_a/eigenspace").json()
     assert s["source"] == "images" and s["learning_points"] == 25
     assert s["image_shape"] == [16, 32] and s["c_a"] == pytest.approx(exported[2].c_a, 1e-3)
@@ -245,7 +251,7 @@ def test_rest_upload_learns_and_localizes_uploaded_images(client: TestClient,
 
 
 def test_rest_upload_errors_name_the_file(client: TestClient, exported: Any,
-                                          tmp_path: Path) -> None:
+                                          tmp_path: Path, cam_a: dict[str, Any]) -> None:
     folder = exported[0]
     r = client.post("/worlds/nowhere/eigenspace/images", files=_files(folder))
     assert r.status_code == 404 and r.headers["content-type"].startswith(PROBLEM)
