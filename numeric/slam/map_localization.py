@@ -229,6 +229,20 @@ class PreparedMap:
         grid, known = likelihood_grid(saved, config.resolution_m, config.sigma_m)
         return PreparedMap(saved, config, grid, known, GlobalSearch(grid, config))
 
+    def on_map(self, pts: np.ndarray, pose: np.ndarray) -> tuple[float, float]:
+        """The mean field value over robot-frame points ``pts`` at ``pose`` that fall on
+        cells the map observed, and their share: points in parts of the building the map
+        never saw say nothing about the pose, neither for nor against it."""
+        g = self.grid
+        c = np.floor(g.to_cells(place(pts, pose))).astype(np.int64)
+        nx, ny = g.shape
+        inside = (c[:, 0] >= 0) & (c[:, 0] < nx) & (c[:, 1] >= 0) & (c[:, 1] < ny)
+        seen = np.zeros(len(pts), dtype=bool)
+        seen[inside] = self.known[c[inside, 0], c[inside, 1]]
+        if not seen.any():
+            return 0.0, 0.0
+        return float(g.prob[c[seen, 0], c[seen, 1]].mean()), float(seen.mean())
+
 
 @dataclass
 class MapLocalizer:
@@ -243,7 +257,8 @@ class MapLocalizer:
         cfg = self.config
         if self.prepared is None or self.prepared.config != cfg:
             self.prepared = PreparedMap.of(self.saved, cfg)
-        self.grid, self.known = self.prepared.grid, self.prepared.known
+        self._map: PreparedMap = self.prepared
+        self.grid = self.prepared.grid
         self.globally = self.prepared.globally
         self.state: State = "searching"
         self.pose: np.ndarray | None = None
@@ -366,14 +381,14 @@ class MapLocalizer:
         if len(pts) < 8:
             return predicted, 0.0, 0.0
         r = refine(self.grid, pts, predicted)
-        pose, score = r.pose, r.score
-        if self._on_map(pts, pose)[0] < cfg.track_min_score:
+        pose = r.pose
+        if self._map.on_map(pts, pose)[0] < cfg.track_min_score:
             start, _ = correlative_search(self.grid, pts, predicted, cfg.track_window_m,
                                           cfg.track_window_rad)
             r2 = refine(self.grid, pts, start, prior=start)
             if r2.score > r.score:
-                pose, score = r2.pose, r2.score
-        s, share = self._on_map(pts, pose, score)
+                pose = r2.pose
+        s, share = self._map.on_map(pts, pose)
         if s >= cfg.lost_score and share >= cfg.min_on_map:
             pose = self._align_to_keyframes(xy, pose)
         return pose, s, share
@@ -391,23 +406,6 @@ class MapLocalizer:
                 or shift > self.config.icp_max_shift_m):
             return pose
         return np.asarray(r.pose)
-
-    def _on_map(self, pts: np.ndarray, pose: np.ndarray,
-                score: float | None = None) -> tuple[float, float]:
-        """The mean field value over the points that fall on cells the map observed, and
-        their share: points in parts of the building the map never saw say nothing
-        about the pose, neither for nor against it."""
-        g = self.grid
-        c = np.floor(g.to_cells(place(pts, pose))).astype(np.int64)
-        nx, ny = g.shape
-        inside = (c[:, 0] >= 0) & (c[:, 0] < nx) & (c[:, 1] >= 0) & (c[:, 1] < ny)
-        seen = np.zeros(len(pts), dtype=bool)
-        seen[inside] = self.known[c[inside, 0], c[inside, 1]]
-        share = float(seen.mean())
-        if not seen.any():
-            return 0.0, 0.0
-        vals = g.prob[c[seen, 0], c[seen, 1]]
-        return float(vals.mean()), share
 
     def _remember(self, odom: np.ndarray, xy: np.ndarray) -> None:
         """Keep the scans of the last ``context_m`` of travel (odometry) for the global

@@ -25,7 +25,7 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
-from chizu.numeric.geometry import compose, place  # noqa: E402
+from chizu.numeric.geometry import compose  # noqa: E402
 from chizu.numeric.scan import LaserLog  # noqa: E402
 from chizu.numeric.slam.datasets import slam_data_dir  # noqa: E402
 from chizu.numeric.slam.evaluation import relation_errors  # noqa: E402
@@ -75,16 +75,11 @@ def back_on_map(m: SavedMap, log: LaserLog, run: LocalizationRun, after: float
     (None: no such scan)."""
     cfg = MapLocalizationConfig()
     prepared = PreparedMap.of(m, cfg)
-    g = prepared.grid
     for scan, t, pose in zip(log.scans, run.times, run.poses, strict=True):
         if t < after or not np.all(np.isfinite(pose)):
             continue
-        c = np.floor(g.to_cells(place(scan.points()[0], pose))).astype(np.int64)
-        c = c[np.all((c >= 0) & (c < np.array(g.shape)), axis=1)]
-        seen = c[prepared.known[c[:, 0], c[:, 1]]]
-        n = len(scan.points()[0])
-        if (n and len(seen) >= cfg.min_on_map * n
-                and g.prob[seen[:, 0], seen[:, 1]].mean() >= cfg.global_min_score):
+        score, share = prepared.on_map(scan.points()[0], pose)
+        if share >= cfg.min_on_map and score >= cfg.global_min_score:
             return float(t - after)
     return None
 

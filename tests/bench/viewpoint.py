@@ -37,7 +37,7 @@ from chizu.numeric.viewpoint.plan import (  # noqa: E402
     solve_exhaustive,
 )
 from chizu.numeric.viewpoint.planner import (  # noqa: E402
-    BUILTIN_OBJECT_TYPES,  # noqa: E402
+    BUILTIN_OBJECT_TYPES,
     PlanRequest,
     ViewpointPlanner,
     geodesic,
