@@ -54,7 +54,7 @@ from scipy import ndimage
 
 from chizu.numeric.errors import InvalidInput
 from chizu.numeric.geometry import compose, place, relative, wrap_angle
-from chizu.numeric.occupancy import OCCUPIED, UNKNOWN, build_occupancy_fitting
+from chizu.numeric.occupancy import FREE, OCCUPIED, UNKNOWN, build_occupancy_fitting
 from chizu.numeric.probability_grid import GridConfig, ProbabilityGrid, no_stamps
 from chizu.numeric.scan import LaserLog, Scan
 from chizu.numeric.slam.alignment import (
@@ -70,10 +70,13 @@ from chizu.numeric.slam.matching.correlative import (
     Match,
     PrecomputedGrid,
     correlative_search,
+    offset_mask,
     refine,
+    window_cells,
 )
 from chizu.numeric.slam.matching.intensity_icp import IcpConfig, Reference, intensity_icp
 from chizu.numeric.slam.saved_map import Laser, SavedMap
+from chizu.numeric.threads import default_threads, thread_map
 
 State = Literal["searching", "confirming", "tracking"]
 
@@ -98,7 +101,14 @@ class MapLocalizationConfig(BaseModel):
                                          "recent travel together (odometry)")
     search_every_s: float = Field(1.0, ge=0.0,
                                   description="while lost, a global search at most this "
-                                              "often (log time)")
+                                              "often (log time) ...")
+    search_moved_m: float = Field(0.5, ge=0.0, description="... and only once the robot "
+                                  "has moved this far since the last one ...")
+    search_moved_rad: float = Field(0.5, ge=0.0, description="... or turned this far: "
+                                    "else its scans are the last search's, and so is "
+                                    "the answer")
+    global_free_m: float = Field(1.0, ge=0.0, description="a global search places the "
+                                 "robot only this near a cell the map saw free")
     global_min_score: float = Field(0.55, gt=0.0, lt=1.0)
     unique_m: float = Field(3.0, gt=0.0, description="a rival fix must lie this far ...")
     unique_rad: float = Field(0.5, gt=0.0, le=np.pi, description="... or be turned this "
@@ -152,8 +162,8 @@ class MapLocalizationConfig(BaseModel):
 
 def likelihood_grid(saved: SavedMap, resolution_m: float, sigma_m: float
                     ) -> tuple[ProbabilityGrid, np.ndarray]:
-    """Step 1: the map's likelihood field as a probability grid, and which of its
-    cells the map has observed."""
+    """Step 1: the map's likelihood field as a probability grid, and its cells' states
+    in the map's occupancy grid (``UNKNOWN``, ``FREE``, ``OCCUPIED``)."""
     # a map too large at this resolution is read at a coarser one
     occ = build_occupancy_fitting(saved.frames(), saved.kf_pose, resolution_m)
     resolution_m = occ.resolution_m
@@ -165,7 +175,7 @@ def likelihood_grid(saved: SavedMap, resolution_m: float, sigma_m: float
     cfg = GridConfig(resolution_m=resolution_m)
     return (ProbabilityGrid(cfg, np.asarray(occ.origin, dtype=float), prob,
                             no_stamps(prob.shape), len(saved)),
-            occ.state != UNKNOWN)
+            occ.state)
 
 
 @dataclass
@@ -173,34 +183,67 @@ class GlobalSearch:
     """Step 2 over one map's field."""
 
     grid: ProbabilityGrid
+    free: np.ndarray
     config: MapLocalizationConfig
 
     def __post_init__(self) -> None:
-        factor = max(1, int(round(self.config.global_resolution_m / self.grid.resolution_m)))
-        self.search = PrecomputedGrid(self.grid.coarsened(factor), self.config.global_depth)
+        cfg = self.config
+        factor = max(1, int(round(cfg.global_resolution_m / self.grid.resolution_m)))
+        self.search = PrecomputedGrid(self.grid.coarsened(factor), cfg.global_depth)
         g = self.search.grid
         size = np.array(g.shape) * g.resolution_m
         self.centre = np.array([*(g.origin + size / 2), 0.0])
         self.window_m = float(np.max(size) / 2)
+        self.allowed = offset_mask(self._where_robot_stands(), cfg.global_depth)
+
+    def _where_robot_stands(self) -> np.ndarray:
+        """The offsets of the search window at which the robot stands within
+        ``global_free_m`` of a cell the map saw free: a robot whose scans fit the map
+        stands where a laser could see, not inside a wall or beyond the map's edge (as
+        AMCL draws its global particles from the map's free cells). The window is a
+        square over the map's longer side, and most of a building's plan is walls,
+        rooms never entered and the space around it: the branch and bound prunes those
+        offsets before scoring them."""
+        near = ndimage.distance_transform_edt(~self.free, sampling=self.grid.resolution_m)
+        near = near <= self.config.global_free_m
+        res = self.search.grid.resolution_m
+        w = window_cells(self.window_m, res)
+        d = (np.arange(2 * w + 1) - w) * res
+        cx = np.floor((self.centre[0] + d - self.grid.origin[0]) / self.grid.resolution_m)
+        cy = np.floor((self.centre[1] + d - self.grid.origin[1]) / self.grid.resolution_m)
+        ix, iy = cx.astype(np.int64), cy.astype(np.int64)
+        okx = (ix >= 0) & (ix < near.shape[0])
+        oky = (iy >= 0) & (iy < near.shape[1])
+        out = np.zeros((len(ix), len(iy)), dtype=bool)
+        out[np.ix_(okx, oky)] = near[np.ix_(ix[okx], iy[oky])]
+        return out
 
     def fix(self, xy: np.ndarray, min_score: float | None = None) -> Match | None:
         """The best pose of robot-frame points ``xy`` anywhere in the map, or None when
         it scores below ``min_score`` (``global_min_score`` unless given) or is not
-        unique."""
+        unique. The headings are searched in two halves, on two threads when there are
+        two cores (the same halves either way: the answer does not depend on it)."""
         cfg = self.config
         near = xy[np.hypot(xy[:, 0], xy[:, 1]) <= cfg.global_range_m]
         pts = adaptive_voxel(near, cfg.global_points, self.search.grid.resolution_m)
         if len(pts) < 8:
             return None
-        best = self.search.match(pts, self.centre, self.window_m, np.pi,
-                                 cfg.global_min_score if min_score is None else min_score,
-                                 cfg.global_step_rad)
-        if best is None:
+        floor = cfg.global_min_score if min_score is None else min_score
+        halves = [np.array([*self.centre[:2], h]) for h in (-np.pi / 2, np.pi / 2)]
+        found = [m for m in thread_map(
+            lambda c: self.search.match(pts, c, self.window_m, np.pi / 2, floor,
+                                        cfg.global_step_rad, self.allowed),
+            halves, default_threads()) if m is not None]
+        if not found:
             return None
-        rival = self.search.second_score(pts, self.centre, self.window_m, np.pi, best,
-                                         cfg.unique_m, cfg.unique_ratio, cfg.global_step_rad,
-                                         cfg.unique_rad)
-        return None if rival > 0.0 else best
+        best = max(found, key=lambda m: m.score)  # the first half's on a tie
+        rivals = thread_map(
+            lambda c: self.search.second_score(pts, c, self.window_m, np.pi / 2, best,
+                                               cfg.unique_m, cfg.unique_ratio,
+                                               cfg.global_step_rad, cfg.unique_rad,
+                                               self.allowed),
+            halves, default_threads())
+        return None if max(rivals) > 0.0 else best
 
 
 @dataclass
@@ -226,8 +269,9 @@ class PreparedMap:
 
     @staticmethod
     def of(saved: SavedMap, config: MapLocalizationConfig) -> PreparedMap:
-        grid, known = likelihood_grid(saved, config.resolution_m, config.sigma_m)
-        return PreparedMap(saved, config, grid, known, GlobalSearch(grid, config))
+        grid, state = likelihood_grid(saved, config.resolution_m, config.sigma_m)
+        return PreparedMap(saved, config, grid, state != UNKNOWN,
+                           GlobalSearch(grid, state == FREE, config))
 
     def on_map(self, pts: np.ndarray, pose: np.ndarray) -> tuple[float, float]:
         """The mean field value over robot-frame points ``pts`` at ``pose`` that fall on
@@ -267,6 +311,7 @@ class MapLocalizer:
         self._low = 0
         self._confirmed = 0
         self._searched: float | None = None
+        self._searched_at: np.ndarray | None = None
         self._history: list[tuple[np.ndarray, np.ndarray]] = []
         self._off_m = 0.0
         self._clouds = KeyframeClouds(self.saved, cfg.icp_keyframes, cfg.icp_radius_m)
@@ -294,6 +339,7 @@ class MapLocalizer:
         elif gap:  # the robot may have been carried: a new local map
             self._scan_odometry.restart()
             self._history.clear()
+            self._searched_at = None
         odom = self._scan_odometry(scan)
         if self.state != "searching" and gap:
             self._lose(scan.t)
@@ -360,9 +406,14 @@ class MapLocalizer:
                     and abs(d[2]) <= self.config.confirm_rad)
 
     def _search(self, t: float, odom: np.ndarray, xy: np.ndarray) -> Step:
-        if self._searched is not None and t - self._searched < self.config.search_every_s:
+        cfg = self.config
+        if self._searched is not None and t - self._searched < cfg.search_every_s:
             return Step(None, "searching", 0.0)
-        self._searched = t
+        if self._searched_at is not None:
+            d = relative(self._searched_at, odom)
+            if np.hypot(d[0], d[1]) < cfg.search_moved_m and abs(d[2]) < cfg.search_moved_rad:
+                return Step(None, "searching", 0.0)
+        self._searched, self._searched_at = t, odom.copy()
         m = self.globally.fix(self._context(odom))
         if m is None:
             return Step(None, "searching", 0.0)
@@ -432,6 +483,7 @@ class MapLocalizer:
     def _lose(self, t: float) -> None:
         # what was seen before the robot was carried off is not where it is now
         self._history.clear()
+        self._searched_at = None  # the next search need not wait for the robot to move
         if self.state == "tracking":
             self.losses.append(t)
         self.state, self.pose, self._low, self._confirmed = "searching", None, 0, 0

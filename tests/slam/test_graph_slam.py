@@ -19,6 +19,7 @@ from chizu.numeric.slam.matching.correlative import (
     branch_and_bound,
     brute_force,
     correlative_search,
+    offset_mask,
     refine,
 )
 from chizu.numeric.slam.pose_graph import PoseGraph
@@ -168,6 +169,17 @@ def test_branch_and_bound_equals_brute_force_on_random_cases() -> None:
         thr = float(rng.uniform(0.5, 1.0)) * bf2[3]
         hit = branch_and_bound(pre.stack, cells, 2 * w + 1, 2 * w + 1, thr, dx, dy, r, True)
         assert hit[0] >= 0 and hit[3] > thr and (hit[1] - dx) ** 2 + (hit[2] - dy) ** 2 > r * r
+        # only the offsets a mask allows (a patch around the best left out)
+        mask = rng.random((2 * w + 1, 2 * w + 1)) < 0.3
+        mask[max(0, dx - 2):dx + 3, max(0, dy - 2):dy + 3] = False
+        allowed = offset_mask(mask, pre.depth)
+        bf3 = brute_force(pre.stack, cells, 2 * w + 1, 2 * w + 1, allowed=allowed)
+        bb3 = branch_and_bound(pre.stack, cells, 2 * w + 1, 2 * w + 1, -1.0, allowed=allowed)
+        if mask.any():
+            assert mask[bb3[1], bb3[2]] and bb3[3] == pytest.approx(bf3[3], abs=1e-12), case
+            assert bb3[3] <= bb[3] + 1e-12
+        else:
+            assert bb3[0] == -1, case
         assert _score(pre.stack, 0, cells, hit[0], hit[1], hit[2]) == pytest.approx(hit[3])
         assert branch_and_bound(pre.stack, cells, 2 * w + 1, 2 * w + 1, bf2[3] + 1e-9,
                                 dx, dy, r, True)[0] == -1

@@ -13,10 +13,12 @@ from typer.testing import CliRunner
 
 from chizu.numeric.errors import InvalidInput
 from chizu.numeric.geometry import compose, relative, wrap_angle
+from chizu.numeric.probability_grid import GridConfig, ProbabilityGrid, no_stamps
 from chizu.numeric.scan import LaserLog
 from chizu.numeric.slam import saved_map as sm
 from chizu.numeric.slam.graph import ScanOdometry
 from chizu.numeric.slam.map_localization import (
+    GlobalSearch,
     LocalizationRun,
     MapLocalizationConfig,
     MapLocalizer,
@@ -189,3 +191,47 @@ def test_scans_between_placed_ones_are_bridged_within_stretches() -> None:
     poses[10:12] = compose(poses[10:12], np.array([3.0, 1.0, 1.2]))
     out = bridged(poses, odometry, np.array([20, 30]), cfg)
     assert np.allclose(out[:20], truth[:20]) and np.isnan(out[20:]).all()
+
+
+def test_the_global_search_places_the_robot_only_near_free_cells() -> None:
+    """Offsets of the search window where the robot would stand inside a wall, in rooms
+    the map never saw or outside the map are pruned before they are scored."""
+    res = 0.05
+    prob = np.zeros((200, 100), dtype=np.float32)  # 10 m x 5 m
+    grid = ProbabilityGrid(GridConfig(resolution_m=res), np.zeros(2), prob,
+                           no_stamps(prob.shape), 1)
+    free = np.zeros(prob.shape, dtype=bool)
+    free[40:80, 20:40] = True  # x 2-4 m, y 1-2 m
+    g = GlobalSearch(grid, free, MapLocalizationConfig(global_free_m=1.0))
+    mask = g.allowed[0]
+    step = g.search.grid.resolution_m
+    w = (mask.shape[0] - 1) // 2
+
+    def allowed(x: float, y: float) -> bool:
+        i, j = np.floor((np.array([x, y]) - g.centre[:2]) / step + 0.5).astype(int) + w
+        return bool(mask[i, j])
+
+    assert allowed(3.0, 1.5) and allowed(3.0, 2.9) and allowed(1.1, 1.5)
+    assert not allowed(3.0, 3.6) and not allowed(8.0, 1.5) and not allowed(0.5, 0.5)
+    # the strip and 1 m around it (11.1 m²) of the 10 m x 10 m window; none outside the map
+    assert 10.0 < mask.sum() * step**2 < 12.0
+
+
+def test_a_lost_robot_searches_again_only_once_it_has_moved(
+        room_map: sm.SavedMap, other_drive: LaserLog,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Standing still, its scans are the last search's and so would be the answer."""
+    loc = MapLocalizer(room_map)
+    calls: list[float] = []
+
+    def fix(xy: np.ndarray, min_score: float | None = None) -> None:
+        calls.append(loc._t or 0.0)
+
+    monkeypatch.setattr(loc.globally, "fix", fix)
+    s0 = other_drive.scans[0]
+    for k in range(20):  # ten seconds standing
+        loc.process(dataclasses.replace(s0, t=s0.t + 0.5 * k))
+    assert len(calls) == 1
+    for s in other_drive.scans[1:40]:
+        loc.process(dataclasses.replace(s, t=s.t + 10.0))
+    assert len(calls) > 3

@@ -307,10 +307,21 @@ def _excluded(x0: int, y0: int, size: int, ex_x: int, ex_y: int, ex_r: int) -> b
     return True
 
 
+NO_MASK = np.zeros((1, 0, 0), dtype=np.uint8)
+
+
+def offset_mask(allowed: np.ndarray, depth: int) -> np.ndarray:
+    """The pyramid :func:`branch_and_bound` prunes with: level ``h`` holds, at each
+    offset, whether any of the ``2^h x 2^h`` offsets from it on is ``allowed`` -- the
+    precomputation of Hess et al. §V.B with the maximum over a 0/1 mask."""
+    return _precompute(allowed.astype(np.uint8), depth, 0)
+
+
 @njit(cache=True, nogil=True)
 def branch_and_bound(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int,
                      min_score: float, ex_x: int = 0, ex_y: int = 0,
-                     ex_r: int = -1, first: bool = False) -> tuple[int, int, int, float]:
+                     ex_r: int = -1, first: bool = False,
+                     allowed: np.ndarray = NO_MASK) -> tuple[int, int, int, float]:
     """Best ``(angle index, dx, dy, score)`` over offsets ``[0, wx) x [0, wy)`` with a
     score above ``min_score`` (angle -1 when none), Hess et al. Algorithm 3. ``pts (A,
     n, 2)`` are the points' cells at offset (0, 0) in ``pre``'s padded frame. Offsets
@@ -320,8 +331,11 @@ def branch_and_bound(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int,
     excluded disc is pruned (near the first peak such nodes keep high bounds, and the
     search would otherwise split them down to single cells). With ``first`` the search
     stops at the first offset above ``min_score`` (whether there is one, not which is
-    best: all the uniqueness test asks)."""
+    best: all the uniqueness test asks). With ``allowed`` (a :func:`offset_mask`
+    pyramid over the offsets) only the offsets it holds are searched: a node none of
+    whose offsets is allowed is pruned before it is scored."""
     depth = pre.shape[0] - 1
+    masked = allowed.shape[1] > 0
     na = pts.shape[0]
     step = 1 << depth
     ntx = (wx + step - 1) // step
@@ -341,7 +355,10 @@ def branch_and_bound(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int,
     for a in range(na):
         for ix in range(ntx):
             for iy in range(nty):
-                top[k] = _score(pre, depth, pts, a, ix * step, iy * step)
+                if masked and allowed[depth, ix * step, iy * step] == 0:
+                    top[k] = -1.0
+                else:
+                    top[k] = _score(pre, depth, pts, a, ix * step, iy * step)
                 ta[k], tx[k], ty[k] = a, ix * step, iy * step
                 k += 1
     order = np.argsort(top)  # ascending: the best is pushed last, popped first
@@ -355,6 +372,8 @@ def branch_and_bound(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int,
     # most of the tree at once
     ca, cx0, cy0 = na // 2, wx // 2, wy // 2
     sc0 = _score(pre, 0, pts, ca, cx0, cy0)
+    if masked and allowed[0, cx0, cy0] == 0:
+        sc0 = -1.0
     if sc0 > best and not _excluded(cx0, cy0, 1, ex_x, ex_y, ex_r):
         best, ba, bx, by = sc0, ca, cx0, cy0
     cs = np.empty(4)
@@ -375,7 +394,8 @@ def branch_and_bound(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int,
         m = 0
         for ox in (0, half):
             for oy in (0, half):
-                if x0 + ox < wx and y0 + oy < wy:
+                if x0 + ox < wx and y0 + oy < wy and not (
+                        masked and allowed[h - 1, x0 + ox, y0 + oy] == 0):
                     cs[m] = _score(pre, h - 1, pts, a, x0 + ox, y0 + oy)
                     cx[m], cy[m] = x0 + ox, y0 + oy
                     m += 1
@@ -389,13 +409,16 @@ def branch_and_bound(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int,
 
 @njit(cache=True, nogil=True)
 def brute_force(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int, ex_x: int = 0,
-                ex_y: int = 0, ex_r: int = -1) -> tuple[int, int, int, float]:
+                ex_y: int = 0, ex_r: int = -1,
+                allowed: np.ndarray = NO_MASK) -> tuple[int, int, int, float]:
     """The exhaustive search :func:`branch_and_bound` must agree with."""
     best, ba, bx, by = -1.0, 0, 0, 0
     for a in range(pts.shape[0]):
         for dx in range(wx):
             for dy in range(wy):
                 if _excluded(dx, dy, 1, ex_x, ex_y, ex_r):
+                    continue
+                if allowed.shape[1] > 0 and allowed[0, dx, dy] == 0:
                     continue
                 s = _score(pre, 0, pts, a, dx, dy)
                 if s > best:
@@ -448,13 +471,14 @@ class PrecomputedGrid:
 
     def match(self, points: np.ndarray, pose: np.ndarray, linear_window_m: float,
               angular_window_rad: float, min_score: float,
-              min_step_rad: float = 0.0) -> Match | None:
+              min_step_rad: float = 0.0, allowed: np.ndarray = NO_MASK) -> Match | None:
         """The best pose within the window by branch and bound, or None below
         ``min_score``. A ``min_step_rad`` coarser than Hess et al.'s eq. 7 step trades
         the far points' alignment (refined afterwards) for speed."""
         thetas, cells, w = self.candidates(points, pose, linear_window_m, angular_window_rad,
                                            min_step_rad)
-        a, dx, dy, score = branch_and_bound(self.stack, cells, 2 * w + 1, 2 * w + 1, min_score)
+        a, dx, dy, score = branch_and_bound(self.stack, cells, 2 * w + 1, 2 * w + 1, min_score,
+                                            allowed=allowed)
         if a < 0:
             return None
         res = self.grid.resolution_m
@@ -464,7 +488,7 @@ class PrecomputedGrid:
     def second_score(self, points: np.ndarray, pose: np.ndarray, linear_window_m: float,
                      angular_window_rad: float, best: Match, exclusion_m: float,
                      ratio: float, min_step_rad: float = 0.0,
-                     exclusion_rad: float = np.pi) -> float:
+                     exclusion_rad: float = np.pi, allowed: np.ndarray = NO_MASK) -> float:
         """A score in :meth:`match`'s window (centred at ``pose``) at least
         ``exclusion_m`` from ``best`` -- or, at a heading more than ``exclusion_rad``
         from best's, anywhere -- and above ``ratio`` times its score, else 0: a peak as
@@ -483,6 +507,6 @@ class PrecomputedGrid:
                 continue
             b = branch_and_bound(self.stack, np.ascontiguousarray(cells[part]), 2 * w + 1,
                                  2 * w + 1, ratio * best.score, int(ex[0]), int(ex[1]), ex_r,
-                                 True)
+                                 True, allowed)
             out = max(out, float(b[3]) if b[0] >= 0 else 0.0)
         return out
