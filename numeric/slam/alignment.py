@@ -106,15 +106,17 @@ class PairwiseMatch:
     covariance: np.ndarray
 
 
-def candidate_pairs(poses: np.ndarray, cfg: AlignmentConfig) -> list[tuple[int, int]]:
+def candidate_pairs(poses: np.ndarray, cfg: AlignmentConfig,
+                    first: int = 0) -> list[tuple[int, int]]:
     """The scan pairs ``(a, b)``, ``a < b``, to match: the sequential ones and, per
-    scan, up to ``revisits`` earlier scans of other passes in reach."""
+    scan, up to ``revisits`` earlier scans of other passes in reach; only those with
+    ``b >= first`` (the scans before ``first`` are held where they are)."""
     n = len(poses)
-    pairs = [(b - k, b) for b in range(n) for k in cfg.sequential if b - k >= 0]
-    if cfg.revisits == 0 or cfg.revisit_radius_m <= 0 or n == 0:
+    pairs = [(b - k, b) for b in range(first, n) for k in cfg.sequential if b - k >= 0]
+    if cfg.revisits == 0 or cfg.revisit_radius_m <= 0 or n <= first:
         return pairs
-    near = cKDTree(poses[:, :2]).query_ball_point(poses[:, :2], cfg.revisit_radius_m)
-    for b, near_b in enumerate(near):
+    near = cKDTree(poses[:, :2]).query_ball_point(poses[first:, :2], cfg.revisit_radius_m)
+    for b, near_b in enumerate(near, start=first):
         js = np.sort(np.asarray(near_b, dtype=np.intp))
         js = js[js < b - cfg.revisit_min_gap]
         js = js[np.abs(wrap_angle(poses[b, 2] - poses[js, 2])) < cfg.revisit_max_turn_rad]
@@ -240,10 +242,11 @@ def _match_pair(ref: RefIndex, xy: np.ndarray, extra: np.ndarray, guess: np.ndar
 
 
 def pairwise_matches(points: Sequence[np.ndarray], intensities: Sequence[np.ndarray | None],
-                     poses: np.ndarray, cfg: AlignmentConfig,
-                     threads: int | None = None) -> list[PairwiseMatch]:
-    """Step 1-2 over every candidate pair, on the process's thread pool."""
-    pairs = candidate_pairs(poses, cfg)
+                     poses: np.ndarray, cfg: AlignmentConfig, threads: int | None = None,
+                     first: int = 0) -> list[PairwiseMatch]:
+    """Step 1-2 over every candidate pair (those of :func:`candidate_pairs` with
+    ``first``), on the process's thread pool."""
+    pairs = candidate_pairs(poses, cfg, first)
     refs: dict[int, Reference] = {}
     for a in sorted({a for a, _ in pairs}):
         if len(points[a]) >= 10:

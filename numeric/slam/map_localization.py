@@ -103,10 +103,13 @@ class MapLocalizationConfig(BaseModel):
                                   description="while lost, a global search at most this "
                                               "often (log time) ...")
     search_moved_m: float = Field(0.5, ge=0.0, description="... and only once the robot "
-                                  "has moved this far since the last one ...")
+                                  "has moved this far since the last one (while the "
+                                  "context fills; once it holds ``context_m`` of travel "
+                                  "since the robot was lost, ...")
+    search_moved_full_m: float = Field(2.0, ge=0.0, description="... this far) ...")
     search_moved_rad: float = Field(0.5, ge=0.0, description="... or turned this far: "
-                                    "else its scans are the last search's, and so is "
-                                    "the answer")
+                                    "else its scans are mostly the last search's, and so "
+                                    "is the answer")
     global_free_m: float = Field(1.0, ge=0.0, description="a global search places the "
                                  "robot only this near a cell the map saw free")
     global_min_score: float = Field(0.55, gt=0.0, lt=1.0)
@@ -230,18 +233,20 @@ class GlobalSearch:
             return None
         floor = cfg.global_min_score if min_score is None else min_score
         halves = [np.array([*self.centre[:2], h]) for h in (-np.pi / 2, np.pi / 2)]
+        shared = np.full(1, -1.0)  # the best either half has found: both prune with it
         found = [m for m in thread_map(
             lambda c: self.search.match(pts, c, self.window_m, np.pi / 2, floor,
-                                        cfg.global_step_rad, self.allowed),
+                                        cfg.global_step_rad, self.allowed, shared),
             halves, default_threads()) if m is not None]
         if not found:
             return None
         best = max(found, key=lambda m: m.score)  # the first half's on a tie
+        shared = np.full(1, -1.0)
         rivals = thread_map(
             lambda c: self.search.second_score(pts, c, self.window_m, np.pi / 2, best,
                                                cfg.unique_m, cfg.unique_ratio,
                                                cfg.global_step_rad, cfg.unique_rad,
-                                               self.allowed),
+                                               self.allowed, shared),
             halves, default_threads())
         return None if max(rivals) > 0.0 else best
 
@@ -312,6 +317,7 @@ class MapLocalizer:
         self._confirmed = 0
         self._searched: float | None = None
         self._searched_at: np.ndarray | None = None
+        self._lost_m = 0.0
         self._history: list[tuple[np.ndarray, np.ndarray]] = []
         self._off_m = 0.0
         self._clouds = KeyframeClouds(self.saved, cfg.icp_keyframes, cfg.icp_radius_m)
@@ -339,7 +345,7 @@ class MapLocalizer:
         elif gap:  # the robot may have been carried: a new local map
             self._scan_odometry.restart()
             self._history.clear()
-            self._searched_at = None
+            self._searched_at, self._lost_m = None, 0.0
         odom = self._scan_odometry(scan)
         if self.state != "searching" and gap:
             self._lose(scan.t)
@@ -411,8 +417,12 @@ class MapLocalizer:
             return Step(None, "searching", 0.0)
         if self._searched_at is not None:
             d = relative(self._searched_at, odom)
-            if np.hypot(d[0], d[1]) < cfg.search_moved_m and abs(d[2]) < cfg.search_moved_rad:
+            moved = float(np.hypot(d[0], d[1]))
+            need = (cfg.search_moved_m if self._lost_m < cfg.context_m
+                    else cfg.search_moved_full_m)
+            if moved < need and abs(d[2]) < cfg.search_moved_rad:
                 return Step(None, "searching", 0.0)
+            self._lost_m += moved
         self._searched, self._searched_at = t, odom.copy()
         m = self.globally.fix(self._context(odom))
         if m is None:
@@ -484,6 +494,7 @@ class MapLocalizer:
         # what was seen before the robot was carried off is not where it is now
         self._history.clear()
         self._searched_at = None  # the next search need not wait for the robot to move
+        self._lost_m = 0.0
         if self.state == "tracking":
             self.losses.append(t)
         self.state, self.pose, self._low, self._confirmed = "searching", None, 0, 0
@@ -650,9 +661,9 @@ def align_on_map(saved: SavedMap, points: list[np.ndarray], odometry: np.ndarray
             continue
         pts = points[lo:hi]
         allp = np.vstack([saved.kf_pose, poses[lo:hi]])
-        matches = [m for m in pairwise_matches(saved.kf_xy + pts, [None] * (held + hi - lo),
-                                               allp, config)
-                   if m.b >= held]
+        # the keyframes are held: only the pairs with a scan among them are matched
+        matches = pairwise_matches(saved.kf_xy + pts, [None] * (held + hi - lo), allp, config,
+                                   first=held)
         priors = []
         for j, xy in enumerate(pts):
             ref = clouds.around(poses[lo + j])

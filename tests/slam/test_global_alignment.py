@@ -62,6 +62,9 @@ def test_candidate_pairs_take_sequential_scans_and_other_passes() -> None:
     assert revisits and all(np.hypot(*(poses[a] - poses[b])[:2]) <= 1.5 and b - a > 5
                             for a, b in revisits)
     assert max(sum(1 for a, b in revisits if b == k) for k in range(40)) <= 3
+    # the scans before ``first`` held: the same pairs, less those among them
+    assert candidate_pairs(poses, AlignmentConfig(revisit_min_gap=5), first=17) == [
+        (a, b) for a, b in pairs if b >= 17]
 
 
 def test_estimate_closures_take_the_pairs_the_revisits_leave_out() -> None:

@@ -175,6 +175,14 @@ def test_branch_and_bound_equals_brute_force_on_random_cases() -> None:
         allowed = offset_mask(mask, pre.depth)
         bf3 = brute_force(pre.stack, cells, 2 * w + 1, 2 * w + 1, allowed=allowed)
         bb3 = branch_and_bound(pre.stack, cells, 2 * w + 1, 2 * w + 1, -1.0, allowed=allowed)
+        # the headings in two parts sharing the best either has found: the best of both
+        half = max(1, cells.shape[0] // 2)
+        shared = np.full(1, -1.0)
+        parts = [branch_and_bound(pre.stack, np.ascontiguousarray(c), 2 * w + 1, 2 * w + 1,
+                                  -1.0, shared=shared, share=True)
+                 for c in (cells[:half], cells[half:]) if len(c)]
+        assert max(p[3] for p in parts) == pytest.approx(bf[3], abs=1e-12), case
+        assert shared[0] == pytest.approx(bf[3], abs=1e-12), case
         if mask.any():
             assert mask[bb3[1], bb3[2]] and bb3[3] == pytest.approx(bf3[3], abs=1e-12), case
             assert bb3[3] <= bb[3] + 1e-12

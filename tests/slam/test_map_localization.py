@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
@@ -220,7 +221,9 @@ def test_the_global_search_places_the_robot_only_near_free_cells() -> None:
 def test_a_lost_robot_searches_again_only_once_it_has_moved(
         room_map: sm.SavedMap, other_drive: LaserLog,
         monkeypatch: pytest.MonkeyPatch) -> None:
-    """Standing still, its scans are the last search's and so would be the answer."""
+    """Standing still, its scans are the last search's and so would be the answer;
+    driving, it searches again after 0.5 m of travel (or a turn of 0.5 rad), and once
+    the searches have failed over 10 m (all they match at once), after 2 m."""
     loc = MapLocalizer(room_map)
     calls: list[float] = []
 
@@ -232,6 +235,9 @@ def test_a_lost_robot_searches_again_only_once_it_has_moved(
     for k in range(20):  # ten seconds standing
         loc.process(dataclasses.replace(s0, t=s0.t + 0.5 * k))
     assert len(calls) == 1
-    for s in other_drive.scans[1:40]:
-        loc.process(dataclasses.replace(s, t=s.t + 10.0))
-    assert len(calls) > 3
+    path = 0.0
+    for a, b in pairwise(other_drive.scans):
+        loc.process(dataclasses.replace(b, t=b.t + 10.0))
+        path += float(np.hypot(*(b.odom[:2] - a.odom[:2])))
+    # once a second (the tour takes a minute) were 60 and more; every 0.5 m, as many
+    assert 4 < len(calls) < 10.0 / 0.5 + (path - 10.0) / 2.0 + 8

@@ -308,6 +308,7 @@ def _excluded(x0: int, y0: int, size: int, ex_x: int, ex_y: int, ex_r: int) -> b
 
 
 NO_MASK = np.zeros((1, 0, 0), dtype=np.uint8)
+NO_MASK_SHARED = np.zeros(1)  # never written: only with ``share``
 
 
 def offset_mask(allowed: np.ndarray, depth: int) -> np.ndarray:
@@ -321,7 +322,8 @@ def offset_mask(allowed: np.ndarray, depth: int) -> np.ndarray:
 def branch_and_bound(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int,
                      min_score: float, ex_x: int = 0, ex_y: int = 0,
                      ex_r: int = -1, first: bool = False,
-                     allowed: np.ndarray = NO_MASK) -> tuple[int, int, int, float]:
+                     allowed: np.ndarray = NO_MASK, shared: np.ndarray = NO_MASK_SHARED,
+                     share: bool = False) -> tuple[int, int, int, float]:
     """Best ``(angle index, dx, dy, score)`` over offsets ``[0, wx) x [0, wy)`` with a
     score above ``min_score`` (angle -1 when none), Hess et al. Algorithm 3. ``pts (A,
     n, 2)`` are the points' cells at offset (0, 0) in ``pre``'s padded frame. Offsets
@@ -333,7 +335,12 @@ def branch_and_bound(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int,
     stops at the first offset above ``min_score`` (whether there is one, not which is
     best: all the uniqueness test asks). With ``allowed`` (a :func:`offset_mask`
     pyramid over the offsets) only the offsets it holds are searched: a node none of
-    whose offsets is allowed is pruned before it is scored."""
+    whose offsets is allowed is pruned before it is scored. With ``share``, searches of
+    one window's parts on several threads share ``shared[0]``, the best score any of
+    them has found: a node scoring below it is pruned (one below, not one equal, so each
+    part still finds its own best when that ties, and the answer does not depend on
+    which thread was first); with ``first``, every part stops once one has found an
+    offset."""
     depth = pre.shape[0] - 1
     masked = allowed.shape[1] > 0
     na = pts.shape[0]
@@ -384,9 +391,15 @@ def branch_and_bound(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int,
         sc, a, x0, y0, h = s_score[sp], s_a[sp], s_x[sp], s_y[sp], s_h[sp]
         if sc <= best:
             continue
+        if share and (sc < shared[0] or (first and shared[0] > min_score)):
+            if first:
+                break
+            continue
         if h == 0:
             if not _excluded(x0, y0, 1, ex_x, ex_y, ex_r):
                 best, ba, bx, by = sc, a, x0, y0
+                if share and sc > shared[0]:
+                    shared[0] = sc
                 if first:
                     break
             continue
@@ -471,14 +484,18 @@ class PrecomputedGrid:
 
     def match(self, points: np.ndarray, pose: np.ndarray, linear_window_m: float,
               angular_window_rad: float, min_score: float,
-              min_step_rad: float = 0.0, allowed: np.ndarray = NO_MASK) -> Match | None:
+              min_step_rad: float = 0.0, allowed: np.ndarray = NO_MASK,
+              shared: np.ndarray | None = None) -> Match | None:
         """The best pose within the window by branch and bound, or None below
         ``min_score``. A ``min_step_rad`` coarser than Hess et al.'s eq. 7 step trades
-        the far points' alignment (refined afterwards) for speed."""
+        the far points' alignment (refined afterwards) for speed. ``allowed`` and
+        ``shared`` as :func:`branch_and_bound` takes them (``shared``: one array for all
+        parts of a window searched on several threads)."""
         thetas, cells, w = self.candidates(points, pose, linear_window_m, angular_window_rad,
                                            min_step_rad)
-        a, dx, dy, score = branch_and_bound(self.stack, cells, 2 * w + 1, 2 * w + 1, min_score,
-                                            allowed=allowed)
+        a, dx, dy, score = branch_and_bound(
+            self.stack, cells, 2 * w + 1, 2 * w + 1, min_score, allowed=allowed,
+            shared=NO_MASK_SHARED if shared is None else shared, share=shared is not None)
         if a < 0:
             return None
         res = self.grid.resolution_m
@@ -488,7 +505,8 @@ class PrecomputedGrid:
     def second_score(self, points: np.ndarray, pose: np.ndarray, linear_window_m: float,
                      angular_window_rad: float, best: Match, exclusion_m: float,
                      ratio: float, min_step_rad: float = 0.0,
-                     exclusion_rad: float = np.pi, allowed: np.ndarray = NO_MASK) -> float:
+                     exclusion_rad: float = np.pi, allowed: np.ndarray = NO_MASK,
+                     shared: np.ndarray | None = None) -> float:
         """A score in :meth:`match`'s window (centred at ``pose``) at least
         ``exclusion_m`` from ``best`` -- or, at a heading more than ``exclusion_rad``
         from best's, anywhere -- and above ``ratio`` times its score, else 0: a peak as
@@ -507,6 +525,8 @@ class PrecomputedGrid:
                 continue
             b = branch_and_bound(self.stack, np.ascontiguousarray(cells[part]), 2 * w + 1,
                                  2 * w + 1, ratio * best.score, int(ex[0]), int(ex[1]), ex_r,
-                                 True, allowed)
+                                 True, allowed,
+                                 NO_MASK_SHARED if shared is None else shared,
+                                 shared is not None)
             out = max(out, float(b[3]) if b[0] >= 0 else 0.0)
         return out
