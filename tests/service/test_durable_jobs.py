@@ -21,9 +21,10 @@ from chizu.service.schemas.jobs import JobOut
 from chizu.service.settings import Settings
 from tests.conftest import make_fig1_world, observation
 
-#: a learning long enough to be caught running (full-size images on the 2 m grid, some
-#: 15 s) and short enough to run again after a restart
-LONG = {"learning_strategy": None}
+#: a learning long enough to be caught running (the 2 m grid, images rendered without
+#: supersampling: some 4 s, where the writes the tests wait for take well under one) and
+#: short enough to run again after a restart
+LONG = {"learning_strategy": None, "camera": {"supersample": 1}}
 
 
 def wait_status(get: Any, statuses: tuple[str, ...], timeout_s: float = 120) -> dict[str, Any]:
