@@ -11,14 +11,15 @@ AMCL reads a map (Thrun, Burgard, Fox, *Probabilistic Robotics*, §6.4):
    smoothly towards them for the refinement; cells the map never saw score 0.
 2. **Global localization** (:class:`GlobalSearch`): branch and bound (Hess et al.
    Algorithms 2-3) over the whole map and every heading, on the field coarsened to
-   ``global_resolution_m``, of the returns of the last ``context_m`` of travel placed
-   by the odometry around the current scan (one scan of a corridor fits many
-   corridors; a few metres of it, far fewer). A fix is taken only when it scores at least
-   ``global_min_score`` and no pose farther than ``unique_m`` from it scores within
-   ``unique_ratio`` of it (Olson 2009, §IV): a corridor that fits two places says
-   nothing about which. It is then refined (step 3), tracked ``confirm_scans``
-   scans, and taken only when a second global search, on that later scan, finds the
-   same pose.
+   ``global_resolution_m``, of the places within ``global_free_m`` of a cell the map
+   saw free (as AMCL draws its global particles from free cells), of the returns of
+   the last ``context_m`` of travel placed by the odometry around the current scan
+   (one scan of a corridor fits many corridors; a few metres of it, far fewer). A fix
+   is taken only when it scores at least ``global_min_score`` and no pose farther than
+   ``unique_m`` from it scores within ``unique_ratio`` of it (Olson 2009, §IV): a
+   corridor that fits two places says nothing about which. It is then refined (step
+   3), tracked ``confirm_scans`` scans, and taken only when a second global search, on
+   that later scan, finds the same pose.
 3. **Tracking**: each scan is predicted by the odometry since the last one and refined
    by Gauss-Newton on the field (:func:`~chizu.numeric.slam.matching.correlative.refine`);
    when the refined score is poor, a correlative search of a small window first; then
@@ -30,8 +31,9 @@ AMCL reads a map (Thrun, Burgard, Fox, *Probabilistic Robotics*, §6.4):
    neither for nor against a pose, and one mostly off the map is carried by odometry.
 4. **Recovery**: a scan after a gap in the log longer than ``gap_s``, or
    ``lost_scans`` scans in a row scoring below ``lost_score``, and the robot is lost:
-   global localization again, at most every ``search_every_s`` of log time, until a
-   new fix holds.
+   global localization again, at most every ``search_every_s`` of log time and only
+   once the robot has moved ``search_moved_m`` (``search_moved_full_m`` once a whole
+   context has failed) or turned ``search_moved_rad``, until a new fix holds.
 5. **Alignment**, when a whole log is localized (:func:`localize_log`): the scans the
    localizer could not place (off the map, or lost) placed by the motion estimate
    between the placed ones around them (:func:`bridged`), then graph SLAM's global
