@@ -200,6 +200,8 @@ class GlobalSearch:
         self.centre = np.array([*(g.origin + size / 2), 0.0])
         self.window_m = float(np.max(size) / 2)
         self.allowed = offset_mask(self._where_robot_stands(), cfg.global_depth)
+        #: the window's centre facing either half of the headings (step 2's two parts)
+        self.halves = [np.array([*self.centre[:2], h]) for h in (-np.pi / 2, np.pi / 2)]
 
     def _where_robot_stands(self) -> np.ndarray:
         """The offsets of the search window at which the robot stands within
@@ -214,9 +216,8 @@ class GlobalSearch:
         res = self.search.grid.resolution_m
         w = window_cells(self.window_m, res)
         d = (np.arange(2 * w + 1) - w) * res
-        cx = np.floor((self.centre[0] + d - self.grid.origin[0]) / self.grid.resolution_m)
-        cy = np.floor((self.centre[1] + d - self.grid.origin[1]) / self.grid.resolution_m)
-        ix, iy = cx.astype(np.int64), cy.astype(np.int64)
+        cells = np.floor(self.grid.to_cells(self.centre[:2] + d[:, None])).astype(np.int64)
+        ix, iy = cells[:, 0], cells[:, 1]
         okx = (ix >= 0) & (ix < near.shape[0])
         oky = (iy >= 0) & (iy < near.shape[1])
         out = np.zeros((len(ix), len(iy)), dtype=bool)
@@ -234,12 +235,11 @@ class GlobalSearch:
         if len(pts) < 8:
             return None
         floor = cfg.global_min_score if min_score is None else min_score
-        halves = [np.array([*self.centre[:2], h]) for h in (-np.pi / 2, np.pi / 2)]
         shared = np.full(1, -1.0)  # the best either half has found: both prune with it
         found = [m for m in thread_map(
             lambda c: self.search.match(pts, c, self.window_m, np.pi / 2, floor,
                                         cfg.global_step_rad, self.allowed, shared),
-            halves, default_threads()) if m is not None]
+            self.halves, default_threads()) if m is not None]
         if not found:
             return None
         best = max(found, key=lambda m: m.score)  # the first half's on a tie
@@ -249,7 +249,7 @@ class GlobalSearch:
                                                cfg.unique_m, cfg.unique_ratio,
                                                cfg.global_step_rad, cfg.unique_rad,
                                                self.allowed, shared),
-            halves, default_threads())
+            self.halves, default_threads())
         return None if max(rivals) > 0.0 else best
 
 

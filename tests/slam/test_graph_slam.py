@@ -179,7 +179,7 @@ def test_branch_and_bound_equals_brute_force_on_random_cases() -> None:
         half = max(1, cells.shape[0] // 2)
         shared = np.full(1, -1.0)
         parts = [branch_and_bound(pre.stack, np.ascontiguousarray(c), 2 * w + 1, 2 * w + 1,
-                                  -1.0, shared=shared, share=True)
+                                  -1.0, shared=shared)
                  for c in (cells[:half], cells[half:]) if len(c)]
         assert max(p[3] for p in parts) == pytest.approx(bf[3], abs=1e-12), case
         assert shared[0] == pytest.approx(bf[3], abs=1e-12), case

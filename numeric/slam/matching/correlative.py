@@ -308,7 +308,7 @@ def _excluded(x0: int, y0: int, size: int, ex_x: int, ex_y: int, ex_r: int) -> b
 
 
 NO_MASK = np.zeros((1, 0, 0), dtype=np.uint8)
-NO_MASK_SHARED = np.zeros(1)  # never written: only with ``share``
+NO_SHARED = np.zeros(0)  # no score shared with other parts
 
 
 def offset_mask(allowed: np.ndarray, depth: int) -> np.ndarray:
@@ -322,8 +322,8 @@ def offset_mask(allowed: np.ndarray, depth: int) -> np.ndarray:
 def branch_and_bound(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int,
                      min_score: float, ex_x: int = 0, ex_y: int = 0,
                      ex_r: int = -1, first: bool = False,
-                     allowed: np.ndarray = NO_MASK, shared: np.ndarray = NO_MASK_SHARED,
-                     share: bool = False) -> tuple[int, int, int, float]:
+                     allowed: np.ndarray = NO_MASK,
+                     shared: np.ndarray = NO_SHARED) -> tuple[int, int, int, float]:
     """Best ``(angle index, dx, dy, score)`` over offsets ``[0, wx) x [0, wy)`` with a
     score above ``min_score`` (angle -1 when none), Hess et al. Algorithm 3. ``pts (A,
     n, 2)`` are the points' cells at offset (0, 0) in ``pre``'s padded frame. Offsets
@@ -335,14 +335,15 @@ def branch_and_bound(pre: np.ndarray, pts: np.ndarray, wx: int, wy: int,
     stops at the first offset above ``min_score`` (whether there is one, not which is
     best: all the uniqueness test asks). With ``allowed`` (a :func:`offset_mask`
     pyramid over the offsets) only the offsets it holds are searched: a node none of
-    whose offsets is allowed is pruned before it is scored. With ``share``, searches of
-    one window's parts on several threads share ``shared[0]``, the best score any of
-    them has found: a node scoring below it is pruned (one below, not one equal, so each
-    part still finds its own best when that ties, and the answer does not depend on
-    which thread was first); with ``first``, every part stops once one has found an
-    offset."""
+    whose offsets is allowed is pruned before it is scored. Given ``shared`` (one
+    element), searches of one window's parts on several threads share ``shared[0]``,
+    the best score any of them has found: a node scoring below it is pruned (one below,
+    not one equal, so each part still finds its own best when that ties, and the answer
+    does not depend on which thread was first); with ``first``, every part stops once
+    one has found an offset."""
     depth = pre.shape[0] - 1
     masked = allowed.shape[1] > 0
+    share = shared.shape[0] > 0
     na = pts.shape[0]
     step = 1 << depth
     ntx = (wx + step - 1) // step
@@ -495,7 +496,7 @@ class PrecomputedGrid:
                                            min_step_rad)
         a, dx, dy, score = branch_and_bound(
             self.stack, cells, 2 * w + 1, 2 * w + 1, min_score, allowed=allowed,
-            shared=NO_MASK_SHARED if shared is None else shared, share=shared is not None)
+            shared=NO_SHARED if shared is None else shared)
         if a < 0:
             return None
         res = self.grid.resolution_m
@@ -525,8 +526,6 @@ class PrecomputedGrid:
                 continue
             b = branch_and_bound(self.stack, np.ascontiguousarray(cells[part]), 2 * w + 1,
                                  2 * w + 1, ratio * best.score, int(ex[0]), int(ex[1]), ex_r,
-                                 True, allowed,
-                                 NO_MASK_SHARED if shared is None else shared,
-                                 shared is not None)
+                                 True, allowed, NO_SHARED if shared is None else shared)
             out = max(out, float(b[3]) if b[0] >= 0 else 0.0)
         return out
