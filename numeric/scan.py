@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from chizu.numeric.errors import InvalidInput
-from chizu.numeric.geometry import place
+from chizu.numeric.geometry import compose, place, relative
 
 
 @dataclass(frozen=True)
@@ -118,6 +118,22 @@ class LaserLog:
     @property
     def duration_s(self) -> float:
         return float(self.scans[-1].t - self.scans[0].t) if self.scans else 0.0
+
+    def carried(self, start: int, stop: int) -> LaserLog:
+        """The log of the robot carried off during scans ``start`` to ``stop - 1``:
+        those scans are not logged, and its wheel odometry reads nothing of the carry
+        (the wheels did not turn) -- after the gap it goes on from where it was before.
+        The kidnapping of Thrun, Burgard, Fox, *Probabilistic Robotics* §8.3.3."""
+        if not 0 < start <= stop < len(self):
+            raise InvalidInput(f"a carry must lie within the log's {len(self)} scans, after "
+                               "its first and before its last", field="scans")
+        before, after = self.scans[start - 1].odom, self.scans[stop].odom
+        scans = self.scans[:start] + [
+            replace(s, odom=compose(before, relative(after, s.odom)))
+            for s in self.scans[stop:]]
+        keep = np.r_[0:start, stop:len(self)]
+        return LaserLog(f"{self.name}-carried", scans,
+                        None if self.truth is None else self.truth[keep])
 
     def head(self, n: int) -> LaserLog:
         """The first ``n`` scans (for quick runs)."""

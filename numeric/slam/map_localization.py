@@ -29,7 +29,8 @@ AMCL reads a map (Thrun, Burgard, Fox, *Probabilistic Robotics*, §6.4):
    scan's walls sliding along the map's. The score counts only the points on cells the
    map observed: a scan reaching into parts of the building the map never saw is
    neither for nor against a pose, and one mostly off the map is carried by odometry.
-4. **Recovery**: a scan after a gap in the log longer than ``gap_s``, or
+4. **Recovery**: a scan after a gap in the log longer than ``gap_s`` that does not
+   fit the map where the wheel odometry over the gap puts it (the robot was carried), or
    ``lost_scans`` scans in a row scoring below ``lost_score``, and the robot is lost:
    global localization again, at most every ``search_every_s`` of log time and only
    once the robot has moved ``search_moved_m`` (``search_moved_full_m`` once a whole
@@ -55,7 +56,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy import ndimage
 
 from chizu.numeric.errors import InvalidInput
-from chizu.numeric.geometry import compose, place, relative, wrap_angle
+from chizu.numeric.geometry import compose, invert, place, relative, wrap_angle
 from chizu.numeric.occupancy import FREE, OCCUPIED, UNKNOWN, build_occupancy_fitting
 from chizu.numeric.probability_grid import GridConfig, ProbabilityGrid, no_stamps
 from chizu.numeric.scan import LaserLog, Scan
@@ -154,7 +155,9 @@ class MapLocalizationConfig(BaseModel):
                               description="share of a scan's points on observed cells "
                                           "below which it is off the map")
     lost_scans: int = Field(10, ge=1, le=10_000)
-    gap_s: float = Field(2.0, gt=0.0, description="a longer gap in the log: relocalize")
+    gap_s: float = Field(2.0, gt=0.0, description="after a longer gap in the log the robot "
+                         "may have been carried: its pose is held only where the wheels put "
+                         "it and a global search confirms it")
     bridge_m: float = Field(1.0, ge=0.0, description="scans between two placed ones are "
                             "bridged (step 5) when local SLAM's path between them meets "
                             "the second within this ...")
@@ -314,9 +317,12 @@ class MapLocalizer:
         self.state: State = "searching"
         self.pose: np.ndarray | None = None
         self._odom: np.ndarray | None = None
+        self._wheels: np.ndarray | None = None  # the last scan's wheel odometry
         self._t: float | None = None
         self._low = 0
         self._confirmed = 0
+        #: the stamp of the gap across which a tracked pose is held, until confirmed
+        self._held_from: float | None = None
         self._searched: float | None = None
         self._searched_at: np.ndarray | None = None
         self._lost_m = 0.0
@@ -346,13 +352,21 @@ class MapLocalizer:
             self._scan_odometry = ScanOdometry()
         elif gap:  # the robot may have been carried: a new local map
             self._scan_odometry.restart()
-            self._history.clear()
             self._searched_at, self._lost_m = None, 0.0
         odom = self._scan_odometry(scan)
-        if self.state != "searching" and gap:
-            self._lose(scan.t)
+        wheels, self._wheels = self._wheels, scan.odom.copy()
         prev_odom, self._odom, self._t = self._odom, odom.copy(), scan.t
+        kept = None
+        if gap:
+            assert wheels is not None and prev_odom is not None
+            kept = self._across_gap(scan.t, xy, prev_odom, odom, relative(wheels, scan.odom))
+            if kept is None and self.state != "searching":
+                self._lose(scan.t)
+            elif kept is None:
+                self._history.clear()
         self._remember(odom, xy)
+        if kept is not None:
+            return kept
         if self.state == "searching":
             return self._search(scan.t, odom, xy)
         assert self.pose is not None and prev_odom is not None
@@ -388,7 +402,41 @@ class MapLocalizer:
                     self._lose(scan.t)
                     return Step(None, self.state, score)
                 self.state = "tracking"
-                self.fixes.append(scan.t)
+                if self._held_from is None:
+                    self.fixes.append(scan.t)
+                self._held_from = None
+        return Step(pose.copy(), self.state, score)
+
+    def _across_gap(self, t: float, xy: np.ndarray, prev_odom: np.ndarray, odom: np.ndarray,
+                    wheels: np.ndarray) -> Step | None:
+        """The first scan after a gap in the log: the robot may have been carried while
+        nothing was logged, or the log only dropped records while it drove on. The
+        wheels tell the second from the first: a robot carried off does not turn its
+        wheels, and its scan does not fit where their odometry over the gap
+        (``wheels``, the motion it read) puts it. Where it fits as a global fix must
+        (``global_min_score``, ``min_on_map``; the refinement's window is step 3's),
+        the pose is held and confirmed as a new fix is (step 2: ``confirm_scans`` scans
+        on, a global search must find it), on the scans from before the gap too, joined
+        to the new local map by the wheels (a carried robot's are joined wrongly, and
+        the search finds another pose or none); it is a fix kept, not a new one. Else
+        (None) the robot is lost, as after a kidnapping (step 4); so is a fix not yet
+        confirmed. ``prev_odom`` and ``odom``: local SLAM's poses of the scans before
+        and after the gap, each in its own local map."""
+        if self.state != "tracking":
+            return None
+        assert self.pose is not None
+        predicted = compose(self.pose, wheels)
+        pose, score, share = self.fit(xy, predicted)
+        cfg = self.config
+        d = relative(predicted, pose)
+        if (score < cfg.global_min_score or share < cfg.min_on_map
+                or np.hypot(d[0], d[1]) > cfg.track_window_m
+                or abs(d[2]) > cfg.track_window_rad):
+            return None
+        self.pose, self._low, self._off_m, self._confirmed = pose, 0, 0.0, 0
+        self.state, self._held_from = "confirming", t
+        to_new = compose(odom, compose(invert(wheels), invert(prev_odom)))
+        self._history = [(compose(to_new, o), h) for o, h in self._history]
         return Step(pose.copy(), self.state, score)
 
     def _moves_far(self, predicted: np.ndarray, pose: np.ndarray) -> bool:
@@ -497,9 +545,10 @@ class MapLocalizer:
         self._history.clear()
         self._searched_at = None  # the next search need not wait for the robot to move
         self._lost_m = 0.0
-        if self.state == "tracking":
-            self.losses.append(t)
+        if self.state == "tracking" or self._held_from is not None:
+            self.losses.append(t if self._held_from is None else self._held_from)
         self.state, self.pose, self._low, self._confirmed = "searching", None, 0, 0
+        self._held_from = None
         self._off_m = 0.0
 
 

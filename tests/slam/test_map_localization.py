@@ -74,8 +74,7 @@ def test_a_robot_carried_away_is_found_again(room_map: sm.SavedMap,
     """A third of the drive's scans dropped: the robot reappears elsewhere; it is lost
     at the gap and fixed again within two seconds of log, in the right place."""
     n = len(other_drive)
-    keep = list(range(n // 3)) + list(range(2 * n // 3, n))
-    cut = LaserLog("cut", [other_drive.scans[i] for i in keep], other_drive.truth[keep])
+    cut = other_drive.carried(n // 3, 2 * n // 3)
     run = localize_log(room_map, cut)
     gap_t = cut.scans[n // 3].t
     assert len(run.losses) == 1 and run.losses[0] == pytest.approx(gap_t)
@@ -83,6 +82,49 @@ def test_a_robot_carried_away_is_found_again(room_map: sm.SavedMap,
     after = run.times >= run.fixes[1]
     ok = run.localized & after
     assert np.median(np.hypot(*(run.poses[ok, :2] - cut.truth[ok, :2]).T)) < 0.08
+
+
+def test_a_gap_in_the_log_does_not_lose_a_robot_that_drove_on(
+        room_map: sm.SavedMap, other_drive: LaserLog) -> None:
+    """Records dropped for a few seconds while the robot drove on: its wheels read the
+    motion, its scan fits the map there, and once a global search confirms the pose it
+    is tracked on -- the same fix, not lost. Carried off for the same time (the wheels
+    read nothing), it is lost at the gap."""
+    run = localize_log(room_map, other_drive)
+    t = other_drive.times
+    start = int(np.searchsorted(t, run.fixes[0] + 5.0))
+    stop = int(np.searchsorted(t, t[start] + 3.0))
+    assert t[stop] - t[start - 1] > MapLocalizationConfig().gap_s
+    keep = np.r_[0:start, stop:len(other_drive)]
+    dropped = LaserLog("dropped", [other_drive.scans[i] for i in keep],
+                       other_drive.truth[keep])
+    carried = other_drive.carried(start, stop)
+    held = localize_log(room_map, dropped)
+    assert not held.losses and held.fixes == run.fixes
+    k = start + MapLocalizationConfig().confirm_scans
+    assert held.states[start:k] == ["confirming"] * (k - start)
+    assert held.localized[k:].mean() > 0.9
+    ok = held.localized & (held.times >= t[stop])
+    assert np.median(np.hypot(*(held.poses[ok, :2] - dropped.truth[ok, :2]).T)) < 0.08
+    lost = localize_log(room_map, carried)
+    assert lost.losses == [pytest.approx(t[stop])]
+    assert lost.fixes[-1] > t[stop]
+
+
+def test_a_carried_log_drops_the_scans_and_the_wheels_read_nothing(
+        other_drive: LaserLog) -> None:
+    c = other_drive.carried(10, 30)
+    assert len(c) == len(other_drive) - 20
+    assert [s.t for s in c.scans] == [s.t for s in other_drive.scans[:10] + other_drive.scans[30:]]
+    o, oc = other_drive.odometry, c.odometry
+    assert np.allclose(oc[10], o[9])  # no motion read over the carry
+    assert np.allclose(relative(oc[10], oc[20]), relative(o[30], o[40]))  # then as before
+    assert other_drive.truth is not None and c.truth is not None
+    assert np.allclose(c.truth[10], other_drive.truth[30])
+    for bad in ((0, 5), (5, 4), (5, len(other_drive))):
+        with pytest.raises(InvalidInput) as e:
+            other_drive.carried(*bad)
+        assert e.value.field == "scans"
 
 
 @pytest.mark.parametrize(("shift_m", "score", "taken"),
