@@ -256,6 +256,12 @@ class GlobalSearch:
         return None if max(rivals) > 0.0 else best
 
 
+def _near(pose: np.ndarray, other: np.ndarray, m: float, rad: float) -> bool:
+    """Whether ``other`` lies within ``m`` of ``pose`` and is turned at most ``rad``."""
+    d = relative(pose, other)
+    return bool(np.hypot(d[0], d[1]) <= m and abs(d[2]) <= rad)
+
+
 @dataclass
 class Step:
     """One scan's outcome: its pose in the map (None while not localized), the state
@@ -352,7 +358,6 @@ class MapLocalizer:
             self._scan_odometry = ScanOdometry()
         elif gap:  # the robot may have been carried: a new local map
             self._scan_odometry.restart()
-            self._searched_at, self._lost_m = None, 0.0
         odom = self._scan_odometry(scan)
         wheels, self._wheels = self._wheels, scan.odom.copy()
         prev_odom, self._odom, self._t = self._odom, odom.copy(), scan.t
@@ -360,10 +365,8 @@ class MapLocalizer:
         if gap:
             assert wheels is not None and prev_odom is not None
             kept = self._across_gap(scan.t, xy, prev_odom, odom, relative(wheels, scan.odom))
-            if kept is None and self.state != "searching":
+            if kept is None:  # lost, or still searching with what it saw before the gap
                 self._lose(scan.t)
-            elif kept is None:
-                self._history.clear()
         self._remember(odom, xy)
         if kept is not None:
             return kept
@@ -428,10 +431,8 @@ class MapLocalizer:
         predicted = compose(self.pose, wheels)
         pose, score, share = self.fit(xy, predicted)
         cfg = self.config
-        d = relative(predicted, pose)
         if (score < cfg.global_min_score or share < cfg.min_on_map
-                or np.hypot(d[0], d[1]) > cfg.track_window_m
-                or abs(d[2]) > cfg.track_window_rad):
+                or not _near(predicted, pose, cfg.track_window_m, cfg.track_window_rad)):
             return None
         self.pose, self._low, self._off_m, self._confirmed = pose, 0, 0.0, 0
         self.state, self._held_from = "confirming", t
@@ -446,9 +447,7 @@ class MapLocalizer:
         corridor, a room the map saw only from afar), step by step away from where the
         robot is; local SLAM's prediction is the better answer (the gate of Hara et
         al. §6, eq. 5, with the map's match in the place of the scan matcher's)."""
-        d = relative(predicted, pose)
-        return bool(np.hypot(d[0], d[1]) > self.config.trust_m
-                    or abs(d[2]) > self.config.trust_rad)
+        return not _near(predicted, pose, self.config.trust_m, self.config.trust_rad)
 
     def _agrees(self, second: Match | None, tracked: np.ndarray) -> bool:
         """Whether a second global search, on a later scan, finds the pose the first fix
@@ -457,9 +456,7 @@ class MapLocalizer:
         wrong one uniquely enough when the map of the right one is a little off."""
         if second is None:
             return False
-        d = relative(tracked, second.pose)
-        return bool(np.hypot(d[0], d[1]) <= self.config.unique_m
-                    and abs(d[2]) <= self.config.confirm_rad)
+        return _near(tracked, second.pose, self.config.unique_m, self.config.confirm_rad)
 
     def _search(self, t: float, odom: np.ndarray, xy: np.ndarray) -> Step:
         cfg = self.config
