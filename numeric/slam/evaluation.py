@@ -59,6 +59,10 @@ def poses_at(times: np.ndarray, poses: np.ndarray, query: np.ndarray,
     return poses[order][pick], ok
 
 
+#: a relation's end has a pose when the trajectory has a stamp this near it (s)
+RELATION_MAX_DT_S = 0.1
+
+
 def relation_error_poses(times: np.ndarray, poses: np.ndarray, rel_times: np.ndarray,
                          rel_delta: np.ndarray, max_dt_s: float) -> tuple[np.ndarray,
                                                                            np.ndarray]:
@@ -71,7 +75,8 @@ def relation_error_poses(times: np.ndarray, poses: np.ndarray, rel_times: np.nda
 
 
 def relation_errors(times: np.ndarray, poses: np.ndarray, rel_times: np.ndarray,
-                    rel_delta: np.ndarray, max_dt_s: float = 0.1) -> RelationErrors:
+                    rel_delta: np.ndarray, max_dt_s: float = RELATION_MAX_DT_S
+                    ) -> RelationErrors:
     """Errors of the trajectory (``times (N,)``, ``poses (N, 3)``) on the relations
     (``rel_times (R, 2)``, ``rel_delta (R, 3)``)."""
     if len(times) == 0 or len(times) != len(poses):
@@ -114,7 +119,8 @@ class LocalFailures:
 def local_failures(times: np.ndarray, poses: np.ndarray, odom_times: np.ndarray,
                    odom: np.ndarray, rel_times: np.ndarray, rel_delta: np.ndarray,
                    max_gap_s: float = LOCAL_MAX_GAP_S, off_m: float = LOCAL_OFF_M,
-                   odom_ok_m: float = LOCAL_ODOM_OK_M, max_dt_s: float = 0.1,
+                   odom_ok_m: float = LOCAL_ODOM_OK_M,
+                   max_dt_s: float = RELATION_MAX_DT_S,
                    ) -> LocalFailures:
     """The relations shorter than ``max_gap_s`` on which the trajectory is more than
     ``off_m`` off while the raw odometry (``odom_times``, ``odom``) is within

@@ -29,7 +29,11 @@ import numpy as np  # noqa: E402
 from chizu.numeric.geometry import compose  # noqa: E402
 from chizu.numeric.scan import LaserLog  # noqa: E402
 from chizu.numeric.slam.datasets import slam_data_dir  # noqa: E402
-from chizu.numeric.slam.evaluation import relation_error_poses, relation_errors  # noqa: E402
+from chizu.numeric.slam.evaluation import (  # noqa: E402
+    RELATION_MAX_DT_S,
+    relation_error_poses,
+    relation_errors,
+)
 from chizu.numeric.slam.logs import read_log, read_relations  # noqa: E402
 from chizu.numeric.slam.map_localization import (  # noqa: E402
     LocalizationRun,
@@ -103,7 +107,7 @@ def errors(run: LocalizationRun, rel: tuple[np.ndarray, np.ndarray],
     without a pose) and the relations scored."""
     ok = run.placed
     e = relation_errors(run.times[ok], run.poses[ok], *rel)
-    scored = relation_error_poses(run.times[ok], run.poses[ok], *rel, 0.1)[1]
+    scored = relation_error_poses(run.times[ok], run.poses[ok], *rel, RELATION_MAX_DT_S)[1]
     return (e.trans_m, e.rot_deg, e.n, e.missing), (rel[0][scored], rel[1][scored])
 
 
