@@ -12,11 +12,13 @@ estimate and refines it:
 1. pairwise matches (:func:`pairwise_matches`): each scan is aligned by point-to-line
    ICP (:func:`chizu.numeric.slam.matching.intensity_icp.intensity_icp`, eq. 1's intensity term when
    ``alpha > 0``) to the scans ``sequential`` steps before it and to up to
-   ``revisits`` earlier scans within ``revisit_radius_m`` (from different passes),
-   starting at their relative pose in the online estimate. A match counts only when
-   ICP converged, at least ``min_overlap`` of the scan found a partner within
-   ``inlier_m`` and the correction stays inside ``max_correction_m`` /
-   ``max_correction_rad`` -- it refines the estimate, it does not re-decide it;
+   ``revisits`` earlier scans within ``revisit_radius_m`` (from different passes)
+   facing the same way and as many facing apart (a place passed the other way is a
+   loop closure too, where the laser sees enough of the same walls), starting at
+   their relative pose in the online estimate. A match counts only when ICP
+   converged, at least ``min_overlap`` of the scan found a partner within ``inlier_m``
+   and the correction stays inside ``max_correction_m`` / ``max_correction_rad`` --
+   it refines the estimate, it does not re-decide it;
 2. its covariance: ``sigma**2 (J^T J)^-1`` from the point-to-line Jacobian at the
    solution (a corridor's length stays uncertain, its width does not), ``sigma`` the
    larger of ``point_sigma_m`` and ``residual_scale`` times the match's residual RMS,
@@ -67,8 +69,10 @@ class AlignmentConfig(BaseModel):
                                         "matched to the scans this many steps before it")
     revisit_radius_m: float = Field(1.5, ge=0, description="... and to earlier scans "
                                     "from other passes within this distance")
-    revisit_max_turn_rad: float = Field(1.0, ge=0, le=np.pi, description="... facing "
-                                        "within this angle of it")
+    apart_rad: float = Field(1.0, ge=0, le=np.pi, description="two scans whose headings "
+                             "differ by at least this face apart: the revisits are picked "
+                             "among those facing the same way and among those facing "
+                             "apart, and estimate_closures keeps pairs facing apart")
     revisit_min_gap: int = Field(20, ge=1, description="scans between two passes")
     revisits: int = Field(3, ge=0, description="earlier scans per scan: the first, "
                           "middle and last of those in reach")
@@ -109,7 +113,10 @@ class PairwiseMatch:
 def candidate_pairs(poses: np.ndarray, cfg: AlignmentConfig,
                     first: int = 0) -> list[tuple[int, int]]:
     """The scan pairs ``(a, b)``, ``a < b``, to match: the sequential ones and, per
-    scan, up to ``revisits`` earlier scans of other passes in reach; only those with
+    scan, up to ``revisits`` earlier scans of other passes in reach facing the same way
+    (headings within ``apart_rad``) and as many facing apart -- picked apart so that
+    pairs facing apart, which a 180° laser more often sees too little of for the
+    overlap test, do not crowd out those facing the same way; only those with
     ``b >= first`` (the scans before ``first`` are held where they are)."""
     n = len(poses)
     pairs = [(b - k, b) for b in range(first, n) for k in cfg.sequential if b - k >= 0]
@@ -119,20 +126,22 @@ def candidate_pairs(poses: np.ndarray, cfg: AlignmentConfig,
     for b, near_b in enumerate(near, start=first):
         js = np.sort(np.asarray(near_b, dtype=np.intp))
         js = js[js < b - cfg.revisit_min_gap]
-        js = js[np.abs(wrap_angle(poses[b, 2] - poses[js, 2])) < cfg.revisit_max_turn_rad]
-        if len(js):
-            picks = sorted({int(js[0]), int(js[len(js) // 2]), int(js[-1])})[: cfg.revisits]
-            pairs += [(j, b) for j in picks]
+        apart = np.abs(wrap_angle(poses[b, 2] - poses[js, 2])) >= cfg.apart_rad
+        for side in (js[~apart], js[apart]):
+            if len(side):
+                picks = sorted({int(side[0]), int(side[len(side) // 2]), int(side[-1])})
+                pairs += [(j, b) for j in picks[: cfg.revisits]]
     return pairs
 
 
 def estimate_closures(poses: np.ndarray, cfg: AlignmentConfig,
                       ) -> list[tuple[int, int, np.ndarray]]:
-    """Loop closures an online estimate holds that the revisit matches cannot check:
-    each scan's nearest earlier scan of another pass (more than ``revisit_min_gap``
-    scans before it) within ``revisit_radius_m`` that faces away from it by at least
-    ``revisit_max_turn_rad`` -- a corridor driven both ways, where a 180° laser sees
-    too little of the same walls for ICP -- with their relative pose in ``poses``.
+    """Loop closures an online estimate holds that the revisit matches often cannot
+    check: each scan's nearest earlier scan of another pass (more than
+    ``revisit_min_gap`` scans before it) within ``revisit_radius_m`` that faces away
+    from it by at least ``apart_rad`` -- a corridor driven both ways, where
+    a 180° laser sees too little of the same walls for ICP's overlap test -- with their
+    relative pose in ``poses``.
 
     The particle filter places a scan against its map, keyframes from every pass and
     direction, so it relates such pairs where no scan pair can; without them a loop
@@ -144,7 +153,7 @@ def estimate_closures(poses: np.ndarray, cfg: AlignmentConfig,
     near = cKDTree(poses[:, :2]).query_ball_point(poses[:, :2], cfg.revisit_radius_m)
     for b, js in enumerate(near):
         js = [j for j in js if j < b - cfg.revisit_min_gap
-              and abs(wrap_angle(poses[b, 2] - poses[j, 2])) >= cfg.revisit_max_turn_rad]
+              and abs(wrap_angle(poses[b, 2] - poses[j, 2])) >= cfg.apart_rad]
         if js:
             j = min(js, key=lambda j: float(np.hypot(*(poses[j, :2] - poses[b, :2]))))
             out.append((j, b, relative(poses[j], poses[b])))
