@@ -12,9 +12,9 @@ estimate and refines it:
 1. pairwise matches (:func:`pairwise_matches`): each scan is aligned by point-to-line
    ICP (:func:`chizu.numeric.slam.matching.intensity_icp.intensity_icp`, eq. 1's intensity term when
    ``alpha > 0``) to the scans ``sequential`` steps before it and to up to
-   ``revisits`` earlier scans within ``revisit_radius_m`` (from different passes, at
-   any heading: a place passed the other way is a loop closure too), starting at
-   their relative pose in the online estimate. A match counts only when ICP
+   ``revisits`` earlier scans within ``revisit_radius_m`` (from different passes, by
+   default at any heading: a place passed the other way is a loop closure too),
+   starting at their relative pose in the online estimate. A match counts only when ICP
    converged, at least ``min_overlap`` of the scan found a partner within ``inlier_m``
    and the correction stays inside ``max_correction_m`` / ``max_correction_rad`` --
    it refines the estimate, it does not re-decide it;
@@ -68,6 +68,8 @@ class AlignmentConfig(BaseModel):
                                         "matched to the scans this many steps before it")
     revisit_radius_m: float = Field(1.5, ge=0, description="... and to earlier scans "
                                     "from other passes within this distance")
+    revisit_max_turn_rad: float = Field(np.pi, gt=0, le=np.pi, description="... facing "
+                                        "within this angle of it (π: at any heading)")
     revisit_min_gap: int = Field(20, ge=1, description="scans between two passes")
     revisits: int = Field(3, ge=0, description="earlier scans per scan: the first, "
                           "middle and last of those in reach")
@@ -111,10 +113,10 @@ class PairwiseMatch:
 def candidate_pairs(poses: np.ndarray, cfg: AlignmentConfig,
                     first: int = 0) -> list[tuple[int, int]]:
     """The scan pairs ``(a, b)``, ``a < b``, to match: the sequential ones and, per
-    scan, up to ``revisits`` earlier scans of other passes in reach, at any heading (the
-    overlap test refuses a pair facing apart that sees too little of the same walls);
-    only those with ``b >= first`` (the scans before ``first`` are held where they
-    are)."""
+    scan, up to ``revisits`` earlier scans of other passes in reach facing within
+    ``revisit_max_turn_rad`` of it (by default at any heading: the overlap test refuses
+    a pair facing apart that sees too little of the same walls); only those with
+    ``b >= first`` (the scans before ``first`` are held where they are)."""
     n = len(poses)
     pairs = [(b - k, b) for b in range(first, n) for k in cfg.sequential if b - k >= 0]
     if cfg.revisits == 0 or cfg.revisit_radius_m <= 0 or n <= first:
@@ -123,6 +125,8 @@ def candidate_pairs(poses: np.ndarray, cfg: AlignmentConfig,
     for b, near_b in enumerate(near, start=first):
         js = np.sort(np.asarray(near_b, dtype=np.intp))
         js = js[js < b - cfg.revisit_min_gap]
+        if cfg.revisit_max_turn_rad < np.pi:
+            js = js[np.abs(wrap_angle(poses[b, 2] - poses[js, 2])) < cfg.revisit_max_turn_rad]
         if len(js):
             picks = sorted({int(js[0]), int(js[len(js) // 2]), int(js[-1])})[: cfg.revisits]
             pairs += [(j, b) for j in picks]

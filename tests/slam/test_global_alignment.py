@@ -91,6 +91,8 @@ def test_estimate_closures_take_the_pairs_facing_apart() -> None:
     revisits = {(a, b) for a, b in candidate_pairs(poses, cfg) if b - a > 8}
     assert {b for _, b in revisits} >= set(range(23, 40))
     assert all(abs(wrap_angle(poses[b, 2] - poses[a, 2])) > 3 for a, b in revisits)
+    facing = cfg.model_copy(update={"revisit_max_turn_rad": 1.0})  # as map localization
+    assert not [(a, b) for a, b in candidate_pairs(poses, facing) if b - a > 8]
     same_way = np.array([[0.5 * (k % 20), 0.0, 0.0] for k in range(40)])  # twice, same way
     assert estimate_closures(same_way, cfg) == []
 
