@@ -85,9 +85,8 @@ State = Literal["searching", "confirming", "tracking"]
 
 
 #: step 5's alignment: graph SLAM's, but its scans are matched to earlier ones (and to the
-#: keyframes) facing within 1 rad of them only. With the map's keyframes held, scans
-#: matched facing apart pulled the robot's path off the map's (aces's second half on the
-#: map of its first 35 %: 0.0418 m against graph SLAM's 0.0339, 0.0347 within 1 rad).
+#: keyframes) facing within 1 rad of them only: with the map's keyframes held, scans
+#: matched facing apart pull the robot's path off the map's (docs/notes/map-localization.md)
 ON_MAP_ALIGNMENT = AlignmentConfig(revisit_max_turn_rad=1.0)
 
 
