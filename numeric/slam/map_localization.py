@@ -19,7 +19,9 @@ AMCL reads a map (Thrun, Burgard, Fox, *Probabilistic Robotics*, §6.4):
    ``unique_m`` from it scores within ``unique_ratio`` of it (Olson 2009, §IV): a
    corridor that fits two places says nothing about which. It is then refined (step
    3), tracked ``confirm_scans`` scans, and taken only when a second global search, on
-   that later scan, finds the same pose.
+   that later scan, finds the same pose uniquely. A second search with no unique answer
+   is neither for nor against the fix: it is tried again (``confirm_tries``); a unique
+   answer elsewhere drops the fix.
 3. **Tracking**: each scan is predicted by the odometry since the last one and refined
    by Gauss-Newton on the field (:func:`~chizu.numeric.slam.matching.correlative.refine`);
    when the refined score is poor, a correlative search of a small window first; then
@@ -131,6 +133,13 @@ class MapLocalizationConfig(BaseModel):
     confirm_scans: int = Field(5, ge=1, le=100,
                                description="a fix is tracked this many scans, then a "
                                            "second global search must find it again")
+    confirm_tries: int = Field(3, ge=1, le=100, description="a second search with no "
+                               "unique answer (nothing scores ``confirm_min_score``, or "
+                               "a rival as good as the best) says nothing against the "
+                               "fix: it is tried again ``confirm_scans`` scans later, "
+                               "this many times in all; only a unique answer elsewhere, "
+                               "or the last try, drops the fix (a pose held across a gap "
+                               "in the log, found by no global search, gets one try)")
     confirm_rad: float = Field(0.1, gt=0.0, le=np.pi)
     confirm_min_score: float = Field(0.4, gt=0.0, lt=1.0, description="the second "
                                      "search's best pose scores at least this: it must "
@@ -236,13 +245,20 @@ class GlobalSearch:
     def fix(self, xy: np.ndarray, min_score: float | None = None) -> Match | None:
         """The best pose of robot-frame points ``xy`` anywhere in the map, or None when
         it scores below ``min_score`` (``global_min_score`` unless given) or is not
+        unique."""
+        answer = self.search_all(xy, min_score)
+        return answer.best if answer.unique else None
+
+    def search_all(self, xy: np.ndarray, min_score: float | None = None) -> GlobalAnswer:
+        """The best pose of robot-frame points ``xy`` anywhere in the map scoring at
+        least ``min_score`` (``global_min_score`` unless given), and whether it is
         unique. The headings are searched in two halves, on two threads when there are
         two cores (the same halves either way: the answer does not depend on it)."""
         cfg = self.config
         near = xy[np.hypot(xy[:, 0], xy[:, 1]) <= cfg.global_range_m]
         pts = adaptive_voxel(near, cfg.global_points, self.search.grid.resolution_m)
         if len(pts) < 8:
-            return None
+            return GlobalAnswer(None, False)
         floor = cfg.global_min_score if min_score is None else min_score
         shared = np.full(1, -1.0)  # the best either half has found: both prune with it
         found = [m for m in thread_map(
@@ -250,7 +266,7 @@ class GlobalSearch:
                                         cfg.global_step_rad, self.allowed, shared),
             self.halves, default_threads()) if m is not None]
         if not found:
-            return None
+            return GlobalAnswer(None, False)
         best = max(found, key=lambda m: m.score)  # the first half's on a tie
         shared = np.full(1, -1.0)
         rivals = thread_map(
@@ -259,7 +275,17 @@ class GlobalSearch:
                                                cfg.global_step_rad, cfg.unique_rad,
                                                self.allowed, shared),
             self.halves, default_threads())
-        return None if max(rivals) > 0.0 else best
+        return GlobalAnswer(best, max(rivals) == 0.0)
+
+
+@dataclass(frozen=True)
+class GlobalAnswer:
+    """A global search's best pose (None: nothing scored the minimum) and whether no
+    pose farther than ``unique_m`` (or turned ``unique_rad``) scores within
+    ``unique_ratio`` of it."""
+
+    best: Match | None
+    unique: bool
 
 
 def _near(pose: np.ndarray, other: np.ndarray, m: float, rad: float) -> bool:
@@ -405,15 +431,20 @@ class MapLocalizer:
         self.pose = pose
         if self.state == "confirming":
             self._confirmed += 1
-            if self._confirmed >= self.config.confirm_scans:
-                second = self.globally.fix(self._context(odom), self.config.confirm_min_score)
-                if not self._agrees(second, pose):
+            cfg = self.config
+            if self._confirmed % cfg.confirm_scans == 0:
+                second = self.globally.search_all(self._context(odom), cfg.confirm_min_score)
+                # a pose held across a gap has no global search behind it yet: its
+                # confirming search is its only evidence, and it is not tried again
+                tries = cfg.confirm_tries if self._held_from is None else 1
+                if self._agrees(second, pose):
+                    self.state = "tracking"
+                    if self._held_from is None:
+                        self.fixes.append(scan.t)
+                    self._held_from = None
+                elif second.unique or self._confirmed >= cfg.confirm_scans * tries:
                     self._lose(scan.t)
                     return Step(None, self.state, score)
-                self.state = "tracking"
-                if self._held_from is None:
-                    self.fixes.append(scan.t)
-                self._held_from = None
         return Step(pose.copy(), self.state, score)
 
     def _across_gap(self, t: float, xy: np.ndarray, prev_odom: np.ndarray, odom: np.ndarray,
@@ -455,14 +486,14 @@ class MapLocalizer:
         al. §6, eq. 5, with the map's match in the place of the scan matcher's)."""
         return not _near(predicted, pose, self.config.trust_m, self.config.trust_rad)
 
-    def _agrees(self, second: Match | None, tracked: np.ndarray) -> bool:
+    def _agrees(self, second: GlobalAnswer, tracked: np.ndarray) -> bool:
         """Whether a second global search, on a later scan, finds the pose the first fix
         has been tracked to: two unique fixes, taken apart, agreeing through the
         odometry between them. One scan in a building of look-alike corridors can fit a
         wrong one uniquely enough when the map of the right one is a little off."""
-        if second is None:
+        if second.best is None or not second.unique:
             return False
-        return _near(tracked, second.pose, self.config.unique_m, self.config.confirm_rad)
+        return _near(tracked, second.best.pose, self.config.unique_m, self.config.confirm_rad)
 
     def _search(self, t: float, odom: np.ndarray, xy: np.ndarray) -> Step:
         cfg = self.config

@@ -19,6 +19,7 @@ from chizu.numeric.scan import LaserLog
 from chizu.numeric.slam import saved_map as sm
 from chizu.numeric.slam.graph import ScanOdometry
 from chizu.numeric.slam.map_localization import (
+    GlobalAnswer,
     GlobalSearch,
     LocalizationRun,
     MapLocalizationConfig,
@@ -125,6 +126,47 @@ def test_a_carried_log_drops_the_scans_and_the_wheels_read_nothing(
         with pytest.raises(InvalidInput) as e:
             other_drive.carried(*bad)
         assert e.value.field == "scans"
+
+
+@pytest.mark.parametrize(("answers", "tracking", "lost_at_try"),
+                         [(["agrees"], True, None),
+                          (["ambiguous", "none", "agrees"], True, None),
+                          (["ambiguous", "elsewhere"], False, 2),
+                          (["ambiguous", "none", "ambiguous"], False, 3)])
+def test_a_fix_is_confirmed_by_a_unique_second_search_tried_again_if_it_has_none(
+        room_map: sm.SavedMap, other_drive: LaserLog, monkeypatch: pytest.MonkeyPatch,
+        answers: list[str], tracking: bool, lost_at_try: int | None) -> None:
+    """The confirming search: one agreeing unique answer takes the fix; no answer or an
+    ambiguous one (a rival as good) is tried again ``confirm_scans`` scans later, up to
+    ``confirm_tries`` times; a unique answer 5 m away drops the fix at once."""
+    cfg = MapLocalizationConfig()
+    loc = MapLocalizer(room_map, cfg)
+    real_search = loc.globally.search_all
+    tries: list[int] = []
+
+    def search_all(xy: np.ndarray, min_score: float | None = None) -> GlobalAnswer:
+        a = real_search(xy, min_score)
+        if min_score is None:  # the first fix's search
+            return a
+        tries.append(len(states))  # the scan being processed
+        assert a.best is not None  # the tracked pose, found again
+        say = answers[len(tries) - 1]
+        far = dataclasses.replace(a.best, pose=compose(a.best.pose, np.array([5.0, 0, 0])))
+        return {"agrees": GlobalAnswer(a.best, True), "ambiguous": GlobalAnswer(a.best, False),
+                "none": GlobalAnswer(None, False), "elsewhere": GlobalAnswer(far, True)}[say]
+
+    monkeypatch.setattr(loc.globally, "search_all", search_all)
+    states: list[str] = []
+    for scan in other_drive.scans[:60]:
+        states.append(loc.process(scan).state)
+        if states[-1] != "confirming" and tries:
+            break
+    assert len(tries) == len(answers)
+    assert np.all(np.diff(tries) == cfg.confirm_scans)  # every tracked scan fits here
+    assert states[-1] == ("tracking" if tracking else "searching")
+    assert len(loc.fixes) == int(tracking) and not loc.losses  # no fix was lost
+    if lost_at_try is not None:
+        assert len(tries) == lost_at_try
 
 
 @pytest.mark.parametrize(("shift_m", "score", "taken"),
