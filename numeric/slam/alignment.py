@@ -286,7 +286,8 @@ def align_globally(poses: np.ndarray, odometry: np.ndarray, matches: Sequence[Pa
                    cfg: AlignmentConfig, noise: GraphConfig | None = None,
                    held: int = 0,
                    priors: Sequence[tuple[int, np.ndarray, np.ndarray]] = (),
-                   breaks: Sequence[int] = ()) -> np.ndarray:
+                   breaks: Sequence[int] = (),
+                   local: Sequence[tuple[int, int, np.ndarray]] = ()) -> np.ndarray:
     """Step 3: every scan's pose ``(N, 3)`` after one batch optimisation, from the
     online estimate ``poses``; ``odometry`` ``(N, 3)`` the scans' odometry readings,
     ``closures`` ``(a, b, delta)`` the online run's loop closures between scans, both
@@ -296,7 +297,9 @@ def align_globally(poses: np.ndarray, odometry: np.ndarray, matches: Sequence[Pa
     ``priors`` ``(k, pose, covariance)`` place single scans in the world frame (a
     scan matched to a saved map), Huber-robust like the matches. The odometry chain
     starts again at each scan of ``breaks`` (another run's first scan: nothing but the
-    matches, the closures and the priors ties it to the scan before)."""
+    matches, the closures and the priors ties it to the scan before). ``local`` ``(a, b,
+    delta)``: relative poses of the online estimate held as local SLAM's edges hold
+    them (the noise's local sigmas, not robust: they are no guess to be outvoted)."""
     noise = GraphConfig() if noise is None else noise
     n = len(poses)
     if n < 2:
@@ -327,6 +330,10 @@ def align_globally(poses: np.ndarray, odometry: np.ndarray, matches: Sequence[Pa
     loop = noise.loop_noise()
     for a, b, delta in closures:
         graph.add(gtsam.BetweenFactorPose2(int(a), int(b), as_pose2(delta), loop))
+    for a, b, delta in local:
+        graph.add(gtsam.BetweenFactorPose2(int(a), int(b), as_pose2(delta),
+                                           gtsam.noiseModel.Diagonal.Sigmas(
+                                               noise.local_sigmas(delta))))
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(cfg.lm_iterations)
     out = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
@@ -337,10 +344,13 @@ def align_scans(points: Sequence[np.ndarray], intensities: Sequence[np.ndarray |
                 poses: np.ndarray, odometry: np.ndarray,
                 closures: Sequence[tuple[int, int, np.ndarray]],
                 cfg: AlignmentConfig, noise: GraphConfig | None = None,
+                local: Sequence[tuple[int, int, np.ndarray]] = (),
                 ) -> tuple[np.ndarray, int]:
-    """Steps 1-3: the aligned poses of all scans and how many pairwise matches held."""
+    """Steps 1-3: the aligned poses of all scans and how many pairwise matches held
+    (``local``: see :func:`align_globally`)."""
     matches = pairwise_matches(points, intensities, poses, cfg)
-    return align_globally(poses, odometry, matches, closures, cfg, noise), len(matches)
+    return (align_globally(poses, odometry, matches, closures, cfg, noise, local=local),
+            len(matches))
 
 
 @dataclass
@@ -438,13 +448,14 @@ class AlignedOutputs:
         if alpha > 0 and cfg.alpha == 0:
             cfg = cfg.model_copy(update={"alpha": alpha})
         # a forgotten scan has no points to match: it is held to its neighbours by the
-        # online estimate's relative poses, so that it moves with the aligned scans
+        # online estimate's relative poses, as firmly as local SLAM's edges held them
+        # online, so that it moves with the aligned scans
         lost = self.scans.lost()
         pairs = np.union1d(lost, lost - 1)
         pairs = pairs[(pairs >= 0) & (pairs + 1 < len(poses))]
         chain = [(int(i), int(i + 1), relative(poses[i], poses[i + 1])) for i in pairs]
         self.scans.aligned, self.scans.matches = align_scans(
-            self.scans.xy, self.scans.inten, poses, odometry, [*closures, *chain], cfg, noise)
+            self.scans.xy, self.scans.inten, poses, odometry, closures, cfg, noise, chain)
         return self.scans.matches
 
     @property

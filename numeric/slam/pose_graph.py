@@ -43,6 +43,11 @@ class GraphConfig(BaseModel):
         return np.stack([s, s, self.odom_sigma_rad
                          + self.odom_sigma_rad_per_rad * np.abs(d[..., 2])], axis=-1)
 
+    def local_sigmas(self, delta: np.ndarray) -> np.ndarray:
+        """Sigmas (x, y, theta) of a local-SLAM edge over relative pose ``delta``."""
+        s = self.local_sigma_m + self.local_sigma_per_m * float(np.hypot(delta[0], delta[1]))
+        return np.array([s, s, self.local_sigma_rad])
+
     def loop_sigmas(self, weight: float = 1.0) -> np.ndarray:
         """A loop closure's sigmas (x, y, theta) over ``weight``."""
         return np.array([self.loop_sigma_m, self.loop_sigma_m, self.loop_sigma_rad]) / weight
@@ -213,10 +218,11 @@ class PoseGraph:
         """A local-SLAM edge; ``weak`` (unit (2,), node a's frame) is a direction the
         match could not fix, which gets odometry's sigma instead."""
         c = self.config
-        s = c.local_sigma_m + c.local_sigma_per_m * float(np.hypot(delta[0], delta[1]))
+        sig = c.local_sigmas(delta)
         if weak is None:
-            self.add_between(a, b, delta, np.array([s, s, c.local_sigma_rad]), kind=1)
+            self.add_between(a, b, delta, sig, kind=1)
             return
+        s = sig[0]
         lateral = np.array([-weak[1], weak[0]])
         cov = np.zeros((3, 3))
         cov[:2, :2] = (self.odometry_sigmas(delta)[0]**2 * np.outer(weak, weak)

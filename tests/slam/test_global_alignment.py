@@ -10,6 +10,7 @@ import pytest
 from chizu.numeric.geometry import compose, relative, wrap_angle
 from chizu.numeric.slam.alignment import (
     AlignmentConfig,
+    align_globally,
     align_scans,
     candidate_pairs,
     estimate_closures,
@@ -18,6 +19,7 @@ from chizu.numeric.slam.alignment import (
 from chizu.numeric.slam.graph import GraphSlam, GraphSlamConfig
 from chizu.numeric.slam.keyframes import voxel_downsample
 from chizu.numeric.slam.matching.intensity_icp import Reference
+from chizu.numeric.slam.pose_graph import GraphConfig
 from chizu.numeric.slam.runner import SlamOptions, run_log
 from chizu.numeric.slam.simulate import simulated_log
 from tests.slam.test_graph_slam import CORRIDOR, scan_at
@@ -103,6 +105,26 @@ def room_run() -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
     assert log.truth is not None
     pts = [voxel_downsample(s.points()[0], None, 0.05)[0] for s in log.scans]
     return pts, log.truth, log.odometry
+
+
+def test_a_forgotten_scan_is_held_to_its_neighbour_as_local_slam_held_it() -> None:
+    """A scan without points is tied to the scan before by the online estimate's
+    relative pose with local SLAM's sigmas, against the odometry's: the two weighed by
+    their precisions (here 1.0 m of odometry against 1.1 m of online estimate, whose
+    sigma is a third of the odometry's); as a loop closure (Huber-robust, outvoted), the
+    odometry would win."""
+    noise = GraphConfig()
+    poses = np.array([[0.0, 0.0, 0.0], [1.05, 0.0, 0.0]])
+    odometry = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    online = np.array([1.1, 0.0, 0.0])
+    held = align_globally(poses, odometry, [], [], AlignmentConfig(), noise,
+                          local=[(0, 1, online)])
+    w_odo = 1 / noise.odometry_sigmas(odometry[1])[0] ** 2
+    w_loc = 1 / noise.local_sigmas(online)[0] ** 2
+    assert held[1, 0] == pytest.approx((1.0 * w_odo + 1.1 * w_loc) / (w_odo + w_loc), abs=1e-3)
+    assert held[1, 0] > 1.08
+    as_closure = align_globally(poses, odometry, [], [(0, 1, online)], AlignmentConfig(), noise)
+    assert as_closure[1, 0] < 1.05
 
 
 def test_alignment_pulls_perturbed_poses_back_to_the_truth(room_run) -> None:  # type: ignore[no-untyped-def]
