@@ -11,9 +11,13 @@ graph SLAM on its own, or a second saved map):
    B's keyframes within ``context_m`` of travel around it placed by B's own poses. Each
    unique fix scoring ``min_score`` is a transform from B's frame to A's; the one the
    most fixes agree with (within ``agree_m`` and ``agree_rad`` where both were found) is
-   taken, and at least ``min_agree`` must. No fix counts alone, so a fix may score less
-   than map localization asks of the one it acts on. Without such agreement the maps
-   share no place that tells where: refused (field ``map``).
+   taken, and at least ``min_agree`` must, spread over more than ``context_m`` of B's
+   travel (half of it, when B is shorter than twice that): neighbouring keyframes'
+   contexts are mostly the same scans, and their fixes one piece of evidence, not
+   several (a corridor seen turned round fits them all alike). No fix counts alone, so a
+   fix may
+   score less than map localization asks of the one it acts on. Without such agreement
+   the maps share no place that tells where: refused (field ``map``).
 2. **One pose graph, its loops closed** (:class:`JoinedMaps`): A's keyframes are graph
    SLAM's nodes again, inserted into submaps at A's poses as A's run built them; B's
    keyframes follow, placed by that transform, the first held there loosely; each map's
@@ -64,7 +68,8 @@ class MergeConfig(BaseModel):
     agree_m: float = Field(0.5, gt=0.0, description="two fixes agree on the transform "
                            "within this distance at both fixes' keyframes ...")
     agree_rad: float = Field(0.05, gt=0.0, le=math.pi, description="... and this angle")
-    min_agree: int = Field(3, ge=1, description="fixes that must agree")
+    min_agree: int = Field(3, ge=1, description="fixes that must agree, spread over "
+                           "more than ``context_m`` of travel (half of B's, if less)")
     placed_sigma_m: float = Field(1.0, gt=0.0, description="B's first keyframe is held "
                                   "where step 1 placed it with this sigma ...")
     placed_sigma_rad: float = Field(0.1, gt=0.0, description="... and this one")
@@ -82,12 +87,16 @@ class Placement:
     searched: int
 
 
+def _travel(kf_pose: np.ndarray) -> np.ndarray:
+    """Each keyframe's distance travelled since the first (by B's own poses)."""
+    return np.cumsum(np.r_[0.0, np.hypot(*np.diff(kf_pose[:, :2], axis=0).T)])
+
+
 def _context(kf_xy: list[np.ndarray], kf_pose: np.ndarray, k: int, context_m: float
              ) -> np.ndarray:
     """Keyframe ``k``'s returns with those of the keyframes within ``context_m`` of
     travel before and after it, in ``k``'s frame (placed by B's own poses)."""
-    step = np.r_[0.0, np.hypot(*np.diff(kf_pose[:, :2], axis=0).T)]
-    travel = np.cumsum(step)
+    travel = _travel(kf_pose)
     near = np.flatnonzero(np.abs(travel - travel[k]) <= context_m)
     return np.vstack([place(kf_xy[j], relative(kf_pose[k], kf_pose[j])) for j in near])
 
@@ -107,16 +116,20 @@ def frame_transform(a: PreparedMap, kf_xy: list[np.ndarray], kf_pose: np.ndarray
                            config.min_score)
         if m is not None:
             found.append((compose(np.asarray(m.pose), invert(kf_pose[k])), int(k)))
+    travel = _travel(kf_pose)
+    spread = min(config.context_m, float(travel[-1]) / 2) if len(travel) else 0.0
     best, support = None, 0
     for t in found:
-        agree = sum(_agrees(t, u, kf_pose, config) for u in found)
+        at = [travel[u[1]] for u in found if _agrees(t, u, kf_pose, config)]
+        agree = len(at) if max(at) - min(at) > spread else 0
         if agree > support:
             best, support = t, agree
     if best is None or support < config.min_agree:
         raise InvalidInput(
             f"the maps share no place that says where one lies in the other: of "
             f"{len(picks)} places searched for, {len(found)} were found uniquely and at most "
-            f"{support} agree ({config.min_agree} needed)", field="map")
+            f"{support} agree over more than {spread:.3g} m of travel "
+            f"({config.min_agree} needed)", field="map")
     # the agreeing fixes' mean transform (headings averaged on the circle)
     ts = np.array([u[0] for u in found if _agrees(best, u, kf_pose, config)])
     mean = np.array([ts[:, 0].mean(), ts[:, 1].mean(),

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -15,7 +16,8 @@ from chizu.numeric.errors import InvalidInput
 from chizu.numeric.geometry import compose
 from chizu.numeric.scan import LaserLog
 from chizu.numeric.slam import saved_map as sm
-from chizu.numeric.slam.merge import merge, resume
+from chizu.numeric.slam.matching.correlative import Match
+from chizu.numeric.slam.merge import MergeConfig, frame_transform, merge, resume
 from chizu.numeric.slam.runner import SlamOptions, run_log
 from chizu.numeric.slam.simulate import drive, simulated_log
 from chizu.numeric.world import World
@@ -136,6 +138,41 @@ def test_maps_that_share_no_place_are_refused(first: sm.SavedMap) -> None:
     with pytest.raises(InvalidInput) as e:
         merge(first, corridor)
     assert e.value.field == "map" and "share no place" in str(e.value)
+
+
+@pytest.mark.parametrize(("agreeing", "joined"),
+                         [(range(20, 26), False),  # six fixes over 5 m of travel
+                          (range(20, 44, 8), True)])  # three over 16 m
+def test_agreeing_fixes_must_come_from_more_than_one_stretch_of_travel(
+        agreeing: range, joined: bool) -> None:
+    """Neighbouring keyframes' contexts are mostly the same returns: their fixes agreeing
+    is one piece of evidence (a corridor seen turned round fits them all alike); they
+    count only spread over more than ``context_m`` of B's travel."""
+    kf_pose = np.array([[float(k), 0.0, 0.0] for k in range(60)])  # 1 m apart
+    kf_xy = [np.ones((20, 2))] * 60
+    true = np.array([5.0, -3.0, 1.0])
+    rng = np.random.default_rng(0)
+
+    class Globally:
+        def __init__(self) -> None:
+            self.k = -1
+
+        def fix(self, xy: np.ndarray, min_score: float | None = None) -> Match | None:
+            self.k += 1  # the keyframes are searched in order, every one (60 of 60)
+            if self.k in agreeing:
+                return Match(compose(true, kf_pose[self.k]), 0.6)
+            if self.k % 7 == 0:  # fixes elsewhere, each its own
+                return Match(np.array([*rng.uniform(-50, 50, 2), rng.uniform(-3, 3)]), 0.6)
+            return None
+
+    a = SimpleNamespace(globally=Globally())  # the map A: only its global search
+    cfg = MergeConfig(context_m=10.0)
+    if joined:
+        placed = frame_transform(a, kf_xy, kf_pose, cfg)
+        assert placed.agree == len(agreeing) and np.allclose(placed.transform, true)
+    else:
+        with pytest.raises(InvalidInput, match="over more than 10 m of travel"):
+            frame_transform(a, kf_xy, kf_pose, cfg)
 
 
 def test_a_map_of_another_laser_is_refused(first: sm.SavedMap, second: sm.SavedMap) -> None:
