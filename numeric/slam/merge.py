@@ -12,12 +12,12 @@ graph SLAM on its own, or a second saved map):
    unique fix scoring ``min_score`` is a transform from B's frame to A's; the one the
    most fixes agree with (within ``agree_m`` and ``agree_rad`` where both were found) is
    taken, and at least ``min_agree`` must, spread over more than ``context_m`` of B's
-   travel (half of it, when B is shorter than twice that): neighbouring keyframes'
-   contexts are mostly the same scans, and their fixes one piece of evidence, not
-   several (a corridor seen turned round fits them all alike). No fix counts alone, so a
-   fix may
-   score less than map localization asks of the one it acts on. Without such agreement
-   the maps share no place that tells where: refused (field ``map``).
+   travel (half of it, when B is shorter than twice that; B standing still has nothing
+   to spread over): neighbouring keyframes' contexts are mostly the same scans, and
+   their fixes one piece of evidence, not several (a corridor seen turned round fits
+   them all alike). No fix counts alone, so a fix may score less than map localization
+   asks of the one it acts on. Without such agreement the maps share no place that
+   tells where: refused (field ``map``).
 2. **One pose graph, its loops closed** (:class:`JoinedMaps`): A's keyframes are graph
    SLAM's nodes again, inserted into submaps at A's poses as A's run built them; B's
    keyframes follow, placed by that transform, the first held there loosely; each map's
@@ -68,7 +68,7 @@ class MergeConfig(BaseModel):
     agree_m: float = Field(0.5, gt=0.0, description="two fixes agree on the transform "
                            "within this distance at both fixes' keyframes ...")
     agree_rad: float = Field(0.05, gt=0.0, le=math.pi, description="... and this angle")
-    min_agree: int = Field(3, ge=1, description="fixes that must agree, spread over "
+    min_agree: int = Field(3, ge=2, description="fixes that must agree, spread over "
                            "more than ``context_m`` of travel (half of B's, if less)")
     placed_sigma_m: float = Field(1.0, gt=0.0, description="B's first keyframe is held "
                                   "where step 1 placed it with this sigma ...")
@@ -117,11 +117,11 @@ def frame_transform(a: PreparedMap, kf_xy: list[np.ndarray], kf_pose: np.ndarray
         if m is not None:
             found.append((compose(np.asarray(m.pose), invert(kf_pose[k])), int(k)))
     travel = _travel(kf_pose)
-    spread = min(config.context_m, float(travel[-1]) / 2) if len(travel) else 0.0
+    spread = min(config.context_m, float(travel[-1]) / 2)
     best, support = None, 0
     for t in found:
-        at = [travel[u[1]] for u in found if _agrees(t, u, kf_pose, config)]
-        agree = len(at) if max(at) - min(at) > spread else 0
+        at = [travel[u[1]] for u in found if _agrees(t, u, kf_pose, config)]  # t's own too
+        agree = len(at) if max(at) - min(at) > spread or spread == 0.0 else 0
         if agree > support:
             best, support = t, agree
     if best is None or support < config.min_agree:

@@ -112,6 +112,7 @@ def one_count(n: int, log: LaserLog, rate: float,
                 # a robot whose map shares no place with the world's yet commits again
                 # once others have joined (the world's map has grown), as a fleet's
                 # client would, until a round joins no one
+                outcomes: dict[int, list[str]] = {r.k: [] for r in robots}
                 waiting = list(robots)
                 while waiting:
                     refused = []
@@ -119,14 +120,17 @@ def one_count(n: int, log: LaserLog, rate: float,
                         s = time.perf_counter()
                         try:
                             c.slam.post_commit(WORLD, r.run)
-                            r.commit += ("founded the map" if r.k == 0 else "joined")
+                            outcomes[r.k].append("founded the map" if r.k == 0 else "joined")
                         except ProblemError as problem:
-                            r.commit += f"{problem.status}: {problem.detail[:80]}, then "
-                            refused.append(r)
+                            outcomes[r.k].append(f"{problem.status}: {problem.detail}")
+                            if problem.status == 422 and problem.field == "map":
+                                refused.append(r)  # no shared place yet: later
                         r.commit_s += time.perf_counter() - s
                     if len(refused) == len(waiting):
                         break
                     waiting = refused
+                for r in robots:
+                    r.commit = ", then ".join(outcomes[r.k])
                 # every robot's scans as the world's map now has them
                 m = from_bytes(c.slam.get_saved_map(WORLD))
         finally:

@@ -140,16 +140,20 @@ def test_maps_that_share_no_place_are_refused(first: sm.SavedMap) -> None:
     assert e.value.field == "map" and "share no place" in str(e.value)
 
 
-@pytest.mark.parametrize(("agreeing", "joined"),
-                         [(range(20, 26), False),  # six fixes over 5 m of travel
-                          (range(20, 44, 8), True)])  # three over 16 m
+@pytest.mark.parametrize(("keyframes", "agreeing", "joined"),
+                         [(60, range(20, 26), False),  # six fixes over 5 m of travel
+                          (60, range(20, 44, 8), True),  # three over 16 m
+                          (60, range(20, 31, 5), False),  # three over exactly 10 m
+                          (12, range(2, 9, 3), True),  # B travels 11 m: over 6 m
+                          (12, range(2, 7, 2), False)])  # over 4 m
 def test_agreeing_fixes_must_come_from_more_than_one_stretch_of_travel(
-        agreeing: range, joined: bool) -> None:
+        keyframes: int, agreeing: range, joined: bool) -> None:
     """Neighbouring keyframes' contexts are mostly the same returns: their fixes agreeing
     is one piece of evidence (a corridor seen turned round fits them all alike); they
-    count only spread over more than ``context_m`` of B's travel."""
-    kf_pose = np.array([[float(k), 0.0, 0.0] for k in range(60)])  # 1 m apart
-    kf_xy = [np.ones((20, 2))] * 60
+    count only spread over more than ``context_m`` of B's travel (10 m here), or half
+    of it when B is shorter."""
+    kf_pose = np.array([[float(k), 0.0, 0.0] for k in range(keyframes)])  # 1 m apart
+    kf_xy = [np.ones((20, 2))] * keyframes
     true = np.array([5.0, -3.0, 1.0])
     rng = np.random.default_rng(0)
 
@@ -158,7 +162,7 @@ def test_agreeing_fixes_must_come_from_more_than_one_stretch_of_travel(
             self.k = -1
 
         def fix(self, xy: np.ndarray, min_score: float | None = None) -> Match | None:
-            self.k += 1  # the keyframes are searched in order, every one (60 of 60)
+            self.k += 1  # the keyframes are searched in order, every one (at most 60)
             if self.k in agreeing:
                 return Match(compose(true, kf_pose[self.k]), 0.6)
             if self.k % 7 == 0:  # fixes elsewhere, each its own
@@ -171,7 +175,7 @@ def test_agreeing_fixes_must_come_from_more_than_one_stretch_of_travel(
         placed = frame_transform(a, kf_xy, kf_pose, cfg)
         assert placed.agree == len(agreeing) and np.allclose(placed.transform, true)
     else:
-        with pytest.raises(InvalidInput, match="over more than 10 m of travel"):
+        with pytest.raises(InvalidInput, match="agree over more than"):
             frame_transform(a, kf_xy, kf_pose, cfg)
 
 
