@@ -92,11 +92,11 @@ def _travel(kf_pose: np.ndarray) -> np.ndarray:
     return np.cumsum(np.r_[0.0, np.hypot(*np.diff(kf_pose[:, :2], axis=0).T)])
 
 
-def _context(kf_xy: list[np.ndarray], kf_pose: np.ndarray, k: int, context_m: float
-             ) -> np.ndarray:
+def _context(kf_xy: list[np.ndarray], kf_pose: np.ndarray, travel: np.ndarray, k: int,
+             context_m: float) -> np.ndarray:
     """Keyframe ``k``'s returns with those of the keyframes within ``context_m`` of
-    travel before and after it, in ``k``'s frame (placed by B's own poses)."""
-    travel = _travel(kf_pose)
+    travel (``travel``: :func:`_travel`) before and after it, in ``k``'s frame (placed
+    by B's own poses)."""
     near = np.flatnonzero(np.abs(travel - travel[k]) <= context_m)
     return np.vstack([place(kf_xy[j], relative(kf_pose[k], kf_pose[j])) for j in near])
 
@@ -110,28 +110,29 @@ def frame_transform(a: PreparedMap, kf_xy: list[np.ndarray], kf_pose: np.ndarray
     n = len(have)
     picks = have[np.unique(np.linspace(0, n - 1, min(n, config.searches)).round().astype(int))
                  ] if n else np.zeros(0, dtype=int)
+    travel = _travel(kf_pose)
     found: list[tuple[np.ndarray, int]] = []  # (transform, keyframe)
     for k in picks:
-        m = a.globally.fix(_context(kf_xy, kf_pose, int(k), config.context_m),
+        m = a.globally.fix(_context(kf_xy, kf_pose, travel, int(k), config.context_m),
                            config.min_score)
         if m is not None:
             found.append((compose(np.asarray(m.pose), invert(kf_pose[k])), int(k)))
-    travel = _travel(kf_pose)
     spread = min(config.context_m, float(travel[-1]) / 2)
-    best, support = None, 0
+    agreeing: list[tuple[np.ndarray, int]] = []  # the best transform's, its own among them
     for t in found:
-        at = [travel[u[1]] for u in found if _agrees(t, u, kf_pose, config)]  # t's own too
-        agree = len(at) if max(at) - min(at) > spread or spread == 0.0 else 0
-        if agree > support:
-            best, support = t, agree
-    if best is None or support < config.min_agree:
+        them = [u for u in found if _agrees(t, u, kf_pose, config)]
+        at = travel[[u[1] for u in them]]
+        if (at.max() - at.min() > spread or spread == 0.0) and len(them) > len(agreeing):
+            agreeing = them
+    support = len(agreeing)
+    if support < config.min_agree:
         raise InvalidInput(
             f"the maps share no place that says where one lies in the other: of "
             f"{len(picks)} places searched for, {len(found)} were found uniquely and at most "
             f"{support} agree over more than {spread:.3g} m of travel "
             f"({config.min_agree} needed)", field="map")
     # the agreeing fixes' mean transform (headings averaged on the circle)
-    ts = np.array([u[0] for u in found if _agrees(best, u, kf_pose, config)])
+    ts = np.array([u[0] for u in agreeing])
     mean = np.array([ts[:, 0].mean(), ts[:, 1].mean(),
                      math.atan2(np.sin(ts[:, 2]).mean(), np.cos(ts[:, 2]).mean())])
     return Placement(mean, support, len(found), len(picks))
