@@ -122,30 +122,38 @@ def turn_appearance(model: EigenspaceModel, q: np.ndarray) -> np.ndarray | None:
 def whole_turn_interpolation(model: EigenspaceModel, q: np.ndarray, pose: np.ndarray,
                              walls: tuple[np.ndarray, np.ndarray], min_range_m: float,
                              iterations: int = 3, max_shift_m: float = 1.0,
-                             min_images: int = 8) -> np.ndarray | None:
-    """Eqs. 4-5 over a whole turn: the position ``(2,)`` of a turn ``q (n, K)`` (relative
+                             min_images: int = 8, n_points: int = 5,
+                             heading_span_rad: float = float(np.deg2rad(10.0)),
+                             heading_step_rad: float = float(np.deg2rad(1.0))
+                             ) -> np.ndarray | None:
+    """Eqs. 4-5 over a whole turn: the pose ``(3,)`` of a turn ``q (n, K)`` (relative
     headings 2 pi j / n) that starts near ``pose``, or None.
 
     Eq. 5 interpolates one image per triplet, the three learning images that look at a
     common target (§2.3). A turn at a known place holds n such images: from the current
     estimate, image j's ray meets the wall at a target T_j (the world's ``walls``), and
-    each of the three learning points nearest the estimate has an image toward T_j
-    (between two learned directions, linearly). One set of affine weights k (eq. 4,
-    k1 + k2 + k3 = 1) is fitted by least squares to all those images at once, and the
-    position is ``sum k_i w_i`` (eq. 5); the targets move with the estimate, so this
-    is repeated ``iterations`` times. Only images whose target lies at least
-    ``min_range_m`` away and is in sight of all three points take part: near walls
-    change with the viewpoint far from linearly.
+    each of the ``n_points`` learning points nearest the estimate has an image toward
+    T_j (between two learned directions, linearly). One set of affine weights k (eq. 4
+    with more than three points, sum k_i = 1) is fitted by least squares to all those
+    images at once, and the position is ``sum k_i w_i`` (eq. 5); the targets move with
+    the estimate, so this is repeated ``iterations`` times. The first three points are
+    the nearest two and the nearest one off their line (a triangle of area at least
+    d12² / 4), so the fit is never degenerate. Only images whose target lies at least
+    ``min_range_m`` away and is in sight of every point take part: near walls change
+    with the viewpoint far from linearly.
+
+    Which learned direction each image is compared with follows from the heading, and
+    eq. 5's heading is a few degrees off. The fit is therefore repeated at headings
+    within ``heading_span_rad`` of ``pose``'s, ``heading_step_rad`` apart, and the one
+    whose images the fit explains best (smallest root-mean-square residual) is kept:
+    the answer's heading is that one.
 
     Chizu's addition to §2.2: many images average out what one image's interpolation
-    gets wrong. Averaged with eq. 5's estimate (:meth:`Session.estimate`), the error of
-    localized sessions fell by 9-28 % (the benchmark's Table 2 in room A 0.205 -> 0.174
-    m over 798 sessions; rooms nobody tuned on: the pentagon 0.194 -> 0.140 m, the
-    L-shaped room 0.395 -> 0.360 m); either alone does about as well as eq. 5. The 4 m
-    was chosen over 2, 3 and 5 m in those two rooms (docs/notes/eigenspace.md).
+    gets wrong (docs/notes/eigenspace.md, "Interpolating the whole turn").
 
-    None when fewer than ``min_images`` images qualify, the points are nearly
-    collinear, or the answer lies more than ``max_shift_m`` from ``pose``."""
+    None when fewer than ``min_images`` images qualify at every heading, there are not
+    three learning points off one line, or every answer lies more than ``max_shift_m``
+    from ``pose``."""
     q = np.asarray(q, dtype=float)
     n = len(q)
     pts = model.points
@@ -157,39 +165,63 @@ def whole_turn_interpolation(model: EigenspaceModel, q: np.ndarray, pose: np.nda
              if triangle_area(pts[[order[0], order[1], i]]) >= 0.25 * d12 ** 2]
     if not third:
         return None
-    idx = np.array([order[0], order[1], third[0]])
+    first = [int(order[0]), int(order[1]), int(third[0])]
+    more = [int(i) for i in order[2:] if i != third[0]][:max(n_points - 3, 0)]
+    idx = np.array(first + more)
     corners = pts[idx]
+    rel = 2.0 * np.pi * np.arange(n) / n
+    best: tuple[float, np.ndarray, float] | None = None
+    steps = int(round(heading_span_rad / heading_step_rad)) if heading_step_rad > 0 else 0
+    for dh in heading_step_rad * np.arange(-steps, steps + 1):
+        heading = float(pose[2] + dh)
+        fit = _fit_turn(model, q, idx, corners, np.asarray(pose[:2], dtype=float),
+                        heading + rel, walls, min_range_m, iterations, min_images)
+        if fit is None or np.hypot(*(fit[0] - pose[:2])) > max_shift_m:
+            continue
+        if best is None or fit[1] < best[0]:
+            best = (fit[1], fit[0], heading)
+    if best is None:
+        return None
+    return np.array([best[1][0], best[1][1], wrap_angle(best[2])])
+
+
+def _fit_turn(model: EigenspaceModel, q: np.ndarray, idx: np.ndarray, corners: np.ndarray,
+              xy: np.ndarray, heads: np.ndarray, walls: tuple[np.ndarray, np.ndarray],
+              min_range_m: float, iterations: int, min_images: int
+              ) -> tuple[np.ndarray, float] | None:
+    """One heading of :func:`whole_turn_interpolation`: the position and the fit's
+    root-mean-square residual per image coordinate, or None."""
+    n, c = len(q), len(idx)
     n_dir = len(model.directions)
     step = 2.0 * np.pi / n_dir
-    xy = np.asarray(pose[:2], dtype=float).copy()
-    heads = pose[2] + 2.0 * np.pi * np.arange(n) / n
+    residual = np.inf
     for _ in range(iterations):
         r = free_distance(np.repeat(xy[None], n, axis=0), heads, *walls)
         use = np.flatnonzero(np.isfinite(r) & (r >= min_range_m))
         if len(use) < min_images:
             return None
         target = xy + r[use, None] * np.column_stack([np.cos(heads[use]), np.sin(heads[use])])
-        to = target[None] - corners[:, None]                                 # (3, m, 2)
+        to = target[None] - corners[:, None]                                 # (c, m, 2)
         dist = np.hypot(to[..., 0], to[..., 1])
         ang = np.arctan2(to[..., 1], to[..., 0])
-        # the target is in sight of every learning point (one ray cast for the three)
+        # the target is in sight of every learning point (one ray cast for them all)
         seen = free_distance(np.repeat(corners, len(use), axis=0), ang.reshape(-1), *walls)
-        sight = (seen.reshape(3, -1) >= dist - 0.1).all(axis=0)
+        sight = (seen.reshape(c, -1) >= dist - 0.1).all(axis=0)
         use, ang = use[sight], ang[:, sight]
-        u = (wrap_angle(ang - model.directions[0]) / step) % n_dir           # (3, m)
-        j0 = np.floor(u).astype(int) % n_dir
-        f = (u - np.floor(u))[..., None]
-        x3 = ((1.0 - f) * model.projections[idx[:, None], j0]
-              + f * model.projections[idx[:, None], (j0 + 1) % n_dir]).transpose(1, 0, 2)
         if len(use) < min_images:
             return None
-        qq = q[use]
-        a = np.stack([x3[:, 0] - x3[:, 2], x3[:, 1] - x3[:, 2]], axis=-1).reshape(-1, 2)
-        k12 = np.linalg.lstsq(a, (qq - x3[:, 2]).reshape(-1), rcond=None)[0]
-        xy = np.array([k12[0], k12[1], 1.0 - k12.sum()]) @ corners
-    if np.hypot(*(xy - pose[:2])) > max_shift_m:
-        return None
-    return np.asarray(xy)
+        u = (wrap_angle(ang - model.directions[0]) / step) % n_dir
+        j0 = np.floor(u).astype(int) % n_dir
+        f = (u - np.floor(u))[..., None]
+        xc = ((1.0 - f) * model.projections[idx[:, None], j0]
+              + f * model.projections[idx[:, None], (j0 + 1) % n_dir]).transpose(1, 0, 2)
+        # eq. 4 with sum k = 1: q - x_c = sum_{i<c} k_i (x_i - x_c), all images stacked
+        a = (xc[:, :-1] - xc[:, -1:]).transpose(0, 2, 1).reshape(-1, c - 1)
+        b = (q[use] - xc[:, -1]).reshape(-1)
+        k = np.linalg.lstsq(a, b, rcond=None)[0]
+        residual = float(np.sqrt(np.mean((a @ k - b) ** 2)))
+        xy = np.append(k, 1.0 - k.sum()) @ corners
+    return xy, residual
 
 
 @lru_cache(maxsize=8)
@@ -328,14 +360,15 @@ class Session:
 
         With the eigenspace ``model`` and the world's ``walls`` (and
         ``turn_min_range_m`` set), the position is the mean of that and
-        :func:`whole_turn_interpolation` of the latest turn around it."""
+        :func:`whole_turn_interpolation` of the latest turn around it, and the heading
+        is the whole turn's."""
         p = self._eq5_estimate(vote)
         rng = self.config.turn_min_range_m
         if model is None or walls is None or rng is None or self.last_turn is None:
             return p
         turn = whole_turn_interpolation(model, self.last_turn, p, walls, rng)
         if turn is not None:
-            p = np.array([(p[0] + turn[0]) / 2, (p[1] + turn[1]) / 2, p[2]])
+            p = np.array([(p[0] + turn[0]) / 2, (p[1] + turn[1]) / 2, turn[2]])
         return p
 
     def _eq5_estimate(self, vote: Vote) -> np.ndarray:

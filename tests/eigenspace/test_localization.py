@@ -376,20 +376,40 @@ def test_whole_turn_interpolation_finds_a_learning_point_and_the_middle_of_two(
     q = m.project(cam.render_turn(m.points[i], 0.3, n))
     start = np.array([*(m.points[i] + [0.3, -0.25]), 0.3])
     got = whole_turn_interpolation(m, q, start, walls, 4.0)
-    assert got is not None and np.linalg.norm(got - m.points[i]) < 0.15
+    assert got is not None and np.linalg.norm(got[:2] - m.points[i]) < 0.15
     j = int(np.argmin(np.linalg.norm(m.points - (m.points[i] + [2.0, 0.0]), axis=1)))
     mid = (m.points[i] + m.points[j]) / 2
     q = m.project(cam.render_turn(mid, -1.0, n))
     start = np.array([*(mid + [0.0, 0.4]), -1.0])
     got = whole_turn_interpolation(m, q, start, walls, 4.0)
-    assert got is not None and np.linalg.norm(got - mid) < 0.4 * 0.75
+    assert got is not None and np.linalg.norm(got[:2] - mid) < 0.4 * 0.75
     assert whole_turn_interpolation(m, q, start, walls, 100.0) is None
+
+
+def test_whole_turn_interpolation_finds_the_heading_the_start_missed(
+        analysis: EigenspaceAnalysis, room: World) -> None:
+    """A turn started 6 degrees off its estimate's heading: the heading scan comes back
+    within 1.5 degrees of the truth and the position lands nearer the truth than
+    without the scan (the fit held at the estimate's heading compares each image with
+    the wrong learned directions)."""
+    m = analysis.model
+    walls = (room.surfaces.a, room.surfaces.b)
+    cam = Camera(room, analysis.config.camera)
+    truth = np.array([4.6, 5.3, 0.7])
+    q = m.project(cam.render_turn(truth[:2], truth[2], len(m.directions)))
+    start = np.array([4.8, 5.1, truth[2] + np.deg2rad(6.0)])
+    scanned = whole_turn_interpolation(m, q, start, walls, 4.0)
+    held = whole_turn_interpolation(m, q, start, walls, 4.0, heading_span_rad=0.0)
+    assert scanned is not None and held is not None
+    assert held[2] == pytest.approx(start[2])
+    assert abs(wrap_angle(scanned[2] - truth[2])) < np.deg2rad(1.5)
+    assert np.linalg.norm(scanned[:2] - truth[:2]) < np.linalg.norm(held[:2] - truth[:2])
 
 
 def test_the_estimate_averages_eq5_with_the_whole_turn(analysis: EigenspaceAnalysis,
                                                        room: World) -> None:
     """Given the eigenspace and the walls, the position is the mean of eq. 5's and the
-    whole turn's (the heading stays eq. 5's); without them, or with
+    whole turn's, and the heading is the whole turn's; without them, or with
     turn_min_range_m None, eq. 5's alone. The latest turn survives the store."""
     m = analysis.model
     walls = (room.surfaces.a, room.surfaces.b)
@@ -409,8 +429,9 @@ def test_the_estimate_averages_eq5_with_the_whole_turn(analysis: EigenspaceAnaly
         if cfg.turn_min_range_m is None:
             assert np.allclose(both, eq5)
         else:
-            assert np.allclose(both, [*((eq5[:2] + turn) / 2), eq5[2]])
+            assert np.allclose(both, [*((eq5[:2] + turn[:2]) / 2), turn[2]])
             assert np.linalg.norm(both[:2] - truth[:2]) < np.linalg.norm(eq5[:2] - truth[:2])
+            assert abs(wrap_angle(both[2] - truth[2])) < abs(wrap_angle(eq5[2] - truth[2]))
         back = session_from_dict(session_to_dict(s))
         assert back.last_turn is not None and np.allclose(back.last_turn, q, atol=1e-5)
         assert np.allclose(back.estimate(back.vote(), m, walls), both, atol=1e-4)
