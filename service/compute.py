@@ -272,15 +272,17 @@ class FirstStop:
     report: dict[str, Any]
 
 
-def turn_task(a: EigenspaceAnalysis, turn: list[str] | TurnPng | np.ndarray
+def turn_task(a: EigenspaceAnalysis, world: World, turn: list[str] | TurnPng | np.ndarray
               ) -> TurnCandidates:
-    """One turn's region hits (Ohta et al. §3.4: project, region test). ``turn``: base64
-    PNGs, one PNG of the whole turn, or images."""
+    """One turn's region hits (Ohta et al. §3.4: project, region test; the whole-turn
+    check against the world's walls). ``turn``: base64 PNGs, one PNG of the whole turn,
+    or images."""
     if isinstance(turn, TurnPng):
         imgs = decode_turn_png(turn, a.model.image_shape, len(a.model.directions))
     else:
         imgs = decode_png_turn(turn, a.model.image_shape) if isinstance(turn, list) else turn
-    return turn_candidates(a.regions, check_turn(a, imgs))
+    return turn_candidates(a.regions, check_turn(a, imgs),
+                           (world.surfaces.a, world.surfaces.b), a.config.localization)
 
 
 def first_stop_task(a: EigenspaceAnalysis, world: World,
@@ -288,7 +290,7 @@ def first_stop_task(a: EigenspaceAnalysis, world: World,
     """A localization from one turn (state X): its hits, the new session's vote (§2.5)
     and the report; only these travel back, not the session."""
     s = Session(a.config.localization)
-    s.add_stop(turn_task(a, turn), a.config.regions.d_thd_m)
+    s.add_stop(turn_task(a, world, turn), a.config.regions.d_thd_m)
     vote = s.vote(a.set_of())
     return FirstStop(s.stop_triplets(0), vote.unique, stop_report(a, world, s, vote))
 
@@ -299,7 +301,7 @@ def stop_report(a: EigenspaceAnalysis, world: World, s: Session,
     each cluster of agreeing hits, with its votes, triplet and cluster size), whether
     the vote is unique, the pose estimate (used when the state is Z; with the
     eigenspace and the world's walls it also interpolates the whole latest turn,
-    :func:`chizu.numeric.eigenspace.localization.whole_turn_interpolation`) and, when
+    :func:`chizu.numeric.eigenspace.localization.whole_turn_fit`) and, when
     not unique, which test refused it (:func:`chizu.numeric.eigenspace.diagnosis.refusal`)."""
     cands = []
     for cluster, best in list(zip(vote.clusters, s.representatives(vote), strict=True))[:10]:

@@ -322,7 +322,8 @@ class EigenspaceService:
         previous stop's start, in that stop's frame."""
         a = self.analysis(world)  # 409 before the work
         self._session(world, sid)
-        cands = await self.compute.run_cached(turn_task, self._blobs[world], turn)
+        cands = await self.compute.run_cached(
+            turn_task, (self._blobs[world], self.worlds.cached_model(world)), turn)
         async with self._session_lock:  # read-modify-write of one session at a time
             st = self._session(world, sid)
             if st.session.stops > 0 and motion is None:

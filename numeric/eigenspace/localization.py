@@ -20,7 +20,12 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from chizu.numeric.eigenspace.learning import DYNAMIC_RANGE, EigenspaceModel
-from chizu.numeric.eigenspace.regions import RegionConfig, agrees, region_candidates
+from chizu.numeric.eigenspace.regions import (
+    RegionConfig,
+    agrees,
+    near_plane,
+    region_candidates,
+)
 from chizu.numeric.eigenspace.triplets import Triplets, triangle_area
 from chizu.numeric.geometry import compose, free_distance, invert, wrap_angle
 
@@ -40,8 +45,15 @@ class LocalizationConfig(BaseModel):
     turn_min_range_m: float | None = Field(
         4.0, gt=0.0, le=1000.0,
         description="the estimate also interpolates the latest whole turn "
-                    "(whole_turn_interpolation) over the images whose wall lies at least "
-                    "this far, and averages it with eq. 5's; None: eq. 5 alone (the paper)")
+                    "(whole_turn_fit) over the images whose wall lies at least this far, "
+                    "and averages it with eq. 5's; None: eq. 5 alone (the paper)")
+    turn_check_fd: float | None = Field(
+        0.03, gt=0.0, le=10.0,
+        description="a stop is also answered by the whole-turn check "
+                    "(whole_turn_check): a place eq. 6 admits on d alone whose whole-turn "
+                    "fit leaves a residual below this (eq. 2's f_d per image, root mean "
+                    "square), when no place elsewhere passes; needs turn_min_range_m. "
+                    "None: the vote alone (the paper)")
 
 
 @dataclass
@@ -74,26 +86,95 @@ class TurnCandidates:
     #: :func:`turn_appearance` of a turn without hits ``(Nw, n)``; None for a turn with
     #: hits or of another length
     appearance: np.ndarray | None = None
-    #: the turn's projections ``(n, K)`` (eq. 1), for :func:`whole_turn_interpolation`
+    #: the turn's projections ``(n, K)`` (eq. 1), for :func:`whole_turn_fit`
     projections: np.ndarray | None = None
+    #: the start-of-turn pose ``(3,)`` the whole-turn check found
+    #: (:func:`whole_turn_check`); None when it found none or did not run
+    checked: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.t)
 
 
-def turn_candidates(regions: RegionModel, images: np.ndarray) -> TurnCandidates:
-    """Region hits of a full turn ``(n, H, W)`` (relative headings 2 pi j / n)."""
+def turn_candidates(regions: RegionModel, images: np.ndarray,
+                    walls: tuple[np.ndarray, np.ndarray] | None = None,
+                    config: LocalizationConfig | None = None) -> TurnCandidates:
+    """Region hits of a full turn ``(n, H, W)`` (relative headings 2 pi j / n).
+
+    With the world's ``walls`` and a ``config`` whose ``turn_check_fd`` is set, the
+    whole-turn check (:func:`whole_turn_check`) also runs on the hits eq. 6 admits on d
+    alone: the hits of the place it finds join those that pass the plane test."""
     imgs = regions.model.check_images(images)
     q = regions.model.project(imgs)
-    c = region_candidates(regions.model, regions.triplets, q, regions.c_a, regions.d_thd_m,
-                          regions.plane_thd_m)
+    c = region_candidates(regions.model, regions.triplets, q, regions.c_a, regions.d_thd_m)
     start = c.pose.copy()
     start[:, 2] = wrap_angle(c.pose[:, 2] - 2.0 * np.pi * c.m / len(imgs))
+    keep = np.ones(len(c), dtype=bool)
+    if regions.plane_thd_m is not None and len(c):
+        keep = near_plane(regions.model, regions.triplets, q[c.m], c.t, regions.c_a,
+                          regions.plane_thd_m)
+    checked = None
+    if (walls is not None and config is not None and config.turn_check_fd is not None
+            and config.turn_min_range_m is not None and len(c)):
+        found = whole_turn_check(regions.model, q, start, c.d_err, walls, config)
+        if found is not None:
+            checked, members = found
+            keep |= members
+    t, d_err, start, m = c.t[keep], c.d_err[keep], start[keep], c.m[keep]
     # the appearance serves the movement strategy while no region has been entered
     # (state X): a turn with hits leaves X, so only a turn without any pays for it
-    return TurnCandidates(t=c.t, d_err=c.d_err, start_pose=start, image=c.m,
-                          appearance=None if len(c.t) else turn_appearance(regions.model, q),
-                          projections=q)
+    return TurnCandidates(t=t, d_err=d_err, start_pose=start, image=m,
+                          appearance=None if len(t) else turn_appearance(regions.model, q),
+                          projections=q, checked=checked)
+
+
+#: places (groups of agreeing hits, best D_err first) the whole-turn check fits at most
+CHECK_PLACES = 8
+
+
+def whole_turn_check(model: EigenspaceModel, q: np.ndarray, start: np.ndarray,
+                     d_err: np.ndarray, walls: tuple[np.ndarray, np.ndarray],
+                     config: LocalizationConfig) -> tuple[np.ndarray, np.ndarray] | None:
+    """The whole-turn check: where a turn ``q (n, K)`` was taken, judged by all its
+    images at once, or None.
+
+    Eq. 6 on d alone admits a turn's images at the right place and, as d is the
+    smallest of three differences, at look-alike places too; the plane test (eq. 4)
+    keeps eq. 5's accuracy but refuses most right admissions with the wrong ones. Here
+    every place those admissions name (hits with start-of-turn poses ``start (M, 3)``
+    grouped within the identification tolerances, best ``d_err`` first, at most
+    :data:`CHECK_PLACES`) is fitted by :func:`whole_turn_fit`, which asks the n images
+    of the turn to be one interpolation of the learning turns around that place. At
+    the right place the fit explains the images; at a look-alike place a few images
+    agree and the rest do not. A place passes when the fit's residual lies below
+    ``config.turn_check_fd`` (eq. 2's f_d per image); the turn is localized when every
+    place that passes agrees with the best one (docs/notes/eigenspace.md, "Why a turn
+    is also checked whole").
+
+    Returns ``(pose (3,), members (M,))``: the best fit's start-of-turn pose and the
+    hits of the places that passed."""
+    assert config.turn_check_fd is not None and config.turn_min_range_m is not None
+    pos, head = config.same_position_m, config.same_heading_rad
+    left = np.ones(len(start), dtype=bool)
+    passed: list[tuple[TurnFit, np.ndarray]] = []
+    places = 0
+    for i in np.argsort(d_err):
+        if not left[i]:
+            continue
+        if places == CHECK_PLACES:
+            break
+        places += 1
+        same = agrees(start, start[i], pos, head) & left
+        left[same] = False
+        fit = whole_turn_fit(model, q, start[i], walls, config.turn_min_range_m)
+        if fit is not None and fit.residual < config.turn_check_fd:
+            passed.append((fit, same))
+    if not passed:
+        return None
+    best = min(passed, key=lambda p: p[0].residual)[0]
+    if not all(agrees(f.pose, best.pose, pos, head) for f, _ in passed):
+        return None
+    return best.pose, np.logical_or.reduce([m for _, m in passed])
 
 
 def turn_appearance(model: EigenspaceModel, q: np.ndarray) -> np.ndarray | None:
@@ -119,15 +200,23 @@ def turn_appearance(model: EigenspaceModel, q: np.ndarray) -> np.ndarray | None:
                       / (n * DYNAMIC_RANGE * np.sqrt(model.n_pixels)), dtype=np.float32)
 
 
-def whole_turn_interpolation(model: EigenspaceModel, q: np.ndarray, pose: np.ndarray,
-                             walls: tuple[np.ndarray, np.ndarray], min_range_m: float,
-                             iterations: int = 3, max_shift_m: float = 1.0,
-                             min_images: int = 8, n_points: int = 5,
-                             heading_span_rad: float = float(np.deg2rad(10.0)),
-                             heading_step_rad: float = float(np.deg2rad(1.0))
-                             ) -> np.ndarray | None:
-    """Eqs. 4-5 over a whole turn: the pose ``(3,)`` of a turn ``q (n, K)`` (relative
-    headings 2 pi j / n) that starts near ``pose``, or None.
+@dataclass(frozen=True)
+class TurnFit:
+    """:func:`whole_turn_fit`'s answer: the start-of-turn pose ``(3,)`` and how far the
+    turn's images lie from their interpolation (eq. 2's f_d per image, root mean
+    square over the images that took part)."""
+
+    pose: np.ndarray
+    residual: float
+
+
+def whole_turn_fit(model: EigenspaceModel, q: np.ndarray, pose: np.ndarray,
+                   walls: tuple[np.ndarray, np.ndarray], min_range_m: float,
+                   iterations: int = 3, max_shift_m: float = 1.0, min_images: int = 8,
+                   n_points: int = 5, heading_span_rad: float = float(np.deg2rad(10.0)),
+                   heading_step_rad: float = float(np.deg2rad(1.0))) -> TurnFit | None:
+    """Eqs. 4-5 over a whole turn: the pose of a turn ``q (n, K)`` (relative headings
+    2 pi j / n) that starts near ``pose``, and the fit's residual; or None.
 
     Eq. 5 interpolates one image per triplet, the three learning images that look at a
     common target (§2.3). A turn at a known place holds n such images: from the current
@@ -145,8 +234,8 @@ def whole_turn_interpolation(model: EigenspaceModel, q: np.ndarray, pose: np.nda
     Which learned direction each image is compared with follows from the heading, and
     eq. 5's heading is a few degrees off. The fit is therefore repeated at headings
     within ``heading_span_rad`` of ``pose``'s, ``heading_step_rad`` apart, and the one
-    whose images the fit explains best (smallest root-mean-square residual) is kept:
-    the answer's heading is that one.
+    whose images the fit explains best (smallest residual) is kept: the answer's
+    heading is that one.
 
     Chizu's addition to §2.2: many images average out what one image's interpolation
     gets wrong (docs/notes/eigenspace.md, "Interpolating the whole turn").
@@ -170,7 +259,7 @@ def whole_turn_interpolation(model: EigenspaceModel, q: np.ndarray, pose: np.nda
     idx = np.array(first + more)
     corners = pts[idx]
     rel = 2.0 * np.pi * np.arange(n) / n
-    best: tuple[float, np.ndarray, float] | None = None
+    best: TurnFit | None = None
     steps = int(round(heading_span_rad / heading_step_rad)) if heading_step_rad > 0 else 0
     for dh in heading_step_rad * np.arange(-steps, steps + 1):
         heading = float(pose[2] + dh)
@@ -178,19 +267,17 @@ def whole_turn_interpolation(model: EigenspaceModel, q: np.ndarray, pose: np.nda
                         heading + rel, walls, min_range_m, iterations, min_images)
         if fit is None or np.hypot(*(fit[0] - pose[:2])) > max_shift_m:
             continue
-        if best is None or fit[1] < best[0]:
-            best = (fit[1], fit[0], heading)
-    if best is None:
-        return None
-    return np.array([best[1][0], best[1][1], wrap_angle(best[2])])
+        if best is None or fit[1] < best.residual:
+            best = TurnFit(np.array([fit[0][0], fit[0][1], wrap_angle(heading)]), fit[1])
+    return best
 
 
 def _fit_turn(model: EigenspaceModel, q: np.ndarray, idx: np.ndarray, corners: np.ndarray,
               xy: np.ndarray, heads: np.ndarray, walls: tuple[np.ndarray, np.ndarray],
               min_range_m: float, iterations: int, min_images: int
               ) -> tuple[np.ndarray, float] | None:
-    """One heading of :func:`whole_turn_interpolation`: the position and the fit's
-    root-mean-square residual per image coordinate, or None."""
+    """One heading of :func:`whole_turn_fit`: the position and the fit's residual (eq.
+    2's f_d per image, root mean square), or None."""
     n, c = len(q), len(idx)
     n_dir = len(model.directions)
     step = 2.0 * np.pi / n_dir
@@ -219,7 +306,8 @@ def _fit_turn(model: EigenspaceModel, q: np.ndarray, idx: np.ndarray, corners: n
         a = (xc[:, :-1] - xc[:, -1:]).transpose(0, 2, 1).reshape(-1, c - 1)
         b = (q[use] - xc[:, -1]).reshape(-1)
         k = np.linalg.lstsq(a, b, rcond=None)[0]
-        residual = float(np.sqrt(np.mean((a @ k - b) ** 2)))
+        residual = float(np.sqrt(np.sum((a @ k - b) ** 2) / len(use))
+                         / (DYNAMIC_RANGE * np.sqrt(model.n_pixels)))
         xy = np.append(k, 1.0 - k.sum()) @ corners
     return xy, residual
 
@@ -265,6 +353,9 @@ class Session:
     appearance: list[np.ndarray | None] = field(default_factory=list)
     #: the latest stop's projections ``(n, K)`` (None where unknown)
     last_turn: np.ndarray | None = None
+    #: each stop's whole-turn check: the start-of-turn pose it found, in that stop's
+    #: frame (None where it found none)
+    checked: list[np.ndarray | None] = field(default_factory=list)
 
     @property
     def stops(self) -> int:
@@ -282,6 +373,9 @@ class Session:
             self.travelled_m += float(np.hypot(mv[0], mv[1]))
         self.appearance.extend([None] * (self.stops - 1 - len(self.appearance)))
         self.appearance.append(cands.appearance)
+        self.checked.extend([None] * (self.stops - 1 - len(self.checked)))
+        self.checked.append(None if cands.checked is None
+                            else np.asarray(cands.checked, dtype=float))
         self.last_turn = cands.projections
         o = self.odometry[-1]
         inv = invert(o)
@@ -305,7 +399,12 @@ class Session:
         is never unique while every triplet hit so far lies in one set: its members
         are places the images cannot tell apart (§3.3), so a lead among them is noise
         (a half-turn-symmetric room gave confident answers on the wrong side). The
-        state stays Y until a hit outside the set lets odometry decide."""
+        state stays Y until a hit outside the set lets odometry decide.
+
+        When the latest stop's whole-turn check found a place
+        (:func:`whole_turn_check`), that place wins: the strongest of the stop's hits
+        there, whatever the votes of single images elsewhere (the check weighs every
+        image of the turn at once)."""
         n = len(self.pose0)
         if n == 0:
             return Vote(False, None, np.zeros(0), [])
@@ -314,6 +413,14 @@ class Session:
         same = self.same(p[None, :], p[:, None])  # (n, n): i identified with j
         votes = same.astype(float) @ w
         win = int(np.argmax(votes))
+        checked = self.checked[-1] if len(self.checked) == self.stops else None
+        at = np.zeros(n, dtype=bool)
+        if checked is not None:
+            at = ((np.array(self.stop_of) == self.stops - 1)
+                  & agrees(np.array(self.own_pose), checked, self.config.same_position_m,
+                           self.config.same_heading_rad))
+        if at.any():
+            win = int(np.flatnonzero(at)[np.argmax(votes[at])])
         rivals = ~same[win]
         # §2.5: unique when the winner leads every group it cannot be identified with by
         # enough; with no rival the lead is its own votes, which must reach min_votes
@@ -321,9 +428,9 @@ class Session:
         # the unique answers fell from 84 to 36, the wrong ones from 9 to 0)
         rival = float(votes[rivals].max()) if rivals.any() else None
         refused = None
-        if votes[win] < self.config.min_votes:
+        if not at.any() and votes[win] < self.config.min_votes:
             refused = "vote_threshold"
-        elif rival is not None and votes[win] < self.config.vote_margin * rival:
+        elif not at.any() and rival is not None and votes[win] < self.config.vote_margin * rival:
             refused = "vote_margin"
         elif set_of is not None:
             sets = {int(set_of[t]) for t in self.triplet}
@@ -360,14 +467,15 @@ class Session:
 
         With the eigenspace ``model`` and the world's ``walls`` (and
         ``turn_min_range_m`` set), the position is the mean of that and
-        :func:`whole_turn_interpolation` of the latest turn around it, and the heading
-        is the whole turn's."""
+        :func:`whole_turn_fit` of the latest turn around it, and the heading is the
+        whole turn's."""
         p = self._eq5_estimate(vote)
         rng = self.config.turn_min_range_m
         if model is None or walls is None or rng is None or self.last_turn is None:
             return p
-        turn = whole_turn_interpolation(model, self.last_turn, p, walls, rng)
-        if turn is not None:
+        fit = whole_turn_fit(model, self.last_turn, p, walls, rng)
+        if fit is not None:
+            turn = fit.pose
             p = np.array([(p[0] + turn[0]) / 2, (p[1] + turn[1]) / 2, turn[2]])
         return p
 
@@ -439,7 +547,8 @@ def session_to_dict(s: Session) -> dict[str, object]:
             "pose0": [p.tolist() for p in s.pose0], "own_pose": [p.tolist() for p in s.own_pose],
             "appearance": [None if a is None else np.round(a, 5).tolist()
                            for a in s.appearance],
-            "last_turn": None if s.last_turn is None else np.round(s.last_turn, 6).tolist()}
+            "last_turn": None if s.last_turn is None else np.round(s.last_turn, 6).tolist(),
+            "checked": [None if c is None else c.tolist() for c in s.checked]}
 
 
 def session_from_dict(d: dict[str, object]) -> Session:
@@ -456,4 +565,7 @@ def session_from_dict(d: dict[str, object]) -> Session:
                                for a in d.get("appearance", [])],  # type: ignore[attr-defined]
                    # sessions stored before the latest turn was kept have none
                    last_turn=None if d.get("last_turn") is None
-                   else np.asarray(d["last_turn"], dtype=float))
+                   else np.asarray(d["last_turn"], dtype=float),
+                   # sessions stored before the whole-turn check have no checks
+                   checked=[None if c is None else np.asarray(c, dtype=float)
+                            for c in d.get("checked", [])])  # type: ignore[attr-defined]

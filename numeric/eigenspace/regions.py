@@ -143,6 +143,14 @@ def plane_residual(model: EigenspaceModel, triplets: Triplets, query: np.ndarray
     return np.asarray(f_d(query, xp, model.n_pixels))
 
 
+def near_plane(model: EigenspaceModel, triplets: Triplets, query: np.ndarray, t: np.ndarray,
+               c_a: float, plane_thd: float) -> np.ndarray:
+    """The plane test of :func:`region_candidates` for pairs (query[i], triplet t[i]):
+    eq. 6 applied to :func:`plane_residual` below ``plane_thd``."""
+    res = estimation_error(plane_residual(model, triplets, query, t), triplets.area[t], c_a)
+    return np.asarray(res < plane_thd)
+
+
 def region_candidates(model: EigenspaceModel, triplets: Triplets, query: np.ndarray,
                       c_a: float, d_thd: float, plane_thd: float | None = None) -> Candidates:
     """Every (image, triplet) pair whose D_err < D_thd, with its interpolated pose.
@@ -162,9 +170,7 @@ def region_candidates(model: EigenspaceModel, triplets: Triplets, query: np.ndar
         mc, tc = np.nonzero(err < d_thd)
         d_in, err_in = d[mc, tc], err[mc, tc]
         if plane_thd is not None and len(mc):
-            res = estimation_error(plane_residual(model, triplets, q[mc], tc),
-                                   triplets.area[tc], c_a)
-            keep = res < plane_thd
+            keep = near_plane(model, triplets, q[mc], tc, c_a, plane_thd)
             mc, tc, d_in, err_in = mc[keep], tc[keep], d_in[keep], err_in[keep]
         if len(mc):
             ms.append(mc + a)

@@ -25,7 +25,7 @@ from chizu.numeric.eigenspace.localization import (
     session_to_dict,
     turn_appearance,
     turn_candidates,
-    whole_turn_interpolation,
+    whole_turn_fit,
 )
 from chizu.numeric.eigenspace.movement_strategy import (
     RegionLayout,
@@ -362,7 +362,7 @@ def test_the_estimate_is_the_weighted_mean_of_the_winning_group() -> None:
     assert abs(th) > 3.0  # the mean of 3.1 and -3.1 rad is pi, not 0
 
 
-def test_whole_turn_interpolation_finds_a_learning_point_and_the_middle_of_two(
+def test_the_whole_turn_fit_finds_a_learning_point_and_the_middle_of_two(
         analysis: EigenspaceAnalysis, room: World) -> None:
     """A noiseless turn at a learning point comes back at that point from an estimate
     0.4 m off; a turn halfway between two points lands between them, nearer the truth
@@ -375,18 +375,18 @@ def test_whole_turn_interpolation_finds_a_learning_point_and_the_middle_of_two(
     i = int(np.argmin(np.linalg.norm(m.points - [5.0, 5.0], axis=1)))  # a middle point
     q = m.project(cam.render_turn(m.points[i], 0.3, n))
     start = np.array([*(m.points[i] + [0.3, -0.25]), 0.3])
-    got = whole_turn_interpolation(m, q, start, walls, 4.0)
-    assert got is not None and np.linalg.norm(got[:2] - m.points[i]) < 0.15
+    fit = whole_turn_fit(m, q, start, walls, 4.0)
+    assert fit is not None and np.linalg.norm(fit.pose[:2] - m.points[i]) < 0.15
     j = int(np.argmin(np.linalg.norm(m.points - (m.points[i] + [2.0, 0.0]), axis=1)))
     mid = (m.points[i] + m.points[j]) / 2
     q = m.project(cam.render_turn(mid, -1.0, n))
     start = np.array([*(mid + [0.0, 0.4]), -1.0])
-    got = whole_turn_interpolation(m, q, start, walls, 4.0)
-    assert got is not None and np.linalg.norm(got[:2] - mid) < 0.4 * 0.75
-    assert whole_turn_interpolation(m, q, start, walls, 100.0) is None
+    fit = whole_turn_fit(m, q, start, walls, 4.0)
+    assert fit is not None and np.linalg.norm(fit.pose[:2] - mid) < 0.4 * 0.75
+    assert whole_turn_fit(m, q, start, walls, 100.0) is None
 
 
-def test_whole_turn_interpolation_finds_the_heading_the_start_missed(
+def test_the_whole_turn_fit_finds_the_heading_the_start_missed(
         analysis: EigenspaceAnalysis, room: World) -> None:
     """A turn started 6 degrees off its estimate's heading: the heading scan comes back
     within 1.5 degrees of the truth and the position lands nearer the truth than
@@ -398,9 +398,11 @@ def test_whole_turn_interpolation_finds_the_heading_the_start_missed(
     truth = np.array([4.6, 5.3, 0.7])
     q = m.project(cam.render_turn(truth[:2], truth[2], len(m.directions)))
     start = np.array([4.8, 5.1, truth[2] + np.deg2rad(6.0)])
-    scanned = whole_turn_interpolation(m, q, start, walls, 4.0)
-    held = whole_turn_interpolation(m, q, start, walls, 4.0, heading_span_rad=0.0)
-    assert scanned is not None and held is not None
+    scan_fit = whole_turn_fit(m, q, start, walls, 4.0)
+    held_fit = whole_turn_fit(m, q, start, walls, 4.0, heading_span_rad=0.0)
+    assert scan_fit is not None and held_fit is not None
+    scanned, held = scan_fit.pose, held_fit.pose
+    assert scan_fit.residual < held_fit.residual
     assert held[2] == pytest.approx(start[2])
     assert abs(wrap_angle(scanned[2] - truth[2])) < np.deg2rad(1.5)
     assert np.linalg.norm(scanned[:2] - truth[:2]) < np.linalg.norm(held[:2] - truth[:2])
@@ -423,8 +425,9 @@ def test_the_estimate_averages_eq5_with_the_whole_turn(analysis: EigenspaceAnaly
                                   np.zeros(1, int), projections=q), 0.2)
         v = s.vote()
         assert np.allclose(s.estimate(v), eq5)
-        turn = whole_turn_interpolation(m, q, eq5, walls, 4.0)
-        assert turn is not None
+        fit = whole_turn_fit(m, q, eq5, walls, 4.0)
+        assert fit is not None
+        turn = fit.pose
         both = s.estimate(v, m, walls)
         if cfg.turn_min_range_m is None:
             assert np.allclose(both, eq5)
@@ -435,6 +438,80 @@ def test_the_estimate_averages_eq5_with_the_whole_turn(analysis: EigenspaceAnaly
         back = session_from_dict(session_to_dict(s))
         assert back.last_turn is not None and np.allclose(back.last_turn, q, atol=1e-5)
         assert np.allclose(back.estimate(back.vote(), m, walls), both, atol=1e-4)
+
+
+def test_the_whole_turn_check_answers_a_turn_the_plane_test_refuses(
+        analysis: EigenspaceAnalysis, room: World) -> None:
+    """A turn none of whose images passes the plane test: eq. 6 on d alone admits some,
+    and the whole turn fitted at their place explains every image, so the stop is
+    answered there. Without the walls, or with turn_check_fd None, it has no hit."""
+    m = analysis.model
+    walls = (room.surfaces.a, room.surfaces.b)
+    cam = Camera(room, analysis.config.camera)
+    truth = np.array([8.71, 2.75, 2.01])
+    imgs = cam.render_turn(truth[:2], truth[2], len(m.directions))
+    cfg = LocalizationConfig()
+    assert len(turn_candidates(analysis.regions, imgs)) == 0
+    off = turn_candidates(analysis.regions, imgs, walls, LocalizationConfig(turn_check_fd=None))
+    assert len(off) == 0 and off.checked is None
+    c = turn_candidates(analysis.regions, imgs, walls, cfg)
+    assert c.checked is not None and len(c) > 0
+    assert np.linalg.norm(c.checked[:2] - truth[:2]) < 0.5
+    s = Session(cfg)
+    s.add_stop(c, analysis.config.regions.d_thd_m)
+    v = s.vote(analysis.set_of())
+    assert v.unique
+    est = s.estimate(v, m, walls)
+    assert np.linalg.norm(est[:2] - truth[:2]) < 0.5
+    assert abs(wrap_angle(est[2] - truth[2])) < np.deg2rad(5.0)
+
+
+def test_the_whole_turn_check_answers_only_one_place(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two places eq. 6 admits, 3 m apart: when the whole turn fits both, the check
+    does not answer; when only one fits, it answers that one with its own hits."""
+    import chizu.numeric.eigenspace.localization as loc
+    start = np.array([[1.0, 1.0, 0.0], [1.2, 1.1, 0.05], [4.0, 1.0, 0.0]])
+    d_err = np.array([0.05, 0.1, 0.02])
+    residual = {1.0: 0.01, 4.0: 0.01}
+
+    def fit(model: object, q: np.ndarray, pose: np.ndarray, *a: object) -> loc.TurnFit:
+        return loc.TurnFit(np.asarray(pose, dtype=float), residual[float(pose[0])])
+
+    monkeypatch.setattr(loc, "whole_turn_fit", fit)
+    cfg = LocalizationConfig()
+    walls = (np.zeros((0, 2)), np.zeros((0, 2)))
+    assert loc.whole_turn_check(None, np.zeros((8, 2)), start, d_err, walls, cfg) is None  # type: ignore[arg-type]
+    residual[4.0] = 0.05  # above turn_check_fd
+    got = loc.whole_turn_check(None, np.zeros((8, 2)), start, d_err, walls, cfg)  # type: ignore[arg-type]
+    assert got is not None
+    assert np.allclose(got[0], start[0]) and got[1].tolist() == [True, True, False]
+
+
+def test_a_place_the_whole_turn_check_found_wins_the_vote() -> None:
+    """Three strong hits agree on one place, one weak hit names another: the vote
+    takes the strong place, unless the turn's check found the weak one. The check
+    speaks for its own stop only, and survives the store."""
+    poses = np.array([[2.0, 2.0, 0.0], [2.2, 2.0, 0.0], [2.0, 2.3, 0.0], [6.0, 5.0, 1.0]])
+    d_err = np.array([0.0, 0.0, 0.0, 0.15])
+
+    def stop(checked: np.ndarray | None) -> TurnCandidates:
+        return TurnCandidates(np.arange(4), d_err, poses, np.zeros(4, dtype=int),
+                              checked=checked)
+
+    plain = Session(LocalizationConfig())
+    plain.add_stop(stop(None), 0.2)
+    v = plain.vote()
+    assert v.unique and v.winner in (0, 1, 2)
+    s = Session(LocalizationConfig())
+    s.add_stop(stop(np.array([6.1, 5.0, 1.0])), 0.2)
+    v = s.vote()
+    assert v.unique and v.winner == 3
+    back = session_from_dict(session_to_dict(s))
+    assert back.checked[0] is not None and np.allclose(back.checked[0], [6.1, 5.0, 1.0])
+    assert back.vote().winner == 3
+    s.add_stop(TurnCandidates(np.zeros(0, int), np.zeros(0), np.zeros((0, 3)),
+                              np.zeros(0, int)), 0.2, motion=np.zeros(3))
+    assert s.vote().winner in (0, 1, 2)
 
 
 # -- §3.5 movement strategy -------------------------------------------------------------------
