@@ -43,12 +43,12 @@ class LocalizationConfig(BaseModel):
                              description="votes the winning group needs to be unique (a "
                                          "lone weak hit is not a localization)")
     turn_min_range_m: float | None = Field(
-        4.0, gt=0.0, le=1000.0,
+        5.0, gt=0.0, le=1000.0,
         description="the estimate also interpolates the latest whole turn "
                     "(whole_turn_fit) over the images whose wall lies at least this far, "
                     "and averages it with eq. 5's; None: eq. 5 alone (the paper)")
     turn_check_fd: float | None = Field(
-        0.03, gt=0.0, le=10.0,
+        0.04, gt=0.0, le=10.0,
         description="a stop is also answered by the whole-turn check "
                     "(whole_turn_check): a place eq. 6 admits on d alone whose whole-turn "
                     "fit leaves a residual below this (eq. 2's f_d per image, root mean "

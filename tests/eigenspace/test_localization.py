@@ -425,7 +425,9 @@ def test_the_estimate_averages_eq5_with_the_whole_turn(analysis: EigenspaceAnaly
                                   np.zeros(1, int), projections=q), 0.2)
         v = s.vote()
         assert np.allclose(s.estimate(v), eq5)
-        fit = whole_turn_fit(m, q, eq5, walls, 4.0)
+        rng = LocalizationConfig().turn_min_range_m
+        assert rng is not None
+        fit = whole_turn_fit(m, q, eq5, walls, rng)
         assert fit is not None
         turn = fit.pose
         both = s.estimate(v, m, walls)
