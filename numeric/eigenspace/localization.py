@@ -47,6 +47,11 @@ class LocalizationConfig(BaseModel):
         description="the estimate also interpolates the latest whole turn "
                     "(whole_turn_fit) over the images whose wall lies at least this far, "
                     "and averages it with eq. 5's; None: eq. 5 alone (the paper)")
+    turn_near_range_m: float | None = Field(
+        4.0, gt=0.0, le=1000.0,
+        description="where too few of a turn's walls lie turn_min_range_m away for the "
+                    "whole-turn fit (a small room), it uses those at least this far; "
+                    "None: turn_min_range_m everywhere")
     turn_check_fd: float | None = Field(
         0.04, gt=0.0, le=10.0,
         description="a stop is also answered by the whole-turn check "
@@ -166,7 +171,8 @@ def whole_turn_check(model: EigenspaceModel, q: np.ndarray, start: np.ndarray,
         places += 1
         same = agrees(start, start[i], pos, head) & left
         left[same] = False
-        fit = whole_turn_fit(model, q, start[i], walls, config.turn_min_range_m)
+        fit = whole_turn_fit(model, q, start[i], walls, config.turn_min_range_m,
+                             config.turn_near_range_m)
         if fit is not None and fit.residual < config.turn_check_fd:
             passed.append((fit, same))
     if not passed:
@@ -212,8 +218,9 @@ class TurnFit:
 
 def whole_turn_fit(model: EigenspaceModel, q: np.ndarray, pose: np.ndarray,
                    walls: tuple[np.ndarray, np.ndarray], min_range_m: float,
-                   iterations: int = 3, max_shift_m: float = 1.0, min_images: int = 8,
-                   n_points: int = 5, heading_span_rad: float = float(np.deg2rad(10.0)),
+                   near_range_m: float | None = None, iterations: int = 3,
+                   max_shift_m: float = 1.0, min_images: int = 8, n_points: int = 5,
+                   heading_span_rad: float = float(np.deg2rad(10.0)),
                    heading_step_rad: float = float(np.deg2rad(1.0))) -> TurnFit | None:
     """Eqs. 4-5 over a whole turn: the pose of a turn ``q (n, K)`` (relative headings
     2 pi j / n) that starts near ``pose``, and the fit's residual; or None.
@@ -229,7 +236,9 @@ def whole_turn_fit(model: EigenspaceModel, q: np.ndarray, pose: np.ndarray,
     the nearest two and the nearest one off their line (a triangle of area at least
     d12² / 4), so the fit is never degenerate. Only images whose target lies at least
     ``min_range_m`` away and is in sight of every point take part: near walls change
-    with the viewpoint far from linearly.
+    with the viewpoint far from linearly. Where too few of them do at every heading (a
+    small room, or a door hiding the far walls from some of the points), the fit is
+    tried again with the images whose target lies at least ``near_range_m`` away.
 
     Which learned direction each image is compared with follows from the heading, and
     eq. 5's heading is a few degrees off. The fit is therefore repeated at headings
@@ -238,7 +247,7 @@ def whole_turn_fit(model: EigenspaceModel, q: np.ndarray, pose: np.ndarray,
     heading is that one.
 
     Chizu's addition to §2.2: many images average out what one image's interpolation
-    gets wrong (docs/notes/eigenspace.md, "Interpolating the whole turn").
+    gets wrong (docs/notes/eigenspace.md, "Why the pose also uses the whole turn").
 
     None when fewer than ``min_images`` images qualify at every heading, there are not
     three learning points off one line, or every answer lies more than ``max_shift_m``
@@ -259,16 +268,20 @@ def whole_turn_fit(model: EigenspaceModel, q: np.ndarray, pose: np.ndarray,
     idx = np.array(first + more)
     corners = pts[idx]
     rel = 2.0 * np.pi * np.arange(n) / n
-    best: TurnFit | None = None
     steps = int(round(heading_span_rad / heading_step_rad)) if heading_step_rad > 0 else 0
-    for dh in heading_step_rad * np.arange(-steps, steps + 1):
-        heading = float(pose[2] + dh)
-        fit = _fit_turn(model, q, idx, corners, np.asarray(pose[:2], dtype=float),
-                        heading + rel, walls, min_range_m, iterations, min_images)
-        if fit is None or np.hypot(*(fit[0] - pose[:2])) > max_shift_m:
-            continue
-        if best is None or fit[1] < best.residual:
-            best = TurnFit(np.array([fit[0][0], fit[0][1], wrap_angle(heading)]), fit[1])
+    best: TurnFit | None = None
+    for bound in (min_range_m,) if near_range_m is None else (min_range_m, near_range_m):
+        for dh in heading_step_rad * np.arange(-steps, steps + 1):
+            heading = float(pose[2] + dh)
+            fit = _fit_turn(model, q, idx, corners, np.asarray(pose[:2], dtype=float),
+                            heading + rel, walls, bound, iterations, min_images)
+            if fit is None or np.hypot(*(fit[0] - pose[:2])) > max_shift_m:
+                continue
+            if best is None or fit[1] < best.residual:
+                best = TurnFit(np.array([fit[0][0], fit[0][1], wrap_angle(heading)]),
+                               fit[1])
+        if best is not None:
+            break
     return best
 
 
@@ -473,7 +486,8 @@ class Session:
         rng = self.config.turn_min_range_m
         if model is None or walls is None or rng is None or self.last_turn is None:
             return p
-        fit = whole_turn_fit(model, self.last_turn, p, walls, rng)
+        fit = whole_turn_fit(model, self.last_turn, p, walls, rng,
+                             self.config.turn_near_range_m)
         if fit is not None:
             turn = fit.pose
             p = np.array([(p[0] + turn[0]) / 2, (p[1] + turn[1]) / 2, turn[2]])
