@@ -367,7 +367,7 @@ def test_the_whole_turn_fit_finds_a_learning_point_and_the_middle_of_two(
     """A noiseless turn at a learning point comes back at that point from an estimate
     0.4 m off; a turn halfway between two points lands between them, nearer the truth
     than the estimate it started from. Images of near walls are left out; with every
-    image left out there is no answer."""
+    image left out there is no answer, unless a nearer bound is allowed to fall back to."""
     m = analysis.model
     walls = (room.surfaces.a, room.surfaces.b)
     cam = Camera(room, analysis.config.camera)
@@ -384,6 +384,11 @@ def test_the_whole_turn_fit_finds_a_learning_point_and_the_middle_of_two(
     fit = whole_turn_fit(m, q, start, walls, 4.0)
     assert fit is not None and np.linalg.norm(fit.pose[:2] - mid) < 0.4 * 0.75
     assert whole_turn_fit(m, q, start, walls, 100.0) is None
+    # too few walls that far: the fit falls back to the near bound, and only then
+    back = whole_turn_fit(m, q, start, walls, 100.0, near_range_m=4.0)
+    assert back is not None and np.allclose(back.pose, fit.pose)
+    unused = whole_turn_fit(m, q, start, walls, 4.0, near_range_m=100.0)
+    assert unused is not None and np.allclose(unused.pose, fit.pose)
 
 
 def test_the_whole_turn_fit_finds_the_heading_the_start_missed(
