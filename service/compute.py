@@ -301,8 +301,9 @@ def stop_report(a: EigenspaceAnalysis, world: World, s: Session,
     each cluster of agreeing hits, with its votes, triplet and cluster size), whether
     the vote is unique, the pose estimate (used when the state is Z; with the
     eigenspace and the world's walls it also interpolates the whole latest turn,
-    :func:`chizu.numeric.eigenspace.localization.whole_turn_fit`) and, when
-    not unique, which test refused it (:func:`chizu.numeric.eigenspace.diagnosis.refusal`)."""
+    :func:`chizu.numeric.eigenspace.localization.whole_turn_fit`), what made it unique
+    (the vote, or the whole-turn check) and, when not unique, which test refused it
+    (:func:`chizu.numeric.eigenspace.diagnosis.refusal`)."""
     cands = []
     for cluster, best in list(zip(vote.clusters, s.representatives(vote), strict=True))[:10]:
         p = s.current_pose(best)
@@ -318,8 +319,9 @@ def stop_report(a: EigenspaceAnalysis, world: World, s: Session,
         "test": why.reason, "d_err_min_m": None if why.d_err_min_m is None
         or not np.isfinite(why.d_err_min_m) else why.d_err_min_m,
         "votes": why.votes, "rival_votes": why.rival_votes}
+    answered_by = None if not vote.unique else "whole_turn_check" if vote.checked else "vote"
     return {"candidates": cands, "estimate": est, "unique": vote.unique, "stops": s.stops,
-            "refused_by": refused_by}
+            "refused_by": refused_by, "answered_by": answered_by}
 
 
 def session_report_task(a: EigenspaceAnalysis, world: World, s: Session) -> dict[str, Any]:

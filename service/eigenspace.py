@@ -280,7 +280,7 @@ class EigenspaceService:
         pose = report["estimate"] if state.get("state") == "z" else None
         return {"state": state, "outcome": outcome, "pose": pose, "stops": report["stops"],
                 "unique": report["unique"], "candidates": report["candidates"],
-                "refused_by": report["refused_by"]}
+                "refused_by": report["refused_by"], "answered_by": report["answered_by"]}
 
     async def localize(self, world: str, turn: list[str] | TurnPng | np.ndarray) -> LocalizationOut:
         """One stop from state X: state, pose (when Z) and candidates. The turn is

@@ -345,6 +345,8 @@ class Vote:
     refused: str | None = None
     #: the strongest group that disagrees with the winner (None: no such group)
     rival_votes: float | None = None
+    #: the winner is the place the latest stop's whole-turn check found
+    checked: bool = False
 
 
 @dataclass
@@ -456,7 +458,7 @@ class Session:
                 members = np.flatnonzero(same[i] & left)
                 clusters.append(members.tolist())
                 left[members] = False
-        return Vote(refused is None, win, votes, clusters, refused, rival)
+        return Vote(refused is None, win, votes, clusters, refused, rival, bool(at.any()))
 
     def representatives(self, vote: Vote) -> list[int]:
         """The strongest candidate (largest weight) of each identified group."""

@@ -140,6 +140,10 @@ class LocalizationOut(BaseModel):
     candidates: list[LocalizationCandidate]
     refused_by: RefusalOut | None = Field(
         None, description="why there is no unique answer yet (null when there is one)")
+    answered_by: Literal["vote", "whole_turn_check"] | None = Field(
+        None, description="what made the answer unique: the vote of single images (§2.5) "
+                          "or the latest stop's whole turn fitting one place (null when "
+                          "there is no unique answer)")
 
 
 class SessionLocalizationOut(LocalizationOut):

@@ -302,8 +302,8 @@ def test_an_unanswered_stop_says_which_test_refused_it(client: TestClient,
     """A unique answer carries no refusal; a turn from a corner, facing the walls, names
     the first test that held it back, with the figure it refused on."""
     out = client.post(f"/worlds/{learned}/localize",
-                      json={"images": turn(client, learned, 0.5, 0.5, 0.0)["images"]}).json()
-    assert not out["unique"]
+                      json={"images": turn(client, learned, 9.6, 0.4, 1.0)["images"]}).json()
+    assert not out["unique"] and out["answered_by"] is None
     why = out["refused_by"]
     assert why["test"] in ("no_region", "plane_test", "vote_threshold", "vote_margin",
                            "candidate_set")
@@ -316,3 +316,4 @@ def test_an_unanswered_stop_says_which_test_refused_it(client: TestClient,
         a = client.post(f"/worlds/{learned}/localize",
                         json={"images": turn(client, learned, x, y, 0.0)["images"]}).json()
         assert (a["refused_by"] is None) == a["unique"]
+        assert (a["answered_by"] in ("vote", "whole_turn_check")) == a["unique"]

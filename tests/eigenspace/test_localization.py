@@ -508,11 +508,11 @@ def test_a_place_the_whole_turn_check_found_wins_the_vote() -> None:
     plain = Session(LocalizationConfig())
     plain.add_stop(stop(None), 0.2)
     v = plain.vote()
-    assert v.unique and v.winner in (0, 1, 2)
+    assert v.unique and v.winner in (0, 1, 2) and not v.checked
     s = Session(LocalizationConfig())
     s.add_stop(stop(np.array([6.1, 5.0, 1.0])), 0.2)
     v = s.vote()
-    assert v.unique and v.winner == 3
+    assert v.unique and v.winner == 3 and v.checked
     back = session_from_dict(session_to_dict(s))
     assert back.checked[0] is not None and np.allclose(back.checked[0], [6.1, 5.0, 1.0])
     assert back.vote().winner == 3

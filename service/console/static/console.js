@@ -504,7 +504,8 @@ function showLocalization(loc, pose, out) {
     g.append(svg("circle", { class: "estimate", cx: loc.pose.x, cy: -loc.pose.y, r }));
     const err = Math.hypot(loc.pose.x - pose.x, loc.pose.y - pose.y);
     out.append(el("p", { text: `estimate (${loc.pose.x.toFixed(2)}, ${loc.pose.y.toFixed(2)}), ` +
-      `${err.toFixed(2)} m from the true pose` }));
+      `${err.toFixed(2)} m from the true pose` +
+      (loc.answered_by ? `, answered by the ${loc.answered_by.replaceAll("_", " ")}` : "") }));
   } else if (loc.refused_by) {
     out.append(el("p", { text: `refused by ${loc.refused_by.test}` }));
   }
