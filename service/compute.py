@@ -282,7 +282,7 @@ def turn_task(a: EigenspaceAnalysis, world: World, turn: list[str] | TurnPng | n
     else:
         imgs = decode_png_turn(turn, a.model.image_shape) if isinstance(turn, list) else turn
     return turn_candidates(a.regions, check_turn(a, imgs),
-                           (world.surfaces.a, world.surfaces.b), a.config.localization)
+                           (world.surfaces.a, world.surfaces.b), a.localization)
 
 
 def first_stop_task(a: EigenspaceAnalysis, world: World,

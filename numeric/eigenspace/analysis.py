@@ -117,6 +117,18 @@ class EigenspaceAnalysis:
     def regions(self) -> RegionModel:
         return RegionModel.of(self.model, self.triplets, self.c_a, self.config.regions)
 
+    @property
+    def localization(self) -> LocalizationConfig:
+        """How this room localizes: the configuration's, without the whole-turn check
+        where learning found the room symmetric (§4.2 learned an added point's twin).
+        There a look-alike place explains a whole turn as well as the right one, and the
+        admissions may name only one of the two (twin hexagon: 46 of 120 sessions
+        answered, 22 wrong, with the check)."""
+        loc = self.config.localization
+        if any(t.get("twin") for t in self.strategy_trace):
+            return loc.model_copy(update={"turn_check_fd": None})
+        return loc
+
     def set_of(self) -> np.ndarray:
         s = np.full(len(self.triplets), -1, dtype=int)
         for m, members in enumerate(self.candidate_sets):

@@ -419,7 +419,9 @@ class Session:
         When the latest stop's whole-turn check found a place
         (:func:`whole_turn_check`), that place wins: the strongest of the stop's hits
         there, whatever the votes of single images elsewhere (the check weighs every
-        image of the turn at once)."""
+        image of the turn at once) -- unless one of those hits lies in a
+        candidate-multiple set: a look-alike place explains the turn as well, and the
+        place it names may be the wrong one of the two."""
         n = len(self.pose0)
         if n == 0:
             return Vote(False, None, np.zeros(0), [])
@@ -434,6 +436,8 @@ class Session:
             at = ((np.array(self.stop_of) == self.stops - 1)
                   & agrees(np.array(self.own_pose), checked, self.config.same_position_m,
                            self.config.same_heading_rad))
+            if set_of is not None and (set_of[np.array(self.triplet)[at]] >= 0).any():
+                at[:] = False
         if at.any():
             win = int(np.flatnonzero(at)[np.argmax(votes[at])])
         rivals = ~same[win]

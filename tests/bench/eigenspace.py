@@ -181,7 +181,7 @@ def run_trial(a: EigenspaceAnalysis, w: World, cam: Camera, pose: np.ndarray,
     sets = a.set_of()
     for k in range(max_obs):
         imgs = cam.render_turn(pose[:2], pose[2], n)
-        c = turn_candidates(a.regions, imgs, walls, loc)
+        c = turn_candidates(a.regions, imgs, walls, a.localization)
         s.add_stop(c, a.config.regions.d_thd_m, None if k == 0 else relative(prev, pose))
         truths.append(pose.copy())
         hit = hit or bool(len(c) and agrees(c.start_pose, pose, loc.same_position_m,
@@ -487,7 +487,7 @@ def speed(cfg: EigenspaceConfig, a: EigenspaceAnalysis, w: World) -> list[str]:
     t0 = time.perf_counter()
     for _ in range(reps):  # the whole answer of a first stop: hits, check, vote, estimate
         s = Session(cfg.localization)
-        s.add_stop(turn_candidates(a.regions, imgs, walls, cfg.localization),
+        s.add_stop(turn_candidates(a.regions, imgs, walls, a.localization),
                    cfg.regions.d_thd_m)
         v = s.vote(sets)
         if v.winner is not None:

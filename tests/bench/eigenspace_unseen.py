@@ -89,7 +89,7 @@ def session(a: EigenspaceAnalysis, world: World, fmap: FourierMap, cam: Camera,
     prev = pose.copy()
     for k in range(max_stops):
         imgs = cam.render_turn(pose[:2], pose[2], n)
-        turn = turn_candidates(regions, imgs, walls, a.config.localization)
+        turn = turn_candidates(regions, imgs, walls, a.localization)
         s.add_stop(turn, a.config.regions.d_thd_m, None if k == 0 else relative(prev, pose))
         vote = s.vote(sets)
         if k == 0:

@@ -228,6 +228,18 @@ def test_a_symmetric_room_keeps_its_twins_in_candidate_multiple_sets(
     assert entered >= 2
 
 
+def test_a_room_learning_found_symmetric_localizes_without_the_whole_turn_check(
+        analysis: EigenspaceAnalysis) -> None:
+    """Where §4.2 learned an added point's twin, a look-alike place explains a whole
+    turn as well as the right one: the room's localization has no whole-turn check.
+    Elsewhere it keeps the configuration's."""
+    assert analysis.localization.turn_check_fd == analysis.config.localization.turn_check_fd
+    assert analysis.localization.turn_check_fd is not None
+    twin = replace(analysis, strategy_trace=[{"added": [3.0, 2.0], "twin": [7.0, 6.0]}])
+    assert twin.localization.turn_check_fd is None
+    assert twin.localization.turn_min_range_m == analysis.config.localization.turn_min_range_m
+
+
 def test_the_learned_turns_show_a_rooms_symmetry(hexagon: tuple[World, EigenspaceAnalysis],
                                                  analysis: EigenspaceAnalysis) -> None:
     """The twin hexagon is symmetric under a half turn about (5, 4): its grid points'
@@ -496,8 +508,9 @@ def test_the_whole_turn_check_answers_only_one_place(monkeypatch: pytest.MonkeyP
 
 def test_a_place_the_whole_turn_check_found_wins_the_vote() -> None:
     """Three strong hits agree on one place, one weak hit names another: the vote
-    takes the strong place, unless the turn's check found the weak one. The check
-    speaks for its own stop only, and survives the store."""
+    takes the strong place, unless the turn's check found the weak one and that one is
+    in no candidate-multiple set. The check speaks for its own stop only, and survives
+    the store."""
     poses = np.array([[2.0, 2.0, 0.0], [2.2, 2.0, 0.0], [2.0, 2.3, 0.0], [6.0, 5.0, 1.0]])
     d_err = np.array([0.0, 0.0, 0.0, 0.15])
 
@@ -513,6 +526,12 @@ def test_a_place_the_whole_turn_check_found_wins_the_vote() -> None:
     s.add_stop(stop(np.array([6.1, 5.0, 1.0])), 0.2)
     v = s.vote()
     assert v.unique and v.winner == 3 and v.checked
+    # a checked place among look-alike places (its hit in a candidate-multiple set) is
+    # no answer: the vote is as it would be without the check
+    in_set = np.array([-1, -1, -1, 0])
+    v = s.vote(in_set)
+    assert v.winner in (0, 1, 2) and not v.checked
+    assert s.vote(np.full(4, -1)).winner == 3
     back = session_from_dict(session_to_dict(s))
     assert back.checked[0] is not None and np.allclose(back.checked[0], [6.1, 5.0, 1.0])
     assert back.vote().winner == 3
