@@ -122,8 +122,8 @@ class EigenspaceAnalysis:
         """How this room localizes: the configuration's, without the whole-turn check
         where learning found the room symmetric (§4.2 learned an added point's twin).
         There a look-alike place explains a whole turn as well as the right one, and the
-        admissions may name only one of the two (twin hexagon: 46 of 120 sessions
-        answered, 22 wrong, with the check)."""
+        admissions may name only one of the two (docs/notes/eigenspace.md, "Why a turn is
+        also checked whole")."""
         loc = self.config.localization
         if any(t.get("twin") for t in self.strategy_trace):
             return loc.model_copy(update={"turn_check_fd": None})
